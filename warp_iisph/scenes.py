@@ -1,0 +1,37 @@
+"""Bundled scenes, built in Python."""
+
+from __future__ import annotations
+
+from .scene import Box, Physics, Scene
+
+
+def dam_break(spacing: float = 0.02, a: float = 0.2, depth: float = 0.2, length: float = 1.0, height: float = 0.6, **physics) -> Scene:
+    """Martin & Moyce (1952) geometry: a water column of width ``a`` and height ``2a`` against
+    the x = 0 wall of a closed ``length x height x depth`` tank (metres)."""
+    scene = Scene(spacing=spacing, tank=Box((0.0, 0.0, 0.0), (length, height, depth)), physics=Physics(**physics), name="dam_break")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (a, 2.0 * a, depth))
+    return scene
+
+
+def dam_break_cube(spacing: float = 0.03, **physics) -> Scene:
+    """The benchmark dam break: a 0.96 m cube of water (32^3 particles at 3 cm) in a
+    4 x 3 x 1.5 m tank, as in SPlisHSPlasH's comparison runs."""
+    side = 32 * spacing
+    scene = Scene(spacing=spacing, tank=Box((0.0, 0.0, 0.0), (4.0, 3.0, 1.5)), physics=Physics(**physics), name="dam_break_cube")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (side, side, side))
+    return scene
+
+
+def hydrostatic_tank(spacing: float = 0.02, width: float = 0.2, depth: float = 0.2, water_height: float = 0.4, **physics) -> Scene:
+    """Water at rest filling the bottom of a closed tank."""
+    scene = Scene(
+        spacing=spacing,
+        tank=Box((0.0, 0.0, 0.0), (width, water_height + 4 * spacing, depth)),
+        physics=Physics(**physics),
+        name="hydrostatic_tank",
+    )
+    scene.add_fluid_box((0.0, 0.0, 0.0), (width, water_height, depth))
+    return scene
+
+
+BUNDLED = {"dam_break": dam_break, "dam_break_cube": dam_break_cube, "hydrostatic_tank": hydrostatic_tank}

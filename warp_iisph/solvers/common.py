@@ -1,0 +1,216 @@
+"""What WCSPH and IISPH share: density, pressure acceleration with symplectic Euler, the
+divergence check, stage timing and the step skeleton.
+
+Density (Akinci boundaries): ``rho_i = sum_j m W_ij + sum_b psi_b W_ib`` (j includes i).
+Pressure acceleration: ``a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij
+- sum_b psi_b (p_i/rho_i^2) grad W_ib``: a wall pushes with the fluid particle's own pressure
+(Akinci et al. 2012). This is the force that conserves energy (it is minus the gradient of the
+fluid's internal energy with respect to its position); its price is that fluid particles
+touching a wall carry about twice the hydrostatic pressure, since the wall contributes no
+``p_j`` term. Mirroring the pressure (a factor 2) fixes that but pumps energy into the flow.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+
+import numpy as np
+import warp as wp
+
+from ..launch import launch_particles
+from ..neighbors import NeighborList, NeighborSearch
+from ..sph import cubic_W
+
+STAGES = ("neighbours", "density", "advection", "pressure", "integration")
+
+
+@wp.kernel
+def compute_density(
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    xb: wp.array(dtype=wp.vec3),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    H: float,
+    rho0: float,
+    rho: wp.array(dtype=float),
+    compression: wp.array(dtype=wp.float64),
+):
+    """Density of fluid particle i, and its compression max(rho/rho0 - 1, 0)."""
+    i = wp.tid() + offset
+    x_i = x[i]
+    r = mass * cubic_W(0.0, H)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        r += mass * cubic_W(wp.length(x_i - x[nf.index[k]]), H)
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        b = nb.index[k]
+        r += psi[b] * cubic_W(wp.length(x_i - xb[b]), H)
+    rho[i] = r
+    compression[i] = wp.max(wp.float64(r / rho0) - wp.float64(1.0), wp.float64(0.0))
+
+
+@wp.kernel
+def integrate(
+    offset: int,
+    v_adv: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt: float,
+    v: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+):
+    """Pressure acceleration, then symplectic Euler: v = v_adv + dt a_p; x += dt v."""
+    i = wp.tid() + offset
+    p_i = p[i] / (rho[i] * rho[i])
+    a = wp.vec3(0.0, 0.0, 0.0)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        j = nf.index[k]
+        a -= mass * (p_i + p[j] / (rho[j] * rho[j])) * nf.grad_W[k]
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        a -= psi[nb.index[k]] * p_i * nb.grad_W[k]
+    v_i = v_adv[i] + dt * a
+    v[i] = v_i
+    x[i] = x[i] + dt * v_i
+
+
+@wp.kernel
+def check_state(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    lower: wp.vec3,
+    upper: wp.vec3,
+    max_speed2: wp.array(dtype=float),
+    counts: wp.array(dtype=wp.int32),
+):
+    """Largest squared speed, particles outside the domain (counts[0]) and non-finite ones (counts[1])."""
+    i = wp.tid()
+    x_i = x[i]
+    v_i = v[i]
+    s2 = wp.dot(v_i, v_i)
+    if not (wp.isfinite(x_i) and wp.isfinite(v_i)):
+        wp.atomic_add(counts, 1, 1)
+        return
+    wp.atomic_max(max_speed2, 0, s2)
+    if x_i[0] < lower[0] or x_i[1] < lower[1] or x_i[2] < lower[2] or x_i[0] > upper[0] or x_i[1] > upper[1] or x_i[2] > upper[2]:
+        wp.atomic_add(counts, 0, 1)
+
+
+def mean_float64(values: wp.array, n: int) -> float:
+    """Average of a float64 per-particle array, reduced on the device in float64."""
+    if n == 0:
+        return 0.0
+    return float(wp.utils.array_sum(values[:n])) / n
+
+
+class StageTimer:
+    """Wall milliseconds per named stage (the device is synchronised at each stage's end)."""
+
+    def __init__(self, device):
+        self.device = device
+        self.ms = {name: 0.0 for name in STAGES}
+
+    @contextmanager
+    def __call__(self, name: str):
+        t0 = time.perf_counter()
+        yield
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
+        self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
+
+
+class SPHSolver:
+    """Skeleton of an SPH time step shared by the methods; subclasses supply
+    :meth:`predict_advection` and :meth:`pressure_solve`.
+
+    ``step`` = neighbour search, density, non-pressure forces and advection, pressure,
+    integration (symplectic Euler), each timed. Statistics come back as a dict.
+    """
+
+    name = "sph"
+    #: reorder particles by grid cell every this many steps (1 = every step)
+    reorder_interval = 10
+
+    def __init__(self, model, physics):
+        self.physics = physics
+        self.device = model.device
+        n = model.n_fluid
+        self.search = NeighborSearch(n, model.boundary_x, model.support_radius, model.device)
+        self.v_adv = wp.zeros(n, dtype=wp.vec3, device=model.device)
+        self.compression = wp.zeros(n, dtype=wp.float64, device=model.device)
+        self._max_speed2 = wp.zeros(1, dtype=float, device=model.device)
+        self._counts = wp.zeros(2, dtype=wp.int32, device=model.device)
+        self.steps = 0
+
+    @property
+    def signal_speed(self) -> float:
+        """Speed of information the time step must resolve besides the flow (m/s)."""
+        return 0.0
+
+    def step(self, model, state, dt: float) -> dict:
+        timer = StageTimer(model.device)
+        n = model.n_fluid
+        with timer("neighbours"):
+            if self.steps % self.reorder_interval == 0:
+                state.reorder(self.search.cell_order(state.x))
+            self.search.build(state.x)
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        with timer("density"):
+            launch_particles(
+                compute_density,
+                n,
+                [state.x, model.boundary_x, model.boundary_psi, nf, nb, model.mass, model.support_radius, model.rho0, state.rho, self.compression],
+                model.device,
+            )
+            compression = mean_float64(self.compression, n)
+        with timer("advection"):
+            self.predict_advection(model, state, dt)
+        with timer("pressure"):
+            iterations, density_error = self.pressure_solve(model, state, dt)
+        with timer("integration"):
+            launch_particles(
+                integrate,
+                n,
+                [self.v_adv, state.rho, state.p, model.boundary_psi, nf, nb, model.mass, float(dt), state.v, state.x],
+                model.device,
+            )
+            max_speed, escaped, non_finite = self.check(model, state)
+        self.steps += 1
+        return {
+            "dt": float(dt),
+            "iterations": int(iterations),
+            "density_error": float(density_error),
+            "compression": compression,
+            "max_velocity": max_speed,
+            "escaped": escaped,
+            "non_finite": non_finite,
+            "ms": {k: round(v, 4) for k, v in timer.ms.items()},
+        }
+
+    def check(self, model, state) -> tuple[float, int, int]:
+        self._max_speed2.zero_()
+        self._counts.zero_()
+        wp.launch(
+            check_state,
+            dim=model.n_fluid,
+            inputs=[state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self._max_speed2, self._counts],
+            device=model.device,
+        )
+        counts = self._counts.numpy()
+        return float(np.sqrt(self._max_speed2.numpy()[0])), int(counts[0]), int(counts[1])
+
+    def predict_advection(self, model, state, dt: float) -> None:
+        raise NotImplementedError
+
+    def pressure_solve(self, model, state, dt: float) -> tuple[int, float]:
+        raise NotImplementedError

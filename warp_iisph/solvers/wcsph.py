@@ -1,0 +1,48 @@
+"""Weakly compressible SPH (Becker & Teschner 2007), the baseline IISPH is measured against.
+
+Pressure from the state equation ``p = k ((rho/rho0)^7 - 1)``, clamped at 0 (no tensile
+pressure at the free surface), then the shared pressure acceleration and symplectic Euler.
+Its time step is bounded by the speed of sound ``c = sqrt(7 k / rho0)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from ..launch import launch_particles
+from .common import SPHSolver, mean_float64
+from .forces import predict_velocity
+
+
+@wp.kernel
+def state_equation(offset: int, rho: wp.array(dtype=float), rho0: float, stiffness: float, p: wp.array(dtype=float)):
+    i = wp.tid() + offset
+    ratio = rho[i] / rho0
+    r2 = ratio * ratio
+    p[i] = wp.max(stiffness * (r2 * r2 * r2 * ratio - 1.0), 0.0)
+
+
+class WCSPHSolver(SPHSolver):
+    """Weakly compressible SPH. ``density_error`` in its statistics is the mean compression
+    ``max(rho/rho0 - 1, 0)`` at the start of the step (there is no solver to converge)."""
+
+    name = "wcsph"
+
+    @property
+    def signal_speed(self) -> float:
+        return math.sqrt(7.0 * self.physics.stiffness / self.physics.rho0)
+
+    def predict_advection(self, model, state, dt: float) -> None:
+        launch_particles(
+            predict_velocity,
+            model.n_fluid,
+            [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, model.viscosity, model.spacing, wp.vec3(*model.gravity),
+             model.boundary_x, model.boundary_psi, self.search.boundary.lists, model.boundary_viscosity, float(dt), self.v_adv],
+            model.device,
+        )
+
+    def pressure_solve(self, model, state, dt: float) -> tuple[int, float]:
+        launch_particles(state_equation, model.n_fluid, [state.rho, model.rho0, float(self.physics.stiffness), state.p], model.device)
+        return 0, mean_float64(self.compression, model.n_fluid)

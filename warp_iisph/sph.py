@@ -1,0 +1,48 @@
+"""SPH smoothing kernel: the cubic spline (Monaghan 1992) in 3D.
+
+The support radius ``H`` is where the kernel reaches zero (twice the particle spacing by
+default), written in the normalised form used by SPlisHSPlasH:
+``W(q) = 8/(pi H^3) * {6(q^3 - q^2) + 1 for q <= 1/2; 2(1 - q)^3 for q <= 1}``, ``q = r/H``.
+"""
+
+import math
+
+import numpy as np
+import warp as wp
+
+
+@wp.func
+def cubic_W(r: float, H: float) -> float:
+    q = r / H
+    sigma = 8.0 / (wp.pi * H * H * H)
+    if q <= 0.5:
+        return sigma * (6.0 * (q * q * q - q * q) + 1.0)
+    if q <= 1.0:
+        t = 1.0 - q
+        return sigma * 2.0 * t * t * t
+    return 0.0
+
+
+@wp.func
+def cubic_grad_W(x_ij: wp.vec3, H: float) -> wp.vec3:
+    r = wp.length(x_ij)
+    q = r / H
+    if r <= 1.0e-9 * H or q > 1.0:
+        return wp.vec3(0.0, 0.0, 0.0)
+    l = 48.0 / (wp.pi * H * H * H)
+    dW_dr = float(0.0)
+    if q <= 0.5:
+        dW_dr = l * q * (3.0 * q - 2.0) / H
+    else:
+        t = 1.0 - q
+        dW_dr = -l * t * t / H
+    return x_ij * (dW_dr / r)
+
+
+def cubic_W_np(r, H):
+    """NumPy twin of :func:`cubic_W` for set-up code and tests."""
+    q = np.asarray(r, dtype=np.float64) / H
+    sigma = 8.0 / (math.pi * H**3)
+    inner = sigma * (6.0 * (q**3 - q**2) + 1.0)
+    outer = sigma * 2.0 * np.clip(1.0 - q, 0.0, None) ** 3
+    return np.where(q <= 0.5, inner, np.where(q <= 1.0, outer, 0.0))
