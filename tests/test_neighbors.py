@@ -21,7 +21,7 @@ def _brute(points, queries, H, same):
 
 def test_neighbor_lists_identical_to_brute_force():
     rng = np.random.default_rng(3)
-    h, H = 0.02, 0.04
+    H = 0.04
     x = rng.uniform(0, 0.3, size=(3000, 3))
     xb = rng.uniform(-0.05, 0.35, size=(1500, 3))
     search = NeighborSearch(len(x), wp.array(xb.astype(np.float32), dtype=wp.vec3, device="cpu"), H, "cpu")

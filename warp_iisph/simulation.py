@@ -46,7 +46,6 @@ class Simulation:
         self.step_count = 0
         self.stats: list[dict] = []
         self.max_speed = 0.0
-        h = self.model.spacing
         height = float(self.model.domain_upper[1] - self.model.domain_lower[1])
         g = float(np.linalg.norm(self.model.gravity))
         self.velocity_limit = self.physics.max_velocity or max(10.0, 10.0 * math.sqrt(2.0 * g * height))

@@ -148,6 +148,7 @@ class SPHSolver:
         self.search = NeighborSearch(n, model.boundary_x, model.support_radius, model.device)
         self.v_adv = wp.zeros(n, dtype=wp.vec3, device=model.device)
         self.compression = wp.zeros(n, dtype=wp.float64, device=model.device)
+        self.mean_compression = 0.0  # mean max(rho/rho0 - 1, 0) of the current step
         self._max_speed2 = wp.zeros(1, dtype=float, device=model.device)
         self._counts = wp.zeros(2, dtype=wp.int32, device=model.device)
         self.steps = 0
@@ -172,7 +173,7 @@ class SPHSolver:
                 [state.x, model.boundary_x, model.boundary_psi, nf, nb, model.mass, model.support_radius, model.rho0, state.rho, self.compression],
                 model.device,
             )
-            compression = mean_float64(self.compression, n)
+            compression = self.mean_compression = mean_float64(self.compression, n)
         with timer("advection"):
             self.predict_advection(model, state, dt)
         with timer("pressure"):

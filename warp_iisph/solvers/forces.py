@@ -15,6 +15,12 @@ from ..neighbors import NeighborList
 
 
 @wp.func
+def viscous_pair(v_ij: wp.vec3, x_ij: wp.vec3, h: float, grad_W: wp.vec3) -> wp.vec3:
+    """The report's pair term ``(v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2) grad W_ij``."""
+    return wp.dot(v_ij, x_ij) / (wp.dot(x_ij, x_ij) + 0.01 * h * h) * grad_W
+
+
+@wp.func
 def non_pressure_acceleration(
     i: int,
     x: wp.array(dtype=wp.vec3),
@@ -38,9 +44,7 @@ def non_pressure_acceleration(
         s = nf.start[i]
         for k in range(s, s + nf.count[i]):
             j = nf.index[k]
-            x_ij = x_i - x[j]
-            v_ij = v_i - v[j]
-            visc += (mass / rho[j]) * wp.dot(v_ij, x_ij) / (wp.dot(x_ij, x_ij) + 0.01 * h * h) * nf.grad_W[k]
+            visc += (mass / rho[j]) * viscous_pair(v_i - v[j], x_i - x[j], h, nf.grad_W[k])
         a = a + 2.0 * viscosity * visc
     if boundary_viscosity > 0.0:
         x_i = x[i]
@@ -49,8 +53,7 @@ def non_pressure_acceleration(
         s = nb.start[i]
         for k in range(s, s + nb.count[i]):
             b = nb.index[k]
-            x_ib = x_i - xb[b]
-            fric += (psi[b] / rho[i]) * wp.dot(v_i, x_ib) / (wp.dot(x_ib, x_ib) + 0.01 * h * h) * nb.grad_W[k]
+            fric += (psi[b] / rho[i]) * viscous_pair(v_i, x_i - xb[b], h, nb.grad_W[k])
         a = a + 2.0 * boundary_viscosity * fric
     return a
 

@@ -12,7 +12,7 @@ import math
 import warp as wp
 
 from ..launch import launch_particles
-from .common import SPHSolver, mean_float64
+from .common import SPHSolver
 from .forces import predict_velocity
 
 
@@ -45,4 +45,4 @@ class WCSPHSolver(SPHSolver):
 
     def pressure_solve(self, model, state, dt: float) -> tuple[int, float]:
         launch_particles(state_equation, model.n_fluid, [state.rho, model.rho0, float(self.physics.stiffness), state.p], model.device)
-        return 0, mean_float64(self.compression, model.n_fluid)
+        return 0, self.mean_compression
