@@ -38,11 +38,11 @@ def test_run_dam_break_writes_frames_and_stats(tmp_path, capsys):
 def test_unknown_scene_is_a_clear_error(capsys):
     assert main(["run", "no_such_scene", "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert "unknown" in err and "dam_break" in err and "Traceback" not in err
+    assert "not a bundled scene" in err and "dam_break" in err and "Traceback" not in err
 
 
 def test_diverging_run_stops_and_keeps_frames(tmp_path):
-    scene = scenes.dam_break(spacing=0.02, method="wcsph", dt=0.004)
+    scene = scenes.martin_moyce(spacing=0.02, method="wcsph", dt=0.004)
     record = run_scene(scene, tmp_path / "w", duration=1.0, fps=50, progress=False)
     assert record["ended"] == "diverged"
     assert "step" in record["message"] and "t = " in record["message"]
@@ -62,7 +62,7 @@ def test_cuda_matches_cpu():
         pytest.skip("no CUDA device on this machine")
     from warp_iisph import Simulation
 
-    sims = {d: Simulation(scenes.dam_break(spacing=0.02, dt=0.002), d) for d in ("cpu", "cuda:0")}
+    sims = {d: Simulation(scenes.martin_moyce(spacing=0.02, dt=0.002), d) for d in ("cpu", "cuda:0")}
     for s in sims.values():
         s.advance(0.1)
     a, b = sims["cpu"].positions, sims["cuda:0"].positions

@@ -52,7 +52,7 @@ def test_hydrostatic_tank_settles_to_hydrostatic_pressure():
 
 
 def _front_errors(spacing, a=0.1, layers=4, **physics):
-    scene = scenes.dam_break(spacing=spacing, a=a, depth=layers * spacing, length=5 * a, height=2.5 * a, **physics)
+    scene = scenes.martin_moyce(spacing=spacing, a=a, depth=layers * spacing, length=5 * a, height=2.5 * a, **physics)
     sim = Simulation(scene, "cpu")
     ref = load_martin_moyce()
     pts = np.concatenate(list(ref.values()))
@@ -86,9 +86,9 @@ def test_iisph_stable_where_wcsph_diverges():
     sound-speed limit is 0.5 ms) blows up, IISPH stays bounded with no particle lost."""
     dt = 0.004
     with pytest.raises(DivergenceError) as info:
-        Simulation(scenes.dam_break(spacing=0.02, method="wcsph", dt=dt), "cpu").advance(0.4)
+        Simulation(scenes.martin_moyce(spacing=0.02, method="wcsph", dt=dt), "cpu").advance(0.4)
     assert info.value.step > 0 and "step" in str(info.value)
-    sim = Simulation(scenes.dam_break(spacing=0.02, method="iisph", dt=dt), "cpu")
+    sim = Simulation(scenes.martin_moyce(spacing=0.02, method="iisph", dt=dt), "cpu")
     sim.advance(0.4)
     assert all(s["escaped"] == 0 and s["non_finite"] == 0 for s in sim.stats)
     free_fall = np.sqrt(2 * G * 0.4)  # the column is 0.4 m high
@@ -100,7 +100,7 @@ def test_fine_dam_break_starts_from_rest_without_blowing_up():
     """At a/h = 20 the first steps from rest used to take dt_max = 5 ms (dt/h = 1 s/m) and IISPH
     blew up at step 15; the CFL rule now assumes at least the free-fall speed sqrt(2 g H)."""
     h, a = 0.005, 0.1
-    sim = Simulation(scenes.dam_break(spacing=h, a=a, depth=4 * h, length=5 * a, height=2.5 * a), "cpu")
+    sim = Simulation(scenes.martin_moyce(spacing=h, a=a, depth=4 * h, length=5 * a, height=2.5 * a), "cpu")
     sim.advance(0.1)
     assert sim.stats[0]["dt"] <= 0.5 * h / np.sqrt(2 * G * 2 * a) + 1e-9
     assert all(s["escaped"] == 0 and s["non_finite"] == 0 for s in sim.stats)

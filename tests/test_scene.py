@@ -6,7 +6,7 @@ from warp_iisph import Box, Scene, Simulation, scenes
 
 
 def _scene(**kw):
-    s = scenes.dam_break(spacing=0.02)
+    s = scenes.martin_moyce(spacing=0.02)
     for k, v in kw.items():
         setattr(s, k, v)
     return s

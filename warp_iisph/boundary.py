@@ -65,3 +65,38 @@ def compute_boundary_psi(xb: wp.array, h: float, rho0: float, device) -> wp.arra
     grid.build(xb, H)
     launch_particles(boundary_psi, n, [grid.id, xb, float(H), float(rho0 * flat_wall_gamma()), psi], device)
     return psi
+
+
+@wp.kernel
+def initial_density(
+    offset: int,
+    fluid_grid: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    boundary_grid: wp.uint64,
+    xb: wp.array(dtype=wp.vec3),
+    psi: wp.array(dtype=float),
+    mass: float,
+    H: float,
+    rho: wp.array(dtype=float),
+):
+    i = wp.tid() + offset
+    p = x[i]
+    s = float(0.0)
+    for j in wp.hash_grid_query(fluid_grid, p, H):
+        s += mass * cubic_W(wp.length(p - x[j]), H)
+    for b in wp.hash_grid_query(boundary_grid, p, H):
+        s += psi[b] * cubic_W(wp.length(p - xb[b]), H)
+    rho[i] = s
+
+
+def overcompressed(xf: np.ndarray, xb: wp.array, psi: wp.array, h: float, rho0: float, tolerance: float, device) -> np.ndarray:
+    """Mask of the fluid particles ``xf`` whose density at rest, walls included, exceeds
+    ``rho0 (1 + tolerance)``: sampled too close to a boundary, they would be kicked away."""
+    H = 2.0 * h
+    x = wp.array(xf.astype(np.float32), dtype=wp.vec3, device=device)
+    fg, bg = make_grid(device), make_grid(device)
+    fg.build(x, H)
+    bg.build(xb, H)
+    rho = wp.zeros(len(xf), dtype=float, device=device)
+    launch_particles(initial_density, len(xf), [fg.id, x, bg.id, xb, psi, float(rho0 * h**3), float(H), rho], device)
+    return rho.numpy() > rho0 * (1.0 + tolerance)

@@ -5,51 +5,69 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import scenes
-
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="warp-iisph", description="IISPH liquids on NVIDIA Warp")
     sub = p.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="simulate a bundled scene into an output folder")
-    run.add_argument("scene", help="bundled scene name (see `warp-iisph scenes`)")
-    run.add_argument("--duration", type=float, default=2.0, help="simulated seconds (default 2)")
-    run.add_argument("--fps", type=float, default=30.0, help="particle frames per simulated second (default 30)")
+    run = sub.add_parser("run", help="simulate a scene file (or a bundled scene) into an output folder")
+    run.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene (see `warp-iisph scenes`)")
+    run.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's output.duration)")
+    run.add_argument("--fps", type=float, default=None, help="frames per simulated second (default: the scene's output.fps)")
     run.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    run.add_argument("--out", default=None, help="output folder (default runs/SCENE)")
-    run.add_argument("--spacing", type=float, default=None, help="particle spacing h in metres (scene default if omitted)")
-    run.add_argument("--method", choices=("iisph", "wcsph"), default=None, help="pressure solver (default iisph)")
+    run.add_argument("--out", default=None, help="output folder (default runs/SCENE_NAME)")
+    run.add_argument("--spacing", type=float, default=None, help="particle spacing h in metres (same as --set spacing=H)")
+    run.add_argument("--method", choices=("iisph", "wcsph"), default=None, help="pressure solver (same as --set physics.method=M)")
+    run.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+        help="override a scene-file key, e.g. --set spacing=0.01 --set physics.eta=0.0005 --set fluids.0.radius=0.1",
+    )
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
     return p
 
 
+def _describe(path) -> str:
+    for line in path.read_text().splitlines():
+        if line.startswith("#"):
+            return line.lstrip("# ").strip()
+    return ""
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    from .scenefile import SceneFileError, bundled_scenes, load_scene, resolve_scene
+
     if args.command == "scenes":
-        for name, factory in scenes.BUNDLED.items():
-            print(f"{name:18s} {(factory.__doc__ or '').strip().splitlines()[0]}")
+        for name, path in bundled_scenes().items():
+            print(f"{name:16s} {_describe(path)}")
         return 0
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
-    from .runner import run_scene
+    from .runner import OutputExistsError, run_scene
 
+    source = args.scene
     try:
-        if args.scene not in scenes.BUNDLED:
-            raise ValueError(f"scene {args.scene!r}: unknown; bundled scenes are {', '.join(scenes.BUNDLED)}")
-        kwargs = {} if args.spacing is None else {"spacing": args.spacing}
+        overrides = list(args.overrides)
+        if args.spacing is not None:
+            overrides.append(f"spacing={args.spacing!r}")
         if args.method:
-            kwargs["method"] = args.method
-        scene = scenes.BUNDLED[args.scene](**kwargs)
+            overrides.append(f'physics.method="{args.method}"')
+        scene = load_scene(args.scene, overrides)
+        source = str(resolve_scene(args.scene))
+        duration = scene.output.duration if args.duration is None else args.duration
+        fps = scene.output.fps if args.fps is None else args.fps
         device = "cuda:0" if args.device == "cuda" else args.device
         if device.startswith("cuda") and not wp.is_cuda_available():
             raise ValueError(f"--device {args.device}: no CUDA device is available on this machine; use --device cpu")
-        out = args.out or f"runs/{args.scene}"
-        record = run_scene(scene, out, args.duration, args.fps, device, overwrite=args.overwrite, progress=not args.no_progress)
-    except ValueError as e:
+        out = args.out or f"runs/{scene.name}"
+        record = run_scene(scene, out, duration, fps, device, overwrite=args.overwrite, progress=not args.no_progress)
+    except (SceneFileError, OutputExistsError) as e:
         print(f"warp-iisph: error: {e}", file=sys.stderr)
+        return 2
+    except ValueError as e:  # found while building the particles (memory, nothing fits)
+        print(f"warp-iisph: error: {source}: {e}", file=sys.stderr)
         return 2
     t = record["totals"]
     summary = (

@@ -7,11 +7,12 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .boundary import compute_boundary_psi
+from .boundary import compute_boundary_psi, overcompressed
 from .launch import launch_particles
 from .neighbors import cell_order, make_grid
+from .mesh_sampling import clear_fluid, sample_mesh
 from .sampling import sample_fluid, sample_tank_walls
-from .scene import Scene
+from .scene import Box, Scene, shape_mesh
 
 
 @dataclass
@@ -95,21 +96,31 @@ class State:
         return out
 
 
+# Largest initial compression (fraction of rho0) a fluid particle beside a mesh may start with.
+INITIAL_COMPRESSION = 0.005
+
+
 def build_model(scene: Scene, device) -> tuple[Model, State]:
     """Sample the scene into particles and upload them to ``device``."""
     scene.validate()
     device = wp.get_device(device)
     h = scene.spacing
     ph = scene.physics
-    xf = sample_fluid(scene.fluids, scene.tank, h)
+    _check_memory(*_estimate_counts(scene), device)  # before sampling allocates anything
+    xf, xb = sample_scene(scene, device)
     if len(xf) == 0:
         raise ValueError(f"fluids: no particle fits at spacing = {h} m; make the blocks larger or the spacing smaller")
-    xb = sample_tank_walls(scene.tank, h)
     _check_memory(len(xf), len(xb), device)
     H = 2.0 * h
     xb_dev = _cell_sorted(xb, H, device)
     psi = compute_boundary_psi(xb_dev, h, ph.rho0, device)
+    if scene.obstacles or not isinstance(scene.tank, Box):
+        # Rasterised meshes are not a calibrated wall: fluid sampled where they make it denser
+        # than rest is left out rather than kicked away in the first step.
+        xf = xf[~overcompressed(xf, xb_dev, psi, h, ph.rho0, INITIAL_COMPRESSION, device)]
     lo, hi = scene.tank.bounds
+    # A box tank's walls start h/2 outside its faces; a mesh container's cells reach h outside.
+    margin = 0.5 * h if isinstance(scene.tank, Box) else 2.0 * h
     n = len(xf)
     model = Model(
         device=device,
@@ -123,8 +134,8 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
         boundary_viscosity=ph.boundary_viscosity,
         boundary_x=xb_dev,
         boundary_psi=psi,
-        domain_lower=lo - 0.5 * h,
-        domain_upper=hi + 0.5 * h,
+        domain_lower=lo - margin,
+        domain_upper=hi + margin,
     )
     state = State(
         x=wp.array(xf.astype(np.float32), dtype=wp.vec3, device=device),
@@ -134,6 +145,24 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
         id=wp.array(np.arange(n, dtype=np.int32), dtype=wp.int32, device=device),
     )
     return model, state
+
+
+def sample_scene(scene: Scene, device) -> tuple[np.ndarray, np.ndarray]:
+    """Fluid and boundary particles of a scene. A scene without obstacles and with a box tank
+    costs no mesh work; fluid overlapping an obstacle or outside a mesh container is dropped."""
+    h = scene.spacing
+    box_tank = isinstance(scene.tank, Box)
+    xf = sample_fluid(scene.fluids, scene.tank if box_tank else None, h)
+    walls = [sample_tank_walls(scene.tank, h)] if box_tank else []
+    meshes = ([] if box_tank else [scene.tank]) + list(scene.obstacles)
+    if not meshes:
+        return xf, walls[0]
+    trimeshes = [shape_mesh(m) for m in meshes]
+    sampled = [sample_mesh(m.vertices, m.faces, h, device) for m in trimeshes]
+    solids = [(m.vertices, m.faces) for m, o in zip(trimeshes, meshes) if o is not scene.tank and m.is_watertight]
+    containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
+    xf = clear_fluid(xf, np.concatenate(sampled), solids, h, containers, device)
+    return xf, np.concatenate(walls + sampled)
 
 
 def _cell_sorted(points: np.ndarray, H: float, device) -> wp.array:
@@ -151,6 +180,23 @@ def _cell_sorted(points: np.ndarray, H: float, device) -> wp.array:
 # Bytes per fluid particle: state, solver scratch and about 40 neighbour entries of 16 bytes.
 BYTES_PER_FLUID_PARTICLE = 900
 BYTES_PER_BOUNDARY_PARTICLE = 40
+
+
+def _estimate_counts(scene: Scene) -> tuple[int, int]:
+    """Fluid and boundary particle counts from volumes and areas, without sampling."""
+    h = scene.spacing
+    volume = 0.0
+    for f in scene.fluids:
+        lo, hi = f.bounds
+        volume += float(np.prod(hi - lo)) if isinstance(f, Box) else 4.0 / 3.0 * np.pi * f.radius**3
+    area = 0.0
+    for shape in [scene.tank, *scene.obstacles]:
+        if isinstance(shape, Box):
+            e = np.subtract(*shape.bounds[::-1])
+            area += 2.0 * float(e[0] * e[1] + e[1] * e[2] + e[0] * e[2])
+        else:
+            area += float(shape_mesh(shape).area)
+    return int(volume / h**3), int(2.0 * area / h**2)
 
 
 def _check_memory(n_fluid: int, n_boundary: int, device) -> None:

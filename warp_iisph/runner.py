@@ -39,10 +39,12 @@ def versions() -> dict:
     return {"warp_iisph": __version__, "warp": wp.__version__, "numpy": np.__version__, "python": platform.python_version()}
 
 
-def run_scene(scene: Scene, out, duration: float, fps: float = 30.0, device: str = "cpu", overwrite: bool = False, progress: bool = True) -> dict:
+def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True) -> dict:
     """Simulate ``duration`` seconds, writing ``particles/frame_%05d.ply`` every ``1/fps`` s,
     ``stats.jsonl`` (one record per step) and ``run.json``. Returns the run record; its
     ``ended`` is ``completed``, ``diverged`` or ``interrupted``."""
+    duration = scene.output.duration if duration is None else duration
+    fps = scene.output.fps if fps is None else fps
     if not duration > 0:
         raise ValueError(f"duration = {duration}: must be > 0 seconds")
     if not fps > 0:
@@ -67,7 +69,8 @@ def run_scene(scene: Scene, out, duration: float, fps: float = 30.0, device: str
     ended, message = "completed", ""
 
     def write_frame(k: int) -> None:
-        write_particles(out / "particles" / f"frame_{k:05d}.ply", sim.positions, sim.velocities, sim.densities, sim.pressures)
+        if scene.output.particles:
+            write_particles(out / "particles" / f"frame_{k:05d}.ply", sim.positions, sim.velocities, sim.densities, sim.pressures)
 
     def on_step(rec: dict) -> None:
         stats.write(rec)

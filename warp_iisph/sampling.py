@@ -1,9 +1,9 @@
 """Particle sampling of fluid blocks and of the tank walls (set-up, NumPy).
 
 Particles sit on a lattice of spacing ``h`` with their centres ``h/2`` inside the faces of the
-volume they fill, so that ``N * h^3`` is the sampled volume. Tank walls are a single layer of
-boundary particles (Akinci et al. 2012) centred ``h/2`` outside the tank's inner faces: a fluid
-particle resting against a wall is one spacing away from the wall particles.
+volume they fill, so that ``N * h^3`` is the sampled volume. Box tank walls are boundary
+particles (Akinci et al. 2012) in two staggered layers, the inner one centred ``h/2`` outside the
+tank's inner faces: a fluid particle resting against a wall is one spacing from the wall.
 """
 
 from __future__ import annotations
@@ -35,10 +35,13 @@ def sample_sphere(sphere: Sphere, h: float) -> np.ndarray:
     return p + c
 
 
-def sample_fluid(fluids, tank: Box, h: float) -> np.ndarray:
-    """All fluid particles, without those closer than h/2 to a tank face."""
+def sample_fluid(fluids, tank, h: float) -> np.ndarray:
+    """All fluid particles, without those closer than h/2 to a box tank's face (``tank`` may be
+    None: mesh containers are cleared against their boundary particles instead)."""
     parts = [sample_box(f, h) if isinstance(f, Box) else sample_sphere(f, h) for f in fluids]
     x = np.concatenate(parts, axis=0) if parts else np.zeros((0, 3))
+    if tank is None:
+        return x
     lo, hi = tank.bounds
     inside = np.all((x >= lo + 0.5 * h - 1e-9) & (x <= hi - 0.5 * h + 1e-9), axis=1)
     return x[inside]

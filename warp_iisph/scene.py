@@ -1,7 +1,8 @@
 """Scene description: plain Python data with validation, no Warp.
 
-A scene is a closed box tank, fluid blocks (boxes and spheres) and physics parameters, all in
-SI units with y up. ``spacing`` is the particle diameter ``h``; the kernel support radius is
+A scene is a tank (a closed box, or a closed triangle mesh used as a container), fluid blocks
+(boxes and spheres), obstacles (boxes, spheres, triangle meshes), physics parameters and output
+settings, all in SI units with y up. ``spacing`` is the particle diameter ``h``; the kernel support radius is
 ``2 h`` and each fluid particle weighs ``rho0 * h^3``. Validation raises ``ValueError`` naming
 the field and its allowed range.
 """
@@ -87,7 +88,96 @@ class Sphere:
         return c - self.radius, c + self.radius
 
 
+@dataclass
+class MeshShape:
+    """A triangle mesh file (OBJ, STL, PLY, ... anything trimesh reads), transformed by ``scale``
+    (a number or three), then ``rotate`` (degrees about x, then y, then z), then ``translate``
+    (metres). A relative ``path`` is relative to ``base_dir`` (the scene file's folder)."""
+
+    path: str
+    translate: tuple = (0.0, 0.0, 0.0)
+    rotate: tuple = (0.0, 0.0, 0.0)
+    scale: Union[float, tuple] = 1.0
+    base_dir: str = "."
+
+    def validate(self, name: str) -> None:
+        if not isinstance(self.path, str) or not self.path:
+            raise ValueError(f"{name}.path = {self.path!r}: must be a mesh file path")
+        self.translate = tuple(_vec3(self.translate, f"{name}.translate"))
+        self.rotate = tuple(_vec3(self.rotate, f"{name}.rotate"))
+        if isinstance(self.scale, (list, tuple, np.ndarray)):
+            sc = _vec3(self.scale, f"{name}.scale")
+            if np.any(sc <= 0):
+                raise ValueError(f"{name}.scale = {list(self.scale)}: every factor must be > 0")
+            self.scale = tuple(sc)
+        else:
+            self.scale = _positive(self.scale, f"{name}.scale", "a factor, or three")
+        self._mesh = None
+        self.load(name)
+
+    def load(self, name: str = "mesh"):
+        """The transformed ``trimesh.Trimesh`` (read once)."""
+        if getattr(self, "_mesh", None) is not None:
+            return self._mesh
+        import trimesh
+        from pathlib import Path
+
+        path = Path(self.base_dir) / self.path
+        if not path.is_file():
+            raise ValueError(f"{name}.path = {self.path!r}: file not found ({path})")
+        try:
+            mesh = trimesh.load(str(path), force="mesh")
+        except Exception as e:  # trimesh raises many kinds for a bad file
+            raise ValueError(f"{name}.path = {self.path!r}: cannot read the mesh ({type(e).__name__}: {e})") from None
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise ValueError(f"{name}.path = {self.path!r}: holds no triangles")
+        m = np.diag(np.append(np.broadcast_to(np.asarray(self.scale, dtype=float), (3,)), 1.0))
+        r = trimesh.transformations.euler_matrix(*np.radians(self.rotate), axes="sxyz")
+        t = trimesh.transformations.translation_matrix(self.translate)
+        mesh.apply_transform(t @ r @ m)
+        self._mesh = mesh
+        return mesh
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        b = self.load().bounds
+        return np.asarray(b[0], dtype=np.float64), np.asarray(b[1], dtype=np.float64)
+
+
+def shape_mesh(shape) -> "object":
+    """A shape as a ``trimesh.Trimesh``: boxes and spheres are built, meshes loaded."""
+    import trimesh
+
+    if isinstance(shape, MeshShape):
+        return shape.load()
+    if isinstance(shape, Box):
+        lo, hi = shape.bounds
+        return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=shape.radius)
+    mesh.apply_translation(shape.center)
+    return mesh
+
+
 Fluid = Union[Box, Sphere]
+Obstacle = Union[Box, Sphere, MeshShape]
+
+
+@dataclass
+class Output:
+    """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
+    particle files (``particles``) and surface meshes (``mesh``)."""
+
+    fps: float = 30.0
+    duration: float = 2.0
+    particles: bool = True
+    mesh: bool = False
+
+    def validate(self) -> None:
+        self.fps = _in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
+        self.duration = _in_range(self.duration, "output.duration", 0.0, 1.0e6, "simulated seconds", lo_open=True)
+        for key in ("particles", "mesh"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"output.{key} = {getattr(self, key)!r}: must be true or false")
 
 
 @dataclass
@@ -161,7 +251,7 @@ class Physics:
 
 @dataclass
 class Scene:
-    """A closed box tank holding fluid blocks.
+    """A tank holding fluid blocks, with optional obstacles.
 
     Example::
 
@@ -171,9 +261,11 @@ class Scene:
     """
 
     spacing: float
-    tank: Box
+    tank: Union[Box, MeshShape]
     fluids: list = field(default_factory=list)
+    obstacles: list = field(default_factory=list)
     physics: Physics = field(default_factory=Physics)
+    output: Output = field(default_factory=Output)
     name: str = "scene"
 
     def add_fluid_box(self, lower, upper) -> "Scene":
@@ -184,11 +276,17 @@ class Scene:
         self.fluids.append(Sphere(tuple(center), radius))
         return self
 
+    def add_obstacle(self, shape: Obstacle) -> "Scene":
+        self.obstacles.append(shape)
+        return self
+
     def validate(self) -> "Scene":
         self.spacing = _positive(self.spacing, "spacing", "metres, the particle diameter")
-        if not isinstance(self.tank, Box):
-            raise ValueError(f"tank = {self.tank!r}: must be a Box")
+        if not isinstance(self.tank, (Box, MeshShape)):
+            raise ValueError(f"tank = {self.tank!r}: must be a box or a mesh")
         self.tank.validate("tank")
+        if isinstance(self.tank, MeshShape) and not self.tank.load().is_watertight:
+            raise ValueError(f"tank.path = {self.tank.path!r}: a container mesh must be closed (watertight)")
         tlo, thi = self.tank.bounds
         if np.any((thi - tlo) < self.spacing):
             raise ValueError(f"tank: every side must be at least spacing = {self.spacing} m long")
@@ -209,7 +307,12 @@ class Scene:
             for b in range(a + 1, len(self.fluids)):
                 if _overlap(self.fluids[a], self.fluids[b]):
                     raise ValueError(f"fluids[{a}] and fluids[{b}] overlap: fluid blocks must be disjoint")
+        for k, o in enumerate(self.obstacles):
+            if not isinstance(o, (Box, Sphere, MeshShape)):
+                raise ValueError(f"obstacles[{k}] = {o!r}: must be a box, a sphere or a mesh")
+            o.validate(f"obstacles[{k}]")
         self.physics.validate()
+        self.output.validate()
         return self
 
 

@@ -1,14 +1,14 @@
-"""Bundled scenes, built in Python."""
+"""Scenes built in Python (the scene files in scenes/ are what the command line runs)."""
 
 from __future__ import annotations
 
 from .scene import Box, Physics, Scene
 
 
-def dam_break(spacing: float = 0.02, a: float = 0.2, depth: float = 0.2, length: float = 1.0, height: float = 0.6, **physics) -> Scene:
+def martin_moyce(spacing: float = 0.02, a: float = 0.2, depth: float = 0.2, length: float = 1.0, height: float = 0.6, **physics) -> Scene:
     """Martin & Moyce (1952) geometry: a water column of width ``a`` and height ``2a`` against
     the x = 0 wall of a closed ``length x height x depth`` tank (metres)."""
-    scene = Scene(spacing=spacing, tank=Box((0.0, 0.0, 0.0), (length, height, depth)), physics=Physics(**physics), name="dam_break")
+    scene = Scene(spacing=spacing, tank=Box((0.0, 0.0, 0.0), (length, height, depth)), physics=Physics(**physics), name="martin_moyce")
     scene.add_fluid_box((0.0, 0.0, 0.0), (a, 2.0 * a, depth))
     return scene
 
@@ -34,4 +34,4 @@ def hydrostatic_tank(spacing: float = 0.02, width: float = 0.2, depth: float = 0
     return scene
 
 
-BUNDLED = {"dam_break": dam_break, "dam_break_cube": dam_break_cube, "hydrostatic_tank": hydrostatic_tank}
+

@@ -29,7 +29,7 @@ class Simulation:
     Example::
 
         from warp_iisph import Simulation, scenes
-        sim = Simulation(scenes.dam_break(spacing=0.02), device="cpu")
+        sim = Simulation(scenes.martin_moyce(spacing=0.02), device="cpu")
         sim.advance(0.5)                  # simulate half a second
         x = sim.positions                 # (N, 3) NumPy array, in particle-id order
         print(sim.stats[-1]["density_error"])

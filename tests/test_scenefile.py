@@ -1,0 +1,89 @@
+"""Scene files: bundled scenes load and run; every bad input is one clear line and exit 2."""
+
+import pytest
+
+from warp_iisph import Simulation
+from warp_iisph.cli import main
+from warp_iisph.scenefile import SceneFileError, bundled_scenes, load_scene
+
+REPORT_SCENES = ("dam_break", "drop_splash", "fluid_flow")
+
+
+def test_bundled_scenes_include_the_reports_three():
+    assert set(REPORT_SCENES) | {"martin_moyce", "dam_break_cube"} <= set(bundled_scenes())
+
+
+@pytest.mark.parametrize("name", sorted(bundled_scenes()))
+def test_bundled_scene_runs_a_few_steps_coarse(name):
+    scene = load_scene(name, ["spacing=0.04"] if name != "dam_break_cube" else ["spacing=0.12"])
+    sim = Simulation(scene, "cpu")
+    assert sim.n_particles > 50
+    for _ in range(5):
+        rec = sim.step()
+    assert rec["escaped"] == 0 and rec["non_finite"] == 0 and rec["max_velocity"] < 1.0
+
+
+def test_obstacles_are_built_and_fluid_kept_out_of_them():
+    with_mesh = Simulation(load_scene("dam_break", ["spacing=0.05"]), "cpu")
+    without = Simulation(load_scene("dam_break", ["spacing=0.05", "obstacles=[]"]), "cpu")
+    assert with_mesh.model.n_boundary > without.model.n_boundary
+    assert with_mesh.n_particles == without.n_particles  # the column does not touch the submarine
+
+
+def test_overrides_reach_the_scene():
+    scene = load_scene("drop_splash", ["spacing=0.05", "physics.eta=0.0005", "fluids.1.radius=0.08", "output.mesh=false"])
+    assert scene.spacing == 0.05 and scene.physics.eta == 0.0005 and scene.fluids[1].radius == 0.08
+
+
+def _write(tmp_path, text, name="s.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+GOOD = """
+spacing = 0.05
+[tank]
+lower = [0, 0, 0]
+upper = [1, 1, 1]
+[[fluids]]
+lower = [0, 0, 0]
+upper = [0.5, 0.5, 0.5]
+"""
+
+BAD = {
+    "unknown top key": (GOOD + "colour = 3\n", "colour: unknown key"),
+    "unknown physics key": (GOOD + "[physics]\netta = 0.01\n", "physics.etta: unknown key"),
+    "wrong type": (GOOD.replace("spacing = 0.05", 'spacing = "fine"'), "spacing = 'fine': must be a number"),
+    "zero spacing": (GOOD.replace("spacing = 0.05", "spacing = 0"), "spacing = 0: must be > 0"),
+    "negative spacing": (GOOD.replace("spacing = 0.05", "spacing = -0.1"), "spacing = -0.1: must be > 0"),
+    "fluid outside tank": (GOOD.replace("upper = [0.5, 0.5, 0.5]", "upper = [0.5, 1.5, 0.5]"), "fluids[0]: fluid"),
+    "eta out of range": (GOOD + "[physics]\neta = 2.0\n", "physics.eta = 2.0: must be in (0, 0.5]"),
+    "missing mesh": (GOOD + '[[obstacles]]\nshape = "mesh"\npath = "nope.obj"\n', "obstacles[0].path = 'nope.obj': file not found"),
+    "unreadable mesh": (GOOD + '[[obstacles]]\nshape = "mesh"\npath = "junk.obj"\n', "obstacles[0].path = 'junk.obj': "),
+    "bad shape": (GOOD + '[[obstacles]]\nshape = "cone"\n', "obstacles[0].shape = 'cone': must be one of box, sphere, mesh"),
+    "missing key": (GOOD + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.7, 0.7]\n', "obstacles[0].radius: required"),
+    "bad toml": ("spacing = = 1\n", "not valid TOML"),
+    "too many particles": (GOOD.replace("spacing = 0.05", "spacing = 0.0002"), "spacing: "),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_scene_file_is_one_line_exit_2(case, tmp_path, capsys):
+    text, expected = BAD[case]
+    (tmp_path / "junk.obj").write_text("v 0 0\nf 1 2 3 4\nthis is not a mesh\n")
+    path = _write(tmp_path, text)
+    code = main(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress", "--duration", "0.01"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert str(path) in err and expected in err, err
+    assert not (tmp_path / "out" / "particles").exists()
+
+
+def test_bad_override_is_clear(tmp_path):
+    path = _write(tmp_path, GOOD)
+    with pytest.raises(SceneFileError, match="must be KEY=VALUE"):
+        load_scene(path, ["spacing"])
+    with pytest.raises(SceneFileError, match="fluids.3"):
+        load_scene(path, ["fluids.3.radius=1"])
