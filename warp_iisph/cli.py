@@ -21,10 +21,57 @@ def _parser() -> argparse.ArgumentParser:
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
         help="override a scene-file key, e.g. --set spacing=0.01 --set physics.eta=0.0005 --set fluids.0.radius=0.1",
     )
+    run.add_argument("--mesh", action="store_true", help="also write the surface mesh/frame_NNNNN.obj (same as --set output.mesh=true)")
+    run.add_argument("--threads", default=None, help="CPU threads for per-particle kernels (default: all available cores)")
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
+    mesh = sub.add_parser("mesh", help="mesh the particle frames of a run into mesh/frame_NNNNN.obj")
+    mesh.add_argument("run_dir", help="an output folder of `warp-iisph run`")
+    mesh.add_argument("--cell", type=float, default=None, help="grid cell, in particle spacings (default 0.5)")
+    mesh.add_argument("--r0", type=float, default=None, help="particle radius of the distance field, in spacings (default 0.5)")
+    mesh.add_argument("--radius", type=float, default=None, help="kernel radius R, in spacings (default 2)")
+    mesh.add_argument("--smoothing", choices=("laplacian", "taubin", "none"), default=None, help="default laplacian")
+    mesh.add_argument("--passes", type=int, default=None, help="smoothing passes (default 3)")
+    mesh.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    mesh.add_argument("--threads", default=None, help="CPU threads (default: all available cores)")
+    mesh.add_argument("--overwrite", action="store_true", help="re-mesh frames that already have a mesh")
+    mesh.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+def _mesh_command(args, wp) -> int:
+    import dataclasses
+    import json
+    from pathlib import Path
+
+    from .meshing import mesh_run
+    from .scene import Surface
+
+    try:
+        try:
+            stored = json.loads((Path(args.run_dir) / "run.json").read_text())["scene"].get("surface", {})
+        except (OSError, ValueError, KeyError):
+            stored = {}
+        params = Surface(**{k: v for k, v in stored.items() if k in {f.name for f in dataclasses.fields(Surface)}})
+        for key in ("cell", "r0", "radius", "smoothing", "passes"):
+            if getattr(args, key) is not None:
+                setattr(params, key, getattr(args, key))
+        device = _device(args.device, wp)
+        result = mesh_run(args.run_dir, params, device, overwrite=args.overwrite, progress=not args.no_progress)
+    except ValueError as e:
+        print(f"warp-iisph: error: {e}", file=sys.stderr)
+        return 2
+    secs = ", ".join(f"{k} {v:.2f} s" for k, v in result["stage_seconds"].items())
+    print(f"meshed {result['written']} frames ({result['skipped']} already there) -> {Path(args.run_dir) / 'mesh'}; {secs}")
+    return 0
+
+
+def _device(name: str, wp) -> str:
+    device = "cuda:0" if name == "cuda" else name
+    if device.startswith("cuda") and not wp.is_cuda_available():
+        raise ValueError(f"--device {name}: no CUDA device is available on this machine; use --device cpu")
+    return device
 
 
 def _describe(path) -> str:
@@ -47,6 +94,16 @@ def main(argv=None) -> int:
     wp.config.log_level = wp.LOG_WARNING
     from .runner import OutputExistsError, run_scene
 
+    if args.threads is not None:
+        from .launch import set_threads
+
+        try:
+            set_threads(args.threads)
+        except ValueError as e:
+            print(f"warp-iisph: error: --{e}", file=sys.stderr)
+            return 2
+    if args.command == "mesh":
+        return _mesh_command(args, wp)
     source = args.scene
     try:
         overrides = list(args.overrides)
@@ -54,13 +111,16 @@ def main(argv=None) -> int:
             overrides.append(f"spacing={args.spacing!r}")
         if args.method:
             overrides.append(f'physics.method="{args.method}"')
+        if args.mesh:
+            overrides.append("output.mesh=true")
         scene = load_scene(args.scene, overrides)
         source = str(resolve_scene(args.scene))
         duration = scene.output.duration if args.duration is None else args.duration
         fps = scene.output.fps if args.fps is None else args.fps
-        device = "cuda:0" if args.device == "cuda" else args.device
-        if device.startswith("cuda") and not wp.is_cuda_available():
-            raise ValueError(f"--device {args.device}: no CUDA device is available on this machine; use --device cpu")
+        try:
+            device = _device(args.device, wp)
+        except ValueError as e:
+            raise SceneFileError(str(e)) from None
         out = args.out or f"runs/{scene.name}"
         record = run_scene(scene, out, duration, fps, device, overwrite=args.overwrite, progress=not args.no_progress)
     except (SceneFileError, OutputExistsError) as e:

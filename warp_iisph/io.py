@@ -102,3 +102,26 @@ class StatsWriter:
 def read_stats(path) -> list[dict]:
     with open(path) as f:
         return [json.loads(line) for line in f if line.strip()]
+
+
+def write_obj(path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> None:
+    """Wavefront OBJ (``v``, ``vn``, ``f a//a b//b c//c``, 1-based), as Blender's stop-motion-OBJ
+    importer reads it. Formatting is one C-level ``%`` over the whole array: fast enough that
+    writing never dominates meshing."""
+    path = Path(path)
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3) + 1
+    parts = [f"# warp_iisph surface: {len(v)} vertices, {len(f)} triangles\n"]
+    parts.append(("v %.6g %.6g %.6g\n" * len(v)) % tuple(v.ravel()))
+    if normals is not None:
+        parts.append(("vn %.4f %.4f %.4f\n" * len(v)) % tuple(np.asarray(normals, dtype=np.float64).ravel()))
+        parts.append(("f %d//%d %d//%d %d//%d\n" * len(f)) % tuple(np.repeat(f.ravel(), 2)))
+    else:
+        parts.append(("f %d %d %d\n" * len(f)) % tuple(f.ravel()))
+    text = "".join(parts)
+
+    def write(tmp):
+        with open(tmp, "w") as fh:
+            fh.write(text)
+
+    _atomic_target(path, write)

@@ -14,6 +14,7 @@ import warp as wp
 
 from . import __version__
 from .io import StatsWriter, write_json, write_particles
+from .meshing import FrameMesher
 from .scene import Scene
 from .simulation import DivergenceError, Simulation
 
@@ -26,13 +27,21 @@ def prepare_output(out: Path, overwrite: bool) -> None:
     if out.exists() and any(out.iterdir()):
         if not overwrite:
             raise OutputExistsError(f"--out {out}: folder exists and is not empty; pass --overwrite to replace it")
-        for name in ("particles", "stats.jsonl", "run.json"):
+        for name in ("particles", "mesh", "stats.jsonl", "run.json"):
             p = out / name
             if p.is_dir():
                 shutil.rmtree(p)
             elif p.exists():
                 p.unlink()
     out.mkdir(parents=True, exist_ok=True)
+
+
+def _stage_seconds(stage_ms: dict, mesher) -> dict:
+    out = {k: v / 1e3 for k, v in stage_ms.items()}
+    if mesher is not None:
+        for k, v in mesher.seconds.items():
+            out[k] = out.get(k, 0.0) + v
+    return out
 
 
 def versions() -> dict:
@@ -68,9 +77,15 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     frames_written = 0
     ended, message = "completed", ""
 
+    mesher = FrameMesher(scene.spacing, scene.surface, sim.device) if scene.output.mesh else None
+
     def write_frame(k: int) -> None:
+        t = time.perf_counter()
         if scene.output.particles:
             write_particles(out / "particles" / f"frame_{k:05d}.ply", sim.positions, sim.velocities, sim.densities, sim.pressures)
+        stage_ms["export"] = stage_ms.get("export", 0.0) + 1e3 * (time.perf_counter() - t)
+        if mesher is not None:
+            mesher.write(sim.state.x, out / "mesh" / f"frame_{k:05d}.obj")
 
     def on_step(rec: dict) -> None:
         stats.write(rec)
@@ -123,7 +138,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
                 "mean_density_error": float(np.mean(errs)) if errs else 0.0,
                 "mean_compression": float(np.mean([s["compression"] for s in sim.stats])) if sim.stats else 0.0,
             },
-            "stage_seconds": {k: v / 1e3 for k, v in stage_ms.items()},
+            "stage_seconds": _stage_seconds(stage_ms, mesher),
         }
     )
     write_json(out / "run.json", record)

@@ -162,6 +162,37 @@ Fluid = Union[Box, Sphere]
 Obstacle = Union[Box, Sphere, MeshShape]
 
 
+SMOOTHING = ("laplacian", "taubin", "none")
+
+
+@dataclass
+class Surface:
+    """Surface reconstruction settings, in particle spacings ``h``: ``cell`` the distance-field
+    grid's cell (h/2), ``r0`` the particle radius of Zhu & Bridson's distance (h/2), ``radius``
+    their kernel radius R (2h); ``smoothing`` ``laplacian`` (the report's), ``taubin`` (keeps
+    droplets' volume) or ``none``, over ``passes`` passes with factors ``lam`` and ``mu``."""
+
+    cell: float = 0.5
+    r0: float = 0.5
+    radius: float = 2.0
+    smoothing: str = "laplacian"
+    passes: int = 3
+    lam: float = 0.5
+    mu: float = -0.53
+
+    def validate(self) -> "Surface":
+        self.cell = _in_range(self.cell, "surface.cell", 0.05, 4.0, "particle spacings")
+        self.r0 = _in_range(self.r0, "surface.r0", 0.0, 4.0, "particle spacings")
+        self.radius = _in_range(self.radius, "surface.radius", 0.5, 8.0, "particle spacings")
+        if self.smoothing not in SMOOTHING:
+            raise ValueError(f"surface.smoothing = {self.smoothing!r}: must be one of {', '.join(SMOOTHING)}")
+        if isinstance(self.passes, bool) or not isinstance(self.passes, (int, np.integer)) or not 0 <= self.passes <= 100:
+            raise ValueError(f"surface.passes = {self.passes!r}: must be an integer in [0, 100]")
+        self.lam = _in_range(self.lam, "surface.lam", 0.0, 1.0, "smoothing factor", lo_open=True)
+        self.mu = _in_range(self.mu, "surface.mu", -1.0, 0.0, "Taubin's inflation factor", hi_open=True)
+        return self
+
+
 @dataclass
 class Output:
     """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
@@ -266,6 +297,7 @@ class Scene:
     obstacles: list = field(default_factory=list)
     physics: Physics = field(default_factory=Physics)
     output: Output = field(default_factory=Output)
+    surface: Surface = field(default_factory=Surface)
     name: str = "scene"
 
     def add_fluid_box(self, lower, upper) -> "Scene":
@@ -313,6 +345,7 @@ class Scene:
             o.validate(f"obstacles[{k}]")
         self.physics.validate()
         self.output.validate()
+        self.surface.validate()
         return self
 
 

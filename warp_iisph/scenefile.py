@@ -11,14 +11,14 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from .scene import Box, MeshShape, Output, Physics, Scene, Sphere
+from .scene import Box, MeshShape, Output, Physics, Scene, Sphere, Surface
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output"}
+TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output", "surface"}
 SHAPE_KEYS = {
     "box": {"lower", "upper"},
     "sphere": {"center", "radius"},
@@ -126,6 +126,7 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
             raise ValueError(f"{key}: must be an array of tables ([[{key}]])")
     physics = _check_keys(data.get("physics", {}), _fields(Physics), "physics")
     output = _check_keys(data.get("output", {}), _fields(Output), "output")
+    surface = _check_keys(data.get("surface", {}), _fields(Surface), "surface")
     name = data.get("name", default_name)
     if not isinstance(name, str):
         raise ValueError(f"name = {name!r}: must be a string")
@@ -136,6 +137,7 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         obstacles=[_shape(o, f"obstacles[{k}]", ("box", "sphere", "mesh"), base_dir) for k, o in enumerate(obstacles)],
         physics=Physics(**physics),
         output=Output(**output),
+        surface=Surface(**surface),
         name=name,
     )
     return scene.validate()

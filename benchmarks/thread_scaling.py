@@ -1,0 +1,109 @@
+"""Thread scaling of the CPU path (the report's Figure 5): the 32,768-particle dam break
+(IISPH, eta 0.1 %, CFL 0.5, dt <= 5 ms) with 1, 2, ... threads; wall time per simulated second
+and ms per stage for each count. Writes benchmarks/results/thread_scaling.json and .png.
+
+    python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--quick]
+"""
+
+import argparse
+import datetime
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warp_iisph import Simulation, scenes
+from warp_iisph.launch import available_cores, set_threads
+from warp_iisph.runner import versions
+
+SPLISHSPLASH_S_PER_S = {"IISPH, volume maps": 66.0, "DFSPH": 38.6}
+
+
+def run(threads: int, spacing: float, duration: float) -> dict:
+    set_threads(threads)
+    sim = Simulation(scenes.dam_break_cube(spacing=spacing, eta=1e-3, cfl=0.5, dt_max=5e-3), "cpu")
+    t0 = time.perf_counter()
+    sim.advance(duration)
+    wall = time.perf_counter() - t0
+    st = sim.stats
+    stages = {k: float(np.median([s["ms"][k] for s in st])) for k in st[0]["ms"]}
+    return {
+        "threads": threads,
+        "particles": sim.n_particles,
+        "wall_seconds": wall,
+        "wall_seconds_per_simulated_second": wall / sim.time,
+        "steps": len(st),
+        "mean_iterations": float(np.mean([s["iterations"] for s in st])),
+        "mean_density_error": float(np.mean([s["compression"] for s in st])),
+        "median_ms_per_step": {**stages, "total": float(np.median([sum(s["ms"].values()) for s in st]))},
+    }
+
+
+def chart(results: list, path: Path, spacing: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    th = [r["threads"] for r in results]
+    a.plot(th, [r["wall_seconds_per_simulated_second"] for r in results], "o-", label="warp_iisph IISPH")
+    if spacing == 0.03:
+        for (name, v), style in zip(SPLISHSPLASH_S_PER_S.items(), ("--", ":")):
+            a.axhline(v, color="gray", ls=style, label=f"SPlisHSPlasH {name}, 2 threads")
+    a.set_xlabel("threads")
+    a.set_ylabel("wall s per simulated s")
+    a.set_xticks(th)
+    a.set_ylim(bottom=0)
+    a.legend(fontsize=8)
+    a.set_title(f"Dam break, {results[0]['particles']:,} particles")
+    stages = [k for k in results[0]["median_ms_per_step"] if k != "total"]
+    bottom = np.zeros(len(results))
+    for k in stages:
+        v = np.array([r["median_ms_per_step"][k] for r in results])
+        b.bar([str(t) for t in th], v, bottom=bottom, label=k)
+        bottom += v
+    b.set_xlabel("threads")
+    b.set_ylabel("median ms per step")
+    b.legend(fontsize=8)
+    b.set_title("Time per stage")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=1.0)
+    ap.add_argument("--spacing", type=float, default=0.03)
+    ap.add_argument("--threads", default=",".join(str(t) for t in sorted({1, 2, available_cores()})))
+    ap.add_argument("--quick", action="store_true", help="a coarse, short run (under a minute)")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    args = ap.parse_args()
+    if args.quick:
+        args.duration, args.spacing = 0.05, 0.06
+    wp.config.log_level = wp.LOG_WARNING
+    Simulation(scenes.hydrostatic_tank(spacing=0.05), "cpu").step()  # compile outside the timing
+    results = [run(int(t), args.spacing, args.duration) for t in args.threads.split(",")]
+    print(f"{results[0]['particles']} particles, {args.duration} s simulated, CPU")
+    print(f"{'threads':>7} {'s/sim s':>8} {'speed-up':>8} {'steps':>6} {'iters':>6}  median ms per step")
+    for r in results:
+        ms = ", ".join(f"{k} {v:.1f}" for k, v in r["median_ms_per_step"].items())
+        print(f"{r['threads']:>7} {r['wall_seconds_per_simulated_second']:>8.1f} "
+              f"{results[0]['wall_seconds'] / r['wall_seconds']:>8.2f} {r['steps']:>6} {r['mean_iterations']:>6.2f}  {ms}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = "thread_scaling_quick" if args.quick else "thread_scaling"
+    record = {
+        "benchmark": "thread_scaling", "scene": "dam_break_cube", "spacing": args.spacing, "duration": args.duration,
+        "device": "cpu", "machine": platform.processor() or platform.machine(), "cores": available_cores(),
+        "date": datetime.date.today().isoformat(), "versions": versions(), "results": results,
+    }
+    (out / f"{stem}.json").write_text(json.dumps(record, indent=2) + "\n")
+    chart(results, out / f"{stem}.png", args.spacing)
+
+
+if __name__ == "__main__":
+    main()
