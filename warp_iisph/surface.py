@@ -29,6 +29,21 @@ from .neighbors import make_grid
 from .scene import Surface as SurfaceParams
 
 
+@wp.func
+def _coarse_index(p: wp.vec3, lower: wp.vec3, C: float, cdims: wp.vec3i) -> wp.vec3i:
+    q = (p - lower) / C
+    return wp.vec3i(
+        wp.clamp(int(q[0]), 0, cdims[0] - 1), wp.clamp(int(q[1]), 0, cdims[1] - 1), wp.clamp(int(q[2]), 0, cdims[2] - 1)
+    )
+
+
+@wp.kernel
+def count_coarse(x: wp.array(dtype=wp.vec3), lower: wp.vec3, C: float, cdims: wp.vec3i, counts: wp.array(dtype=wp.int32)):
+    # atomics: one launch, never split
+    c = _coarse_index(x[wp.tid()], lower, C, cdims)
+    wp.atomic_add(counts, (c[0] * cdims[1] + c[1]) * cdims[2] + c[2], 1)
+
+
 @wp.kernel
 def signed_distance(
     offset: int,
@@ -40,6 +55,9 @@ def signed_distance(
     nz: int,
     R: float,
     r0: float,
+    counts: wp.array(dtype=wp.int32),
+    cdims: wp.vec3i,
+    full: int,
     phi: wp.array(dtype=float),
 ):
     n = wp.tid() + offset
@@ -47,6 +65,29 @@ def signed_distance(
     j = (n // nz) % ny
     k = n % nz
     p = lower + cell * wp.vec3(float(i), float(j), float(k))
+    # Narrow band: coarse cells of size R count particles. A node whose 27 surrounding coarse
+    # cells are empty has no particle within R (outside); one whose cells are all full lies at
+    # least R deep in the liquid, where only the sign matters. Neither needs the grid query.
+    c = _coarse_index(p, lower, R, cdims)
+    lo_count = int(2147483647)
+    hi_count = int(0)
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for e in range(-1, 2):
+                ca = c[0] + a
+                cb = c[1] + b
+                cd = c[2] + e
+                m = int(0)
+                if ca >= 0 and ca < cdims[0] and cb >= 0 and cb < cdims[1] and cd >= 0 and cd < cdims[2]:
+                    m = counts[(ca * cdims[1] + cb) * cdims[2] + cd]
+                lo_count = wp.min(lo_count, m)
+                hi_count = wp.max(hi_count, m)
+    if hi_count == 0:
+        phi[n] = R
+        return
+    if lo_count >= full:
+        phi[n] = -r0
+        return
     wsum = float(0.0)
     xbar = wp.vec3(0.0)
     inv_R2 = 1.0 / (R * R)
@@ -181,10 +222,17 @@ class SurfaceReconstructor:
             raise ValueError(f"mesh grid of {dims.tolist()} nodes is too large; increase the cell size")
         self.grid.build(xd, R)
         n = int(np.prod(dims))
+        lo = wp.vec3(*lower.tolist())
+        cdims = np.ceil((dims - 1) * cell / R).astype(int) + 1
+        counts = wp.zeros(int(np.prod(cdims)), dtype=wp.int32, device=self.device)
+        cd = wp.vec3i(*[int(c) for c in cdims])
+        wp.launch(count_coarse, dim=xd.shape[0], inputs=[xd, lo, float(R), cd, counts], device=self.device)
+        # a cube of side R = 2h holds about (R/h)^3 = 8 particles; "full" leaves room for jitter
+        full = max(1, int(0.75 * (R / h) ** 3))
         phi = wp.empty(n, dtype=float, device=self.device)
         launch_particles(
             signed_distance, n,
-            [self.grid.id, xd, wp.vec3(*lower.tolist()), float(cell), int(dims[1]), int(dims[2]), float(R), float(r0), phi],
+            [self.grid.id, xd, lo, float(cell), int(dims[1]), int(dims[2]), float(R), float(r0), counts, cd, full, phi],
             self.device,
         )
         return phi.reshape(tuple(int(d) for d in dims)), lower, cell
