@@ -10,7 +10,7 @@ from warp_iisph.scenefile import load_scene
 
 # modules that launch per-particle kernels through the helper
 USERS = ["warp_iisph.model", "warp_iisph.boundary", "warp_iisph.neighbors", "warp_iisph.solvers.common",
-         "warp_iisph.solvers.iisph", "warp_iisph.solvers.wcsph"]
+         "warp_iisph.solvers.iisph", "warp_iisph.solvers.wcsph", "warp_iisph.surface"]
 
 
 def _arrays(inputs):
@@ -67,8 +67,11 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
     wc = Simulation(scenes.martin_moyce(spacing=0.04, method="wcsph", dt=2e-4), "cpu")
     for _ in range(3):
         wc.step()
+    from warp_iisph.surface import SurfaceReconstructor
+
+    SurfaceReconstructor(0.03).reconstruct(sim.positions)
     keys = {k for k, _ in seen}
-    for expected in ("count_neighbors", "fill_neighbors", "compute_density", "predict_advection_velocity",
+    for expected in ("signed_distance", "smooth_vertices", "vertex_normals", "count_neighbors", "fill_neighbors", "compute_density", "predict_advection_velocity",
                      "predict_advection_density", "pressure_sum_dij_pj", "pressure_jacobi", "integrate",
                      "predict_velocity", "state_equation", "boundary_psi", "initial_density"):
         assert any(expected in k for k in keys), (expected, keys)
