@@ -54,8 +54,12 @@ def _box_shell(lo: np.ndarray, hi: np.ndarray, h: float, offset: float) -> np.nd
     for a in range(3):
         n = int(np.ceil((hi[a] - lo[a]) / h - 1e-6))
         s = (hi[a] - lo[a]) / n
-        k = int(round(2.0 * offset / h))  # offset = k s / 2
-        axes.append(lo[a] - 0.5 * k * s + s * np.arange(n + k + 1))
+        k = int(round(2.0 * offset / h))  # offset = k s / 2 when s = h
+        ax = lo[a] - 0.5 * k * s + s * np.arange(n + k + 1)
+        # the layer itself sits exactly ``offset`` outside the faces, also when s < h: a wall
+        # drawn in closer would start the fluid beside it compressed
+        ax[0], ax[-1] = lo[a] - offset, hi[a] + offset
+        axes.append(ax)
     idx = np.meshgrid(*[np.arange(len(ax)) for ax in axes], indexing="ij")
     shell = np.zeros(idx[0].shape, dtype=bool)
     for a in range(3):

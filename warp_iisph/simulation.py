@@ -83,7 +83,8 @@ class Simulation:
         if record["non_finite"]:
             reason = f"{record['non_finite']} particles have non-finite position or velocity"
         elif record["escaped"]:
-            reason = f"{record['escaped']} particles left the domain {tuple(self.model.domain_lower)}..{tuple(self.model.domain_upper)}"
+            lo, hi = (", ".join(f"{c:.3g}" for c in b) for b in (self.model.domain_lower, self.model.domain_upper))
+            reason = f"{record['escaped']} particles left the domain ({lo})..({hi})"
         elif record["max_velocity"] > self.velocity_limit:
             reason = f"max velocity {record['max_velocity']:.3g} m/s exceeds the limit {self.velocity_limit:.3g} m/s"
         if reason:

@@ -1,0 +1,97 @@
+"""Dam-break validation: surge-front position against T beside Martin & Moyce (1952), at several
+resolutions, with the wall friction of the bundled martin_moyce scene and with free-slip walls.
+The column is a = 0.1 m wide, 2a high, in a slab 4 particles deep. Writes
+benchmarks/results/validation.json and .png.
+
+    python benchmarks/validation.py [--resolutions 10,15,20] [--quick]
+"""
+
+import argparse
+import datetime
+import json
+import platform
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warp_iisph import Simulation, scenes
+from warp_iisph.analysis import load_martin_moyce, surge_front
+from warp_iisph.runner import versions
+
+G, A = 9.81, 0.1
+
+
+def front_curve(resolution: int, friction: float, t_end: float = 3.2):
+    h = A / resolution
+    sim = Simulation(scenes.martin_moyce(spacing=h, a=A, depth=4 * h, length=5 * A, height=2.5 * A,
+                                         boundary_viscosity=friction), "cpu")
+    T = np.linspace(0.0, t_end, 33)
+    Z = []
+    for t in T:
+        sim.advance(t / np.sqrt(2 * G / A) - sim.time) if t > 0 else None
+        Z.append(surge_front(sim.positions, h) / A)
+    return T, np.asarray(Z), sim.n_particles
+
+
+def errors_at_reference(T, Z, ref):
+    pts = np.concatenate(list(ref.values()))
+    pts = pts[pts[:, 0] <= 3.0]
+    return np.interp(pts[:, 0], T, Z) / pts[:, 1] - 1.0
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--resolutions", default="10,15,20", help="a/h values")
+    ap.add_argument("--friction", type=float, default=0.003, help="wall friction, m^2/s")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    args = ap.parse_args()
+    if args.quick:
+        args.resolutions = "10"
+    wp.config.log_level = wp.LOG_WARNING
+    ref = load_martin_moyce()
+    rows = []
+    for res in (int(r) for r in args.resolutions.split(",")):
+        for friction in (args.friction, 0.0):
+            T, Z, n = front_curve(res, friction)
+            e = errors_at_reference(T, Z, ref)
+            rows.append({"a_over_h": res, "particles": n, "wall_friction": friction, "T": T.tolist(), "Z": Z.tolist(),
+                         "mean_abs_error": float(np.mean(np.abs(e))), "max_abs_error": float(np.max(np.abs(e)))})
+            print(f"a/h = {res:>3} ({n:>5} particles), friction {friction:g} m^2/s: front error against the experiment "
+                  f"mean {100 * rows[-1]['mean_abs_error']:.1f} %, worst {100 * rows[-1]['max_abs_error']:.1f} % (T <= 3)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = "validation_quick" if args.quick else "validation"
+    (out / f"{stem}.json").write_text(json.dumps({
+        "benchmark": "validation", "reference": "Martin & Moyce 1952", "device": "cpu",
+        "machine": platform.processor() or platform.machine(), "date": datetime.date.today().isoformat(),
+        "versions": versions(), "runs": rows}, indent=2) + "\n")
+    chart(rows, ref, out / f"{stem}.png")
+
+
+def chart(rows, ref, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for name, pts in ref.items():
+        pts = pts[pts[:, 0] <= 3.2]
+        ax.plot(pts[:, 0], pts[:, 1], "o", mfc="none", ms=6, label=f"Martin & Moyce, series {name}")
+    for r in rows:
+        style = "-" if r["wall_friction"] > 0 else ":"
+        ax.plot(r["T"], r["Z"], style, label=f"IISPH a/h = {r['a_over_h']}, friction {r['wall_friction']:g}")
+    ax.set_xlabel("T = t sqrt(2g/a)")
+    ax.set_ylabel("Z = front / a")
+    ax.set_xlim(0, 3.2)
+    ax.set_ylim(0.8, 5.0)
+    ax.legend(fontsize=7)
+    ax.set_title("Dam-break surge front")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    main()
