@@ -41,24 +41,14 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _mesh_command(args, wp) -> int:
-    import dataclasses
-    import json
     from pathlib import Path
 
     from .meshing import mesh_run
-    from .scene import Surface
 
     try:
-        try:
-            stored = json.loads((Path(args.run_dir) / "run.json").read_text())["scene"].get("surface", {})
-        except (OSError, ValueError, KeyError):
-            stored = {}
-        params = Surface(**{k: v for k, v in stored.items() if k in {f.name for f in dataclasses.fields(Surface)}})
-        for key in ("cell", "r0", "radius", "smoothing", "passes"):
-            if getattr(args, key) is not None:
-                setattr(params, key, getattr(args, key))
+        overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes") if getattr(args, k) is not None}
         device = _device(args.device, wp)
-        result = mesh_run(args.run_dir, params, device, overwrite=args.overwrite, progress=not args.no_progress)
+        result = mesh_run(args.run_dir, overrides, device, overwrite=args.overwrite, progress=not args.no_progress)
     except ValueError as e:
         print(f"warp-iisph: error: {e}", file=sys.stderr)
         return 2

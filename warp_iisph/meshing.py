@@ -32,9 +32,10 @@ class FrameMesher:
         return mesh
 
 
-def mesh_run(run_dir, params: Surface | None = None, device="cpu", overwrite: bool = False, progress: bool = True) -> dict:
-    """Mesh every ``particles/frame_*.ply`` of a run folder into ``mesh/frame_*.obj``. Frames
-    already meshed are kept unless ``overwrite``. Returns counts and seconds per stage."""
+def mesh_run(run_dir, overrides: dict | None = None, device="cpu", overwrite: bool = False, progress: bool = True) -> dict:
+    """Mesh every ``particles/frame_*.ply`` of a run folder into ``mesh/frame_*.obj`` with the
+    run's ``surface`` settings, changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``).
+    Frames already meshed are kept unless ``overwrite``. Returns counts and seconds per stage."""
     run_dir = Path(run_dir)
     frames = sorted((run_dir / "particles").glob("frame_*.ply"))
     if not frames:
@@ -45,7 +46,8 @@ def mesh_run(run_dir, params: Surface | None = None, device="cpu", overwrite: bo
         stored = record["scene"].get("surface", {})
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise ValueError(f"{run_dir / 'run.json'}: cannot read the particle spacing ({e})") from None
-    params = params or Surface(**stored)
+    known = {f.name for f in dataclasses.fields(Surface)}
+    params = Surface(**{k: v for k, v in {**stored, **(overrides or {})}.items() if k in known})
     params.validate()
     mesher = FrameMesher(h, params, device)
     bar = None

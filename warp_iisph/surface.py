@@ -125,6 +125,11 @@ def fill_incident(
     tris[start[v] + slot] = c / 3
 
 
+@wp.func
+def triangle_corners(verts: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), t: int):
+    return verts[indices[3 * t]], verts[indices[3 * t + 1]], verts[indices[3 * t + 2]]
+
+
 @wp.kernel
 def smooth_vertices(
     offset: int,
@@ -143,8 +148,8 @@ def smooth_vertices(
     s = wp.vec3(0.0)
     m = count[v]
     for k in range(start[v], start[v] + m):
-        t = tris[k]
-        s += verts[indices[3 * t]] + verts[indices[3 * t + 1]] + verts[indices[3 * t + 2]] - p
+        a, b, c = triangle_corners(verts, indices, tris[k])
+        s += a + b + c - p
     if m > 0:
         out[v] = p + factor * (s / float(2 * m) - p)
     else:
@@ -164,9 +169,8 @@ def vertex_normals(
     v = wp.tid() + offset
     n = wp.vec3(0.0)
     for k in range(start[v], start[v] + count[v]):
-        t = tris[k]
-        a = verts[indices[3 * t]]
-        n += wp.cross(verts[indices[3 * t + 1]] - a, verts[indices[3 * t + 2]] - a)  # area-weighted
+        a, b, c = triangle_corners(verts, indices, tris[k])
+        n += wp.cross(b - a, c - a)  # area-weighted
     ln = wp.length(n)
     if ln > 0.0:
         normals[v] = n / ln
