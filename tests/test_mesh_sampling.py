@@ -3,6 +3,7 @@
 import time
 
 import numpy as np
+import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
@@ -45,7 +46,7 @@ def test_large_mesh_samples_in_seconds():
     mesh = trimesh.creation.icosphere(subdivisions=6, radius=1.0)  # 81,920 triangles
     mesh = trimesh.util.concatenate([mesh, trimesh.creation.icosphere(subdivisions=5, radius=0.5)])
     assert len(mesh.faces) > 100_000
-    sample_mesh(mesh.vertices[:3], mesh.faces[:1], 0.1)  # compile outside the timing
+    sample_mesh(mesh.vertices, mesh.faces[:1], 0.1)  # compile outside the timing
     t = time.perf_counter()
     xb = sample_mesh(mesh.vertices, mesh.faces, 0.02)
     seconds = time.perf_counter() - t
@@ -53,6 +54,16 @@ def test_large_mesh_samples_in_seconds():
     r = np.linalg.norm(xb, axis=1)
     outer = r > 0.75
     assert np.all(np.abs(r[outer] - 1.0) < 0.02)  # cell centres within a half diagonal of the sphere
+
+
+def test_bad_mesh_arrays_are_refused():
+    """Indices past the vertex array or non-finite vertices would make the kernel read out of
+    bounds or loop over a near-infinite cell range: refused before any launch."""
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    with pytest.raises(ValueError, match="face indices"):
+        sample_mesh(v, np.array([[0, 1, 3]]), 0.1)
+    with pytest.raises(ValueError, match="non-finite"):
+        sample_mesh(np.where(np.arange(9).reshape(3, 3) == 4, np.nan, v), np.array([[0, 1, 2]]), 0.1)
 
 
 def test_clear_fluid_removes_inside_and_near():

@@ -112,6 +112,10 @@ def sample_mesh(vertices: np.ndarray, faces: np.ndarray, h: float, device="cpu")
     faces = np.asarray(faces, dtype=np.int32).reshape(-1, 3)
     if len(faces) == 0:
         return np.zeros((0, 3))
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise ValueError(f"mesh face indices must lie in [0, {len(vertices) - 1}] (the vertex count)")
+    if not np.all(np.isfinite(vertices)):
+        raise ValueError("mesh has non-finite vertex coordinates")
     lo = np.floor(vertices.min(axis=0) / h).astype(np.int64) - 1
     hi = np.floor(vertices.max(axis=0) / h).astype(np.int64) + 1
     dims = hi - lo + 1
