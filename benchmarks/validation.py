@@ -15,29 +15,16 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warp_iisph import Simulation, scenes
-from warp_iisph.analysis import load_martin_moyce, surge_front
+from common import martin_moyce_front
+from warp_iisph.analysis import front_errors, load_martin_moyce
 from warp_iisph.runner import versions
 
 G, A = 9.81, 0.1
 
 
-def front_curve(resolution: int, friction: float, t_end: float = 3.2):
-    h = A / resolution
-    sim = Simulation(scenes.martin_moyce(spacing=h, a=A, depth=4 * h, length=5 * A, height=2.5 * A,
-                                         boundary_viscosity=friction), "cpu")
-    T = np.linspace(0.0, t_end, 33)
-    Z = []
-    for t in T:
-        sim.advance(t / np.sqrt(2 * G / A) - sim.time) if t > 0 else None
-        Z.append(surge_front(sim.positions, h) / A)
-    return T, np.asarray(Z), sim.n_particles
-
-
-def errors_at_reference(T, Z, ref):
-    pts = np.concatenate(list(ref.values()))
-    pts = pts[pts[:, 0] <= 3.0]
-    return np.interp(pts[:, 0], T, Z) / pts[:, 1] - 1.0
+def front_curve(resolution: int, friction: float):
+    T, Z, sim, _ = martin_moyce_front(resolution, a=A, boundary_viscosity=friction)
+    return T, Z, sim.n_particles
 
 
 def main():
@@ -55,7 +42,7 @@ def main():
     for res in (int(r) for r in args.resolutions.split(",")):
         for friction in (args.friction, 0.0):
             T, Z, n = front_curve(res, friction)
-            e = errors_at_reference(T, Z, ref)
+            e = front_errors(T, Z, ref)
             rows.append({"a_over_h": res, "particles": n, "wall_friction": friction, "T": T.tolist(), "Z": Z.tolist(),
                          "mean_abs_error": float(np.mean(np.abs(e))), "max_abs_error": float(np.max(np.abs(e)))})
             print(f"a/h = {res:>3} ({n:>5} particles), friction {friction:g} m^2/s: front error against the experiment "

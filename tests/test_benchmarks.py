@@ -34,3 +34,48 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         assert dt["iisph"] > 2 * dt["wcsph"], dt
     else:
         assert all(r["mean_abs_error"] < 0.1 for r in rows if r["wall_friction"] > 0)
+
+
+def _quick(script: str, tmp_path, stem: str) -> dict:
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads((tmp_path / f"{stem}.json").read_text())
+    assert record["versions"]["warp"] and record["date"] and record["device"] and record["machine"]
+    assert (tmp_path / f"{stem}.png").stat().st_size > 10_000
+    return record
+
+
+def test_device_switch_quick_mode(tmp_path):
+    record = _quick("device_switch.py", tmp_path, "device_switch_quick")
+    rows = [r for r in record["results"] if r["device"] == "cpu"]
+    assert [r["particles"] for r in rows] == sorted(r["particles"] for r in rows) and len(rows) == 2
+    for r in rows:  # the throughput is what the steps and wall time say
+        assert r["particle_steps_per_second"] == pytest.approx(r["particles"] * r["steps"] / r["wall_seconds"])
+    assert ("cuda" in record["devices_missing"]) != any(r["device"] == "cuda" for r in record["results"])
+
+
+def test_speed_accuracy_quick_mode(tmp_path):
+    rows = _quick("speed_accuracy.py", tmp_path, "speed_accuracy_quick")["results"]
+    by = {r["method"]: r for r in rows}
+    # WCSPH at 0.2 ms fixed steps costs several times IISPH's CFL steps for a like density error
+    assert by["wcsph"]["wall_seconds_per_simulated_second"] > 3 * by["iisph"]["wall_seconds_per_simulated_second"]
+    assert all(0 < r["mean_density_error"] < 0.01 and r["front_error"] < 0.15 for r in rows)
+    assert any("mean_density_error" in r.get("pareto", ()) for r in rows)
+
+
+def test_speed_accuracy_pareto_front():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from speed_accuracy import pareto
+
+    pts = [(1.0, 5.0), (2.0, 6.0), (3.0, 1.0), (0.5, 9.0), (4.0, 1.0)]
+    assert sorted(pareto(pts)) == [0, 2, 3]
+
+
+def test_breakdown_quick_mode(tmp_path):
+    record = _quick("breakdown.py", tmp_path, "breakdown_quick")
+    st = record["stage_seconds"]
+    for stage in ("neighbours", "density", "advection", "pressure", "integration", "distance_field", "marching_cubes", "smoothing", "export"):
+        assert st[stage] > 0, stage
+    assert sum(record["share"].values()) == pytest.approx(1.0, abs=1e-6)
+    assert record["frames"] == 4

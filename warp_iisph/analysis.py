@@ -37,3 +37,11 @@ def surge_front(positions: np.ndarray, spacing: float, wall_x: float = 0.0) -> f
 
 def dimensionless_time(t: float, a: float, g: float = 9.81) -> float:
     return t * math.sqrt(2.0 * g / a)
+
+
+def front_errors(T: np.ndarray, Z: np.ndarray, reference: dict[str, np.ndarray] | None = None, t_max: float = 3.0) -> np.ndarray:
+    """Relative error ``Z_sim / Z_exp - 1`` of a simulated front curve ``Z(T)`` (interpolated)
+    at every Martin & Moyce point with ``T <= t_max``."""
+    pts = np.concatenate(list((reference or load_martin_moyce()).values()))
+    pts = pts[pts[:, 0] <= t_max]
+    return np.interp(pts[:, 0], T, Z) / pts[:, 1] - 1.0

@@ -13,10 +13,14 @@ def martin_moyce(spacing: float = 0.02, a: float = 0.2, depth: float = 0.2, leng
     return scene
 
 
-def dam_break_cube(spacing: float = 0.03, **physics) -> Scene:
+def dam_break_cube(spacing: float = 0.03, particles: int | None = None, **physics) -> Scene:
     """The benchmark dam break: a 0.96 m cube of water (32^3 particles at 3 cm) in a
-    4 x 3 x 1.5 m tank, as in SPlisHSPlasH's comparison runs."""
+    4 x 3 x 1.5 m tank, as in SPlisHSPlasH's comparison runs. With ``particles``, the cube
+    keeps its 0.96 m side and the spacing is chosen to hold about that many particles."""
     side = 32 * spacing
+    if particles is not None:
+        side = 0.96
+        spacing = side / round(particles ** (1.0 / 3.0))
     scene = Scene(spacing=spacing, tank=Box((0.0, 0.0, 0.0), (4.0, 3.0, 1.5)), physics=Physics(**physics), name="dam_break_cube")
     scene.add_fluid_box((0.0, 0.0, 0.0), (side, side, side))
     return scene

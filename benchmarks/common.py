@@ -1,0 +1,83 @@
+"""What the benchmark scripts share: the run record's header (machine, device, versions, date),
+writing JSON next to its chart, a headless matplotlib, and compiling kernels outside the timing."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import platform
+from pathlib import Path
+
+import warp as wp
+
+from warp_iisph.runner import versions
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def header(name: str, device: str = "cpu", **extra) -> dict:
+    """The fields every result file starts with."""
+    wp.init()
+    dev = wp.get_device("cuda:0" if device == "cuda" else device)
+    return {
+        "benchmark": name,
+        "device": str(dev),
+        "device_name": dev.name,
+        "machine": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "date": datetime.date.today().isoformat(),
+        "versions": versions(),
+        **extra,
+    }
+
+
+def save(record: dict, out, stem: str, quick: bool) -> Path:
+    """Write ``<stem>.json`` (``<stem>_quick.json`` for --quick, git-ignored) and return the
+    chart's path beside it."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = f"{stem}_quick" if quick else stem
+    (out / f"{stem}.json").write_text(json.dumps(record, indent=2) + "\n")
+    return out / f"{stem}.png"
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def warm_up(device: str = "cpu", method: str = "iisph") -> None:
+    """Compile and load the solver's kernels so that the first timed run does not pay for it."""
+    from warp_iisph import Simulation, scenes
+
+    wp.config.log_level = wp.LOG_WARNING
+    Simulation(scenes.hydrostatic_tank(spacing=0.05, method=method), device).step()
+
+
+def martin_moyce_front(resolution: int, a: float = 0.1, t_end: float = 3.2, samples: int = 33, **physics):
+    """The Martin & Moyce dam break (column a wide, 2a high, in a slab 4 particles deep) at
+    ``a/h = resolution``: the front Z = x/a at ``samples`` evenly spaced T = t sqrt(2g/a) up to
+    ``t_end``. Returns (T, Z, simulation, wall seconds spent stepping). Raises DivergenceError."""
+    import time
+
+    import numpy as np
+
+    from warp_iisph import Simulation, scenes
+    from warp_iisph.analysis import surge_front
+
+    h = a / resolution
+    sim = Simulation(scenes.martin_moyce(spacing=h, a=a, depth=4 * h, length=5 * a, height=2.5 * a, **physics), "cpu")
+    T = np.linspace(0.0, t_end, samples)
+    Z, wall = [], 0.0
+    for t in T:
+        if t > 0:
+            t0 = time.perf_counter()
+            sim.advance(t / np.sqrt(2 * 9.81 / a) - sim.time)
+            wall += time.perf_counter() - t0
+        Z.append(surge_front(sim.positions, h) / a)
+    return T, np.asarray(Z), sim, wall
