@@ -3,11 +3,11 @@
 __version__ = "0.1.0"
 
 from . import scenes
-from .scene import Box, MeshShape, Output, Physics, Scene, Sphere
+from .scene import Box, Camera, MeshShape, Output, Physics, Scene, Sphere
 from .scenefile import load_scene
 from .simulation import DivergenceError, Simulation
 
 __all__ = [
-    "Box", "MeshShape", "Output", "Physics", "Scene", "Sphere", "Simulation", "DivergenceError",
+    "Box", "Camera", "MeshShape", "Output", "Physics", "Scene", "Sphere", "Simulation", "DivergenceError",
     "load_scene", "scenes", "__version__",
 ]

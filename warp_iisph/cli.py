@@ -1,4 +1,4 @@
-"""Command line: ``warp-iisph run SCENE``, ``warp-iisph scenes``."""
+"""Command line: ``warp-iisph run | scenes | mesh | preview | render | blender-script``."""
 
 from __future__ import annotations
 
@@ -37,7 +37,68 @@ def _parser() -> argparse.ArgumentParser:
     mesh.add_argument("--threads", default=None, help="CPU threads (default: all available cores)")
     mesh.add_argument("--overwrite", action="store_true", help="re-mesh frames that already have a mesh")
     mesh.add_argument("--no-progress", action="store_true", help="no progress bar")
+    render = sub.add_parser("render", help="path-trace a run's meshes into frames/ and video.mp4 (needs the render extra)")
+    render.add_argument("run_dir", help="an output folder of `warp-iisph run --mesh` (or of `warp-iisph mesh`)")
+    render.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16; denoised)")
+    render.add_argument("--resolution", default="640x360", help="WIDTHxHEIGHT (default 640x360)")
+    render.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b: the colour of 5 cm of the liquid")
+    render.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded), e.g. 0:30")
+    render.add_argument("--walls", action="store_true", help="show the box tank's far walls")
+    render.add_argument("--no-denoise", action="store_true", help="skip OpenImageDenoise")
+    render.add_argument("--variant", default=None, help="force a Mitsuba variant (default: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb, the fastest that works)")
+    render.add_argument("--gif", action="store_true", help="write video.gif instead of video.mp4")
+    render.add_argument("--overwrite", action="store_true", help="re-render frames already rendered")
+    render.add_argument("--no-progress", action="store_true", help="no progress bar")
+    preview = sub.add_parser("preview", help="a fast look at a run (particles coloured by speed, or the mesh) in preview.mp4")
+    preview.add_argument("run_dir", help="an output folder of `warp-iisph run`")
+    preview.add_argument("--source", choices=("particles", "mesh"), default=None, help="default: particles when the run has them")
+    preview.add_argument("--resolution", default="640x360", help="WIDTHxHEIGHT (default 640x360)")
+    preview.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
+    preview.add_argument("--fps", type=float, default=None, help="video frame rate (default: the run's fps)")
+    preview.add_argument("--yaw", type=float, default=30.0, help="camera turn about the vertical, degrees (default 30)")
+    preview.add_argument("--pitch", type=float, default=25.0, help="camera elevation, degrees (default 25)")
+    preview.add_argument("--gif", action="store_true", help="write preview.gif instead of preview.mp4")
+    preview.add_argument("--out", default=None, help="video path (default RUN_DIR/preview.mp4)")
+    preview.add_argument("--no-progress", action="store_true", help="no progress bar")
+    blend = sub.add_parser("blender-script", help="write a script that loads a run's OBJ sequence into Blender")
+    blend.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
+    blend.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b")
+    blend.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
+    blend.add_argument("--out", default=None, help="script path (default RUN_DIR/blender_scene.py)")
     return p
+
+
+def _view_command(args) -> int:
+    """preview, render and blender-script: they read a run folder and write images or a script."""
+    from .frames import RunError
+
+    try:
+        if args.command == "preview":
+            from .preview import preview_run
+
+            r = preview_run(args.run_dir, args.out, args.source, args.resolution, args.frames, args.fps, args.gif, args.yaw,
+                            args.pitch, progress=not args.no_progress)
+            print(f"preview of {r['frames']} frames ({r['source']}, {1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}")
+        elif args.command == "render":
+            from .render import RenderUnavailable, render_run
+
+            try:
+                r = render_run(args.run_dir, args.spp, args.resolution, args.material, args.frames, args.walls, not args.no_denoise,
+                               args.gif, args.overwrite, args.variant, progress=not args.no_progress)
+            except RenderUnavailable as e:
+                print(f"warp-iisph: error: render: {e}", file=sys.stderr)
+                return 2
+            print(f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
+                  f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}")
+        else:
+            from .blender import blender_script
+
+            path = blender_script(args.run_dir, args.out, args.material, args.frames)
+            print(f"wrote {path}; run: blender -b -P {path} -- --render")
+    except RunError as e:
+        print(f"warp-iisph: error: {e}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def _mesh_command(args, wp) -> int:
@@ -75,6 +136,8 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     from .scenefile import SceneFileError, bundled_scenes, load_scene, resolve_scene
 
+    if args.command in ("preview", "render", "blender-script"):
+        return _view_command(args)
     if args.command == "scenes":
         for name, path in bundled_scenes().items():
             print(f"{name:16s} {_describe(path)}")

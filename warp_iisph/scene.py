@@ -212,6 +212,27 @@ class Output:
 
 
 @dataclass
+class Camera:
+    """Where `warp-iisph render` looks from: ``position`` and ``target`` (m) and a horizontal
+    field of view ``fov`` (degrees). Without a position the camera frames the liquid itself."""
+
+    position: Optional[tuple] = None
+    target: Optional[tuple] = None
+    fov: float = 40.0
+
+    def validate(self) -> None:
+        if self.position is not None:
+            self.position = tuple(float(c) for c in _vec3(self.position, "camera.position"))
+        if self.target is not None:
+            self.target = tuple(float(c) for c in _vec3(self.target, "camera.target"))
+        if self.target is not None and self.position is None:
+            raise ValueError("camera.target: needs camera.position too")
+        if self.position is not None and self.target is not None and np.allclose(self.position, self.target):
+            raise ValueError("camera.target: must differ from camera.position")
+        self.fov = _in_range(self.fov, "camera.fov", 1.0, 170.0, "degrees", lo_open=False)
+
+
+@dataclass
 class Physics:
     """Physical and numerical parameters.
 
@@ -299,6 +320,7 @@ class Scene:
     output: Output = field(default_factory=Output)
     surface: Surface = field(default_factory=Surface)
     name: str = "scene"
+    camera: Camera = field(default_factory=Camera)
 
     def add_fluid_box(self, lower, upper) -> "Scene":
         self.fluids.append(Box(tuple(lower), tuple(upper)))
@@ -346,6 +368,7 @@ class Scene:
         self.physics.validate()
         self.output.validate()
         self.surface.validate()
+        self.camera.validate()
         return self
 
 

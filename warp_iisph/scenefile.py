@@ -11,14 +11,14 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from .scene import Box, MeshShape, Output, Physics, Scene, Sphere, Surface
+from .scene import Box, Camera, MeshShape, Output, Physics, Scene, Sphere, Surface
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output", "surface"}
+TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output", "surface", "camera"}
 SHAPE_KEYS = {
     "box": {"lower", "upper"},
     "sphere": {"center", "radius"},
@@ -127,6 +127,7 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
     physics = _check_keys(data.get("physics", {}), _fields(Physics), "physics")
     output = _check_keys(data.get("output", {}), _fields(Output), "output")
     surface = _check_keys(data.get("surface", {}), _fields(Surface), "surface")
+    camera = _check_keys(data.get("camera", {}), _fields(Camera), "camera")
     name = data.get("name", default_name)
     if not isinstance(name, str):
         raise ValueError(f"name = {name!r}: must be a string")
@@ -139,6 +140,7 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         output=Output(**output),
         surface=Surface(**surface),
         name=name,
+        camera=Camera(**camera),
     )
     return scene.validate()
 
