@@ -23,6 +23,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--mesh", action="store_true", help="also write the surface mesh/frame_NNNNN.obj (same as --set output.mesh=true)")
     run.add_argument("--threads", default=None, help="CPU threads for per-particle kernels (default: all available cores)")
+    run.add_argument("--graph", action="store_true", help="record one time step as a graph and replay it (no per-step Python launches)")
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
@@ -175,7 +176,7 @@ def main(argv=None) -> int:
         except ValueError as e:
             raise SceneFileError(str(e)) from None
         out = args.out or f"runs/{scene.name}"
-        record = run_scene(scene, out, duration, fps, device, overwrite=args.overwrite, progress=not args.no_progress)
+        record = run_scene(scene, out, duration, fps, device, overwrite=args.overwrite, progress=not args.no_progress, graph=args.graph)
     except (SceneFileError, OutputExistsError) as e:
         print(f"warp-iisph: error: {e}", file=sys.stderr)
         return 2

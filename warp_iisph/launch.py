@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import warp as wp
 
@@ -86,13 +87,28 @@ def chunks(n: int, parts: int) -> list[tuple[int, int]]:
     return out
 
 
+_recording = 0
+
+
+@contextmanager
+def recording():
+    """While a graph is being captured, launches are recorded, not run: never split them
+    (several threads would record into one capture at once)."""
+    global _recording
+    _recording += 1
+    try:
+        yield
+    finally:
+        _recording -= 1
+
+
 def launch_particles(kernel, n: int, inputs: list, device) -> None:
     """Launch ``kernel`` over elements ``0 .. n-1`` (``offset`` prepended to ``inputs``), split
     into one chunk per thread on the CPU."""
     if n <= 0:
         return
     device = wp.get_device(device)
-    parts = min(get_threads(), n // MIN_CHUNK) if device.is_cpu else 1
+    parts = min(get_threads(), n // MIN_CHUNK) if device.is_cpu and not _recording else 1
     key = (kernel.key, kernel.module.name, device.alias)
     if parts <= 1 or key not in _loaded:
         # the first launch loads (and maybe compiles) the module: never from several threads

@@ -80,13 +80,18 @@ class State:
         return int(self.x.shape[0])
 
     def reorder(self, order: wp.array) -> None:
-        """Permute every per-particle array so that particle i becomes ``order[i]``."""
+        """Permute every per-particle array in place so that particle i becomes ``order[i]``
+        (through one scratch array per type: the arrays keep their memory, which captured
+        graphs point at)."""
         n = self.n
+        scratch = self.__dict__.setdefault("_scratch", {})
         for name in ("x", "v", "rho", "p", "id"):
             src = getattr(self, name)
-            dst = wp.empty_like(src)
-            launch_particles(_GATHER[src.dtype], n, [order, src, dst], src.device)
-            setattr(self, name, dst)
+            tmp = scratch.get(src.dtype)
+            if tmp is None:
+                tmp = scratch[src.dtype] = wp.empty_like(src)
+            launch_particles(_GATHER[src.dtype], n, [order, src, tmp], src.device)
+            wp.copy(src, tmp)
 
     def numpy_by_id(self, name: str) -> np.ndarray:
         """Host copy of a per-particle array in original particle order."""

@@ -8,7 +8,6 @@ Fluid particles are periodically reordered by grid cell so that neighbours are c
 
 from __future__ import annotations
 
-import numpy as np
 import warp as wp
 
 from .launch import launch_particles
@@ -60,19 +59,31 @@ def fill_neighbors(
     same_set: int,
     nbrs: NeighborList,
 ):
+    """Write the lists; entries past the storage's end are dropped and the counts cut to match
+    (``list_total`` has flagged the overflow; the step is redone with more storage)."""
     i = wp.tid() + offset
     x_i = queries[i]
     r2 = radius * radius
     k = nbrs.start[i]
+    capacity = nbrs.index.shape[0]
     j = int(0)
     query = wp.hash_grid_query(grid, x_i, radius)
     while wp.hash_grid_query_next(query, j):
         if same_set == 0 or j != i:
             x_ij = x_i - points[j]
             if wp.dot(x_ij, x_ij) < r2:
-                nbrs.index[k] = j
-                nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
+                if k < capacity:
+                    nbrs.index[k] = j
+                    nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
                 k += 1
+    if k > capacity:  # keep every later loop inside the storage
+        nbrs.count[i] = wp.max(capacity - nbrs.start[i], 0)
+
+
+@wp.kernel
+def list_total(n: int, nbrs: NeighborList, total: wp.array(dtype=wp.int32)):
+    """Entries the lists need (the scan's end), on the device: no host read inside a step."""
+    total[0] = nbrs.start[n - 1] + nbrs.count[n - 1]
 
 
 @wp.kernel
@@ -91,24 +102,38 @@ class NeighborListBuffer:
         self.lists.count = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
         self._reserve(max(32 * n, 1))
         self.total = 0
+        self.needed = wp.zeros(1, dtype=wp.int32, device=device)  # entries the last build needed
+        self.generation = 0  # bumped when the storage moves (captured graphs must be re-made)
 
     def _reserve(self, capacity: int) -> None:
+        self.generation = getattr(self, "generation", -1) + 1
         self.capacity = capacity
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
         self.lists.grad_W = wp.zeros(capacity, dtype=wp.vec3, device=self.device)
 
-    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, same_set: bool):
+    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, same_set: bool, sync: bool = True):
+        """Count, scan, fill. With ``sync`` the storage grows first when too small; without it
+        (inside a captured graph) nothing is read back and ``needed`` tells afterwards."""
         if n == 0:
             self.total = 0
             return
         lists = self.lists
         launch_particles(count_neighbors, n, [grid.id, points, queries, radius, int(same_set), lists.count], self.device)
         wp.utils.array_scan(lists.count[:n], lists.start[:n], inclusive=False)
-        last = np.concatenate([lists.start[n - 1 : n].numpy(), lists.count[n - 1 : n].numpy()])
-        self.total = int(last[0] + last[1])
-        if self.total > self.capacity:
-            self._reserve(int(self.total * 1.25) + 16)
-        launch_particles(fill_neighbors, n, [grid.id, points, queries, radius, int(same_set), lists], self.device)
+        wp.launch(list_total, dim=1, inputs=[n, lists, self.needed], device=self.device)
+        if sync:
+            self.total = int(self.needed.numpy()[0])
+            if self.total > self.capacity:
+                self.grow(self.total)
+        launch_particles(fill_neighbors, n, [grid.id, points, queries, radius, int(same_set), self.lists], self.device)
+
+    def overflowed(self) -> bool:
+        """Did the last unsynchronised build need more entries than the storage holds?"""
+        self.total = int(self.needed.numpy()[0])
+        return self.total > self.capacity
+
+    def grow(self, needed: int) -> None:
+        self._reserve(int(needed * 1.25) + 16)
 
     def to_sets(self, n: int) -> list[set[int]]:
         """Host copy as one set of neighbour indices per particle (for tests and debugging)."""
@@ -146,13 +171,13 @@ class NeighborSearch:
         wp.launch(cell_order, dim=self.n, inputs=[self.grid.id, self._order], device=self.device)
         return self._order
 
-    def build(self, x: wp.array) -> None:
+    def build(self, x: wp.array, sync: bool = True) -> None:
         if self.n == 0:
             return
         self.grid.build(x, self.radius)
-        self.fluid.build(self.grid, x, x, self.n, self.radius, same_set=True)
+        self.fluid.build(self.grid, x, x, self.n, self.radius, same_set=True, sync=sync)
         if self.boundary_grid is not None:
-            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, same_set=False)
+            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, same_set=False, sync=sync)
         else:
             self.boundary.lists.count.zero_()
             self.boundary.lists.start.zero_()

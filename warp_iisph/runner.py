@@ -48,7 +48,8 @@ def versions() -> dict:
     return {"warp_iisph": __version__, "warp": wp.__version__, "numpy": np.__version__, "python": platform.python_version()}
 
 
-def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True) -> dict:
+def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True,
+              graph: bool = False) -> dict:
     """Simulate ``duration`` seconds, writing ``particles/frame_%05d.ply`` every ``1/fps`` s,
     ``stats.jsonl`` (one record per step) and ``run.json``. Returns the run record; its
     ``ended`` is ``completed``, ``diverged`` or ``interrupted``."""
@@ -61,12 +62,13 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     out = Path(out)
     prepare_output(out, overwrite)
     t_start = time.perf_counter()
-    sim = Simulation(scene, device=device)
+    sim = Simulation(scene, device=device, graph=graph)
     stats = StatsWriter(out / "stats.jsonl")
     n_frames = int(np.floor(duration * fps + 1e-9)) + 1
     record = {
         "scene": dataclasses.asdict(scene),
         "device": str(sim.device),
+        "graph": graph,
         "versions": versions(),
         "command": " ".join(sys.argv),
         "particles": {"fluid": sim.n_particles, "boundary": sim.model.n_boundary},

@@ -30,18 +30,25 @@ class Simulation:
 
         from warp_iisph import Simulation, scenes
         sim = Simulation(scenes.martin_moyce(spacing=0.02), device="cpu")
-        sim.advance(0.5)                  # simulate half a second
+        sim.advance(0.5)                  # simulate half a second (graph=True: replay a captured step)
         x = sim.positions                 # (N, 3) NumPy array, in particle-id order
         print(sim.stats[-1]["density_error"])
     """
 
-    def __init__(self, scene: Scene, device: str = "cpu"):
+    def __init__(self, scene: Scene, device: str = "cpu", graph: bool = False):
         wp.init()
         self.scene = scene.validate()
         self.physics = scene.physics
         self.model, self.state = build_model(scene, device)
         self.device = self.model.device
         self.solver = make_solver(self.model, self.physics)
+        # graph=True replays a recorded step (see warp_iisph.graph); the plain path launches
+        # each kernel from Python, times every stage, and is the reference the graph is tested against
+        self.stepper = None
+        if graph:
+            from .graph import CapturedStepper
+
+            self.stepper = CapturedStepper(self.solver, self.model, self.state)
         self.time = 0.0
         self.step_count = 0
         self.stats: list[dict] = []
@@ -73,7 +80,8 @@ class Simulation:
     def step(self, dt: Optional[float] = None) -> dict:
         """Advance one time step; returns its statistics record (also appended to ``stats``)."""
         dt = self.next_dt() if dt is None else float(dt)
-        record = self.solver.step(self.model, self.state, dt)
+        stepper = self.stepper or self.solver
+        record = stepper.step(self.model, self.state, dt)
         self.time += dt
         self.step_count += 1
         record = {"step": self.step_count, "t": self.time, **record}

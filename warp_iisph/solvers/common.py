@@ -64,12 +64,13 @@ def integrate(
     nf: NeighborList,
     nb: NeighborList,
     mass: float,
-    dt: float,
+    dt_step: wp.array(dtype=float),
     v: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
 ):
     """Pressure acceleration, then symplectic Euler: v = v_adv + dt a_p; x += dt v."""
     i = wp.tid() + offset
+    dt = dt_step[0]
     p_i = p[i] / (rho[i] * rho[i])
     a = wp.vec3(0.0, 0.0, 0.0)
     s = nf.start[i]
@@ -106,11 +107,12 @@ def check_state(
         wp.atomic_add(counts, 0, 1)
 
 
-def mean_float64(values: wp.array, n: int) -> float:
-    """Average of a float64 per-particle array, reduced on the device in float64."""
-    if n == 0:
-        return 0.0
-    return float(wp.utils.array_sum(values[:n])) / n
+@contextmanager
+def _untimed(name: str):
+    yield
+
+
+_no_timer = _untimed
 
 
 class StageTimer:
@@ -151,6 +153,8 @@ class SPHSolver:
         self.mean_compression = 0.0  # mean max(rho/rho0 - 1, 0) of the current step
         self._max_speed2 = wp.zeros(1, dtype=float, device=model.device)
         self._counts = wp.zeros(2, dtype=wp.int32, device=model.device)
+        self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
+        self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
         self.steps = 0
 
     @property
@@ -159,12 +163,24 @@ class SPHSolver:
         return 0.0
 
     def step(self, model, state, dt: float) -> dict:
+        """One time step with plain launches (the reference path: every stage timed, the
+        neighbour storage grown before it overflows, the Jacobi loop driven from the host)."""
         timer = StageTimer(model.device)
-        n = model.n_fluid
+        self.dt.fill_(float(dt))
         with timer("neighbours"):
             if self.steps % self.reorder_interval == 0:
                 state.reorder(self.search.cell_order(state.x))
-            self.search.build(state.x)
+        self.launch_step(model, state, timer, sync=True)
+        self.steps += 1
+        return self.read_stats(model, dt, timer.ms)
+
+    def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
+        """Every launch of a step after the reorder, reading nothing back unless ``sync``: this
+        is what a graph captures. ``self.dt`` holds the step."""
+        timer = timer or _no_timer
+        n = model.n_fluid
+        with timer("neighbours"):
+            self.search.build(state.x, sync=sync)
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         with timer("density"):
             launch_particles(
@@ -173,45 +189,51 @@ class SPHSolver:
                 [state.x, model.boundary_x, model.boundary_psi, nf, nb, model.mass, model.support_radius, model.rho0, state.rho, self.compression],
                 model.device,
             )
-            compression = self.mean_compression = mean_float64(self.compression, n)
+            wp.utils.array_sum(self.compression[:n], out=self._compression_sum)
         with timer("advection"):
-            self.predict_advection(model, state, dt)
+            self.predict_advection(model, state)
         with timer("pressure"):
-            iterations, density_error = self.pressure_solve(model, state, dt)
+            self.pressure_solve(model, state)
         with timer("integration"):
             launch_particles(
                 integrate,
                 n,
-                [self.v_adv, state.rho, state.p, model.boundary_psi, nf, nb, model.mass, float(dt), state.v, state.x],
+                [self.v_adv, state.rho, state.p, model.boundary_psi, nf, nb, model.mass, self.dt, state.v, state.x],
                 model.device,
             )
-            max_speed, escaped, non_finite = self.check(model, state)
-        self.steps += 1
+            self._max_speed2.zero_()
+            self._counts.zero_()
+            wp.launch(
+                check_state,
+                dim=n,
+                inputs=[state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self._max_speed2, self._counts],
+                device=model.device,
+            )
+
+    def read_stats(self, model, dt: float, ms: dict) -> dict:
+        """The step's statistics, read back from the device."""
+        n = max(model.n_fluid, 1)
+        compression = self.mean_compression = float(self._compression_sum.numpy()[0]) / n
+        iterations, density_error = self.solver_stats(n)
+        counts = self._counts.numpy()
         return {
             "dt": float(dt),
             "iterations": int(iterations),
             "density_error": float(density_error),
             "compression": compression,
-            "max_velocity": max_speed,
-            "escaped": escaped,
-            "non_finite": non_finite,
-            "ms": {k: round(v, 4) for k, v in timer.ms.items()},
+            "max_velocity": float(np.sqrt(self._max_speed2.numpy()[0])),
+            "escaped": int(counts[0]),
+            "non_finite": int(counts[1]),
+            "ms": {k: round(v, 4) for k, v in ms.items()},
         }
 
-    def check(self, model, state) -> tuple[float, int, int]:
-        self._max_speed2.zero_()
-        self._counts.zero_()
-        wp.launch(
-            check_state,
-            dim=model.n_fluid,
-            inputs=[state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self._max_speed2, self._counts],
-            device=model.device,
-        )
-        counts = self._counts.numpy()
-        return float(np.sqrt(self._max_speed2.numpy()[0])), int(counts[0]), int(counts[1])
+    def solver_stats(self, n: int) -> tuple[int, float]:
+        """Pressure-solver iterations and its final density error; WCSPH has no solver, so its
+        error is the compression."""
+        return 0, self.mean_compression
 
-    def predict_advection(self, model, state, dt: float) -> None:
+    def predict_advection(self, model, state) -> None:
         raise NotImplementedError
 
-    def pressure_solve(self, model, state, dt: float) -> tuple[int, float]:
+    def pressure_solve(self, model, state) -> None:
         raise NotImplementedError

@@ -73,9 +73,10 @@ def predict_velocity(
     psi: wp.array(dtype=float),
     nb: NeighborList,
     boundary_viscosity: float,
-    dt: float,
+    dt_step: wp.array(dtype=float),
     v_adv: wp.array(dtype=wp.vec3),
 ):
     """v_adv = v + dt * (gravity + viscosity): the velocity before pressure acts."""
     i = wp.tid() + offset
+    dt = dt_step[0]
     v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, psi, nb, boundary_viscosity)

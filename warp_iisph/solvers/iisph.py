@@ -19,7 +19,7 @@ import warp as wp
 
 from ..launch import launch_particles
 from ..neighbors import NeighborList
-from .common import SPHSolver, mean_float64
+from .common import SPHSolver
 from .forces import non_pressure_acceleration
 
 
@@ -38,11 +38,12 @@ def predict_advection_velocity(
     gravity: wp.vec3,
     xb: wp.array(dtype=wp.vec3),
     boundary_viscosity: float,
-    dt: float,
+    dt_step: wp.array(dtype=float),
     v_adv: wp.array(dtype=wp.vec3),
     d_ii: wp.array(dtype=wp.vec3),
 ):
     i = wp.tid() + offset
+    dt = dt_step[0]
     v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, psi, nb, boundary_viscosity)
     d = wp.vec3(0.0, 0.0, 0.0)
     s = nf.start[i]
@@ -65,12 +66,13 @@ def predict_advection_density(
     nf: NeighborList,
     nb: NeighborList,
     mass: float,
-    dt: float,
+    dt_step: wp.array(dtype=float),
     rho_adv: wp.array(dtype=float),
     a_ii: wp.array(dtype=float),
     p: wp.array(dtype=float),
 ):
     i = wp.tid() + offset
+    dt = dt_step[0]
     v_i = v_adv[i]
     rho_i = rho[i]
     dii = d_ii[i]
@@ -101,10 +103,11 @@ def pressure_sum_dij_pj(
     p: wp.array(dtype=float),
     nf: NeighborList,
     mass: float,
-    dt: float,
+    dt_step: wp.array(dtype=float),
     sum_dij_pj: wp.array(dtype=wp.vec3),
 ):
     i = wp.tid() + offset
+    dt = dt_step[0]
     acc = wp.vec3(0.0, 0.0, 0.0)
     s = nf.start[i]
     for k in range(s, s + nf.count[i]):
@@ -127,13 +130,14 @@ def pressure_jacobi(
     nf: NeighborList,
     nb: NeighborList,
     mass: float,
-    dt: float,
+    dt_step: wp.array(dtype=float),
     rho0: float,
     omega: float,
     p_new: wp.array(dtype=float),
     density_error: wp.array(dtype=wp.float64),
 ):
     i = wp.tid() + offset
+    dt = dt_step[0]
     rho_i = rho[i]
     p_i = p[i]
     sdp_i = sum_dij_pj[i]
@@ -157,6 +161,24 @@ def pressure_jacobi(
     density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
 
 
+@wp.kernel
+def jacobi_convergence(
+    error_sum: wp.array(dtype=wp.float64),
+    n: int,
+    eta: wp.float64,
+    min_iterations: int,
+    max_iterations: int,
+    iterations: wp.array(dtype=wp.int32),
+    keep_going: wp.array(dtype=wp.int32),
+):
+    """Count the iteration; stop once the mean predicted density error is at most eta (after
+    ``min_iterations``) or at ``max_iterations``."""
+    it = iterations[0] + 1
+    iterations[0] = it
+    converged = it >= min_iterations and error_sum[0] / wp.float64(n) <= eta
+    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
+
+
 class IISPHSolver(SPHSolver):
     """Implicit incompressible SPH with relaxed Jacobi; statistics report the iterations and the
     final average predicted density error."""
@@ -172,42 +194,50 @@ class IISPHSolver(SPHSolver):
         self.sum_dij_pj = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.p_next = wp.zeros(n, dtype=float, device=dev)
         self.density_error = wp.zeros(n, dtype=wp.float64, device=dev)
+        self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
+        self._iterations = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._continue = wp.zeros(1, dtype=wp.int32, device=dev)
 
-    def predict_advection(self, model, state, dt: float) -> None:
+    def predict_advection(self, model, state) -> None:
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = model.n_fluid, model.device
         launch_particles(
             predict_advection_velocity,
             n,
             [state.x, state.v, state.rho, model.boundary_psi, nf, nb, model.mass, model.viscosity, model.spacing, wp.vec3(*model.gravity),
-             model.boundary_x, model.boundary_viscosity, float(dt), self.v_adv, self.d_ii],
+             model.boundary_x, model.boundary_viscosity, self.dt, self.v_adv, self.d_ii],
             dev,
         )
         launch_particles(
             predict_advection_density,
             n,
-            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, nf, nb, model.mass, float(dt), self.rho_adv, self.a_ii, state.p],
+            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, nf, nb, model.mass, self.dt, self.rho_adv, self.a_ii, state.p],
             dev,
         )
 
-    def pressure_solve(self, model, state, dt: float) -> tuple[int, float]:
+    def pressure_solve(self, model, state) -> None:
+        """Relaxed Jacobi until converged; the loop's test runs on the device
+        (``wp.capture_while``), so a captured graph holds the whole loop."""
+        self._iterations.zero_()
+        self._continue.fill_(1)
+        wp.capture_while(self._continue, self.jacobi_iteration, model=model, state=state)
+
+    def jacobi_iteration(self, model, state) -> None:
         ph = self.physics
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = model.n_fluid, model.device
-        error = float("inf")
-        iterations = 0
-        while iterations < ph.max_iterations:
-            launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, float(dt), self.sum_dij_pj], dev)
-            launch_particles(
-                pressure_jacobi,
-                n,
-                [state.rho, self.rho_adv, self.a_ii, self.d_ii, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
-                 model.mass, float(dt), model.rho0, float(ph.omega), self.p_next, self.density_error],
-                dev,
-            )
-            state.p, self.p_next = self.p_next, state.p
-            iterations += 1
-            error = mean_float64(self.density_error, n)
-            if iterations >= ph.min_iterations and error <= ph.eta:
-                break
-        return iterations, error
+        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, self.dt, self.sum_dij_pj], dev)
+        launch_particles(
+            pressure_jacobi,
+            n,
+            [state.rho, self.rho_adv, self.a_ii, self.d_ii, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
+             model.mass, self.dt, model.rho0, float(ph.omega), self.p_next, self.density_error],
+            dev,
+        )
+        wp.copy(state.p, self.p_next, count=n)
+        wp.utils.array_sum(self.density_error[:n], out=self._error_sum)
+        wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, n, wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
+                                                     self._iterations, self._continue], device=dev)
+
+    def solver_stats(self, n: int) -> tuple[int, float]:
+        return int(self._iterations.numpy()[0]), float(self._error_sum.numpy()[0]) / n

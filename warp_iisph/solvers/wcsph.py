@@ -34,15 +34,14 @@ class WCSPHSolver(SPHSolver):
     def signal_speed(self) -> float:
         return math.sqrt(7.0 * self.physics.stiffness / self.physics.rho0)
 
-    def predict_advection(self, model, state, dt: float) -> None:
+    def predict_advection(self, model, state) -> None:
         launch_particles(
             predict_velocity,
             model.n_fluid,
             [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, model.viscosity, model.spacing, wp.vec3(*model.gravity),
-             model.boundary_x, model.boundary_psi, self.search.boundary.lists, model.boundary_viscosity, float(dt), self.v_adv],
+             model.boundary_x, model.boundary_psi, self.search.boundary.lists, model.boundary_viscosity, self.dt, self.v_adv],
             model.device,
         )
 
-    def pressure_solve(self, model, state, dt: float) -> tuple[int, float]:
+    def pressure_solve(self, model, state) -> None:
         launch_particles(state_equation, model.n_fluid, [state.rho, model.rho0, float(self.physics.stiffness), state.p], model.device)
-        return 0, self.mean_compression
