@@ -45,6 +45,7 @@ class Simulation:
         # graph=True replays a recorded step (see warp_iisph.graph); the plain path launches
         # each kernel from Python, times every stage, and is the reference the graph is tested against
         self.stepper = None
+        self._frames = None
         if graph:
             from .graph import CapturedStepper
 
@@ -83,8 +84,12 @@ class Simulation:
         stepper = self.stepper or self.solver
         record = stepper.step(self.model, self.state, dt)
         self.time += dt
+        return self._accept(record)
+
+    def _accept(self, record: dict) -> dict:
+        """Number and keep a step's record; raise DivergenceError if the step blew up."""
         self.step_count += 1
-        record = {"step": self.step_count, "t": self.time, **record}
+        record = {"step": self.step_count, **record, "t": self.time}
         self.stats.append(record)
         self.max_speed = record["max_velocity"]
         reason = None
@@ -100,8 +105,28 @@ class Simulation:
         return record
 
     def advance(self, duration: float, callback: Optional[Callable[[dict], None]] = None) -> None:
-        """Simulate ``duration`` seconds; the last step is shortened to land on the end time."""
+        """Simulate ``duration`` seconds; the last step is shortened to land on the end time.
+        With ``graph=True`` the steps run as replays of a recorded loop (warp_iisph.graph)."""
         end = self.time + float(duration)
+        if self.stepper is not None and self.time < end - 1e-9:
+            if self.solver.steps == 0:  # a plain first step loads every module the graph uses
+                self._advance_plain(self.time + min(self.next_dt(), end - self.time), callback)
+            if self._frames is None:
+                from .graph import FrameGraph
+
+                self._frames = FrameGraph(self)
+            start = self.time
+            for rec in self._frames.run_until(end):
+                self.time = rec.pop("t")
+                record = self._accept(rec)
+                if callback is not None:
+                    callback(record)
+            if self.time == start and self.time < end - 1e-9:
+                raise RuntimeError("graph replay made no progress")
+            return
+        self._advance_plain(end, callback)
+
+    def _advance_plain(self, end: float, callback) -> None:
         while self.time < end - 1e-9:
             dt = min(self.next_dt(), end - self.time)
             if end - self.time - dt < 1e-9 + 0.05 * dt:
