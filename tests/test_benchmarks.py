@@ -36,8 +36,8 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         assert all(r["mean_abs_error"] < 0.1 for r in rows if r["wall_friction"] > 0)
 
 
-def _quick(script: str, tmp_path, stem: str) -> dict:
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path)],
+def _quick(script: str, tmp_path, stem: str, *extra) -> dict:
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path), *extra],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     record = json.loads((tmp_path / f"{stem}.json").read_text())
@@ -53,6 +53,9 @@ def test_device_switch_quick_mode(tmp_path):
     for r in rows:  # the throughput is what the steps and wall time say
         assert r["particle_steps_per_second"] == pytest.approx(r["particles"] * r["steps"] / r["wall_seconds"])
     assert ("cuda" in record["devices_missing"]) != any(r["device"] == "cuda" for r in record["results"])
+    graph = _quick("device_switch.py", tmp_path, "device_switch_graph_quick", "--devices", "cpu", "--graph")
+    assert graph["graph"] and all(r["graph"] for r in graph["results"])
+    assert [r["steps"] for r in graph["results"]] == [r["steps"] for r in rows]  # same steps, replayed
 
 
 def test_speed_accuracy_quick_mode(tmp_path):
