@@ -22,53 +22,85 @@ import warp as wp
 from .launch import recording
 
 
-class CapturedStepper:
-    """Replays one recorded step per :meth:`step`; the plain path is ``solver.step``."""
+class RecordedGraph:
+    """A graph over the solver's launches, recorded on first use and again whenever the
+    neighbour storage has moved. A replay whose neighbour lists needed more storage than there
+    is gets undone from the copy the graph takes at its start; the storage grows, and the graph
+    is recorded and replayed again. Subclasses give the recorded body and what the lists needed."""
 
-    def __init__(self, solver, model, state):
-        self.solver = solver
-        self.device = model.device
+    def __init__(self, sim):
+        self.sim = sim
+        self.device = sim.model.device
         self.graph = None
         self._generation = None
         self.captures = 0
         self.redone = 0
-        self._backup = {name: wp.empty_like(getattr(state, name)) for name in ("x", "v", "p")}
+        self._backup = [wp.empty_like(a) for a in self._sources()]
 
-    def _generations(self):
-        s = self.solver.search
-        return (s.fluid.generation, s.boundary.generation)
+    def _sources(self) -> list:
+        """What a replay changes and a redo restores: the particles and the last step's top speed."""
+        state = self.sim.state
+        return [state.x, state.v, state.rho, state.p, state.id, self.sim.solver._max_speed2]
 
-    def _capture(self, model, state) -> None:
+    def _generations(self) -> tuple:
+        search = self.sim.solver.search
+        return (search.fluid.generation, search.boundary.generation)
+
+    def _body(self) -> None:
+        raise NotImplementedError
+
+    def _needed(self) -> tuple[int, int]:
+        """Entries the fluid and boundary lists needed during the last replay."""
+        raise NotImplementedError
+
+    def _rewind(self) -> None:
+        """Reset the device state a redo starts from, besides the particles."""
+
+    def _record(self) -> None:
         with recording(), wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
-            for name, copy in self._backup.items():
-                wp.copy(copy, getattr(state, name))
-            self.solver.launch_step(model, state, sync=False)
+            for copy, src in zip(self._backup, self._sources()):
+                wp.copy(copy, src)
+            self._body()
         self.graph = capture.graph
         self._generation = self._generations()
         self.captures += 1
 
+    def _launch(self) -> None:
+        if self.graph is None or self._generation != self._generations():
+            self._record()
+        wp.capture_launch(self.graph)
+        search = self.sim.solver.search
+        over = [(b, k) for b, k in zip((search.fluid, search.boundary), self._needed()) if k > b.capacity]
+        if over:
+            for copy, dst in zip(self._backup, self._sources()):
+                wp.copy(dst, copy)
+            self._rewind()
+            for buffer, needed in over:
+                buffer.grow(needed)
+            self._record()
+            wp.capture_launch(self.graph)
+            self.redone += 1
+
+
+class CapturedStepper(RecordedGraph):
+    """Replays one recorded step per :meth:`step`; the plain path is ``solver.step``."""
+
+    def _body(self) -> None:
+        self.sim.solver.launch_step(self.sim.model, self.sim.state, sync=False)
+
+    def _needed(self) -> tuple[int, int]:
+        search = self.sim.solver.search
+        return int(search.fluid.needed.numpy()[0]), int(search.boundary.needed.numpy()[0])
+
     def step(self, model, state, dt: float) -> dict:
-        solver = self.solver
+        solver = self.sim.solver
         if self.graph is None and solver.steps == 0:
             return solver.step(model, state, dt)  # loads every module the graph will use
         t0 = time.perf_counter()
         if solver.steps % solver.reorder_interval == 0:
             state.reorder(solver.search.cell_order(state.x))
         solver.dt.fill_(float(dt))
-        if self.graph is None or self._generation != self._generations():
-            self._capture(model, state)
-        wp.capture_launch(self.graph)
-        search = solver.search
-        lists = [search.fluid] + ([search.boundary] if search.boundary_grid is not None else [])
-        if any(b.overflowed() for b in lists):
-            for name, copy in self._backup.items():
-                wp.copy(getattr(state, name), copy)
-            for b in lists:
-                if b.total > b.capacity:
-                    b.grow(b.total)
-            self._capture(model, state)
-            wp.capture_launch(self.graph)
-            self.redone += 1
+        self._launch()
         solver.steps += 1
         if self.device.is_cuda:
             wp.synchronize_device(self.device)
@@ -160,19 +192,13 @@ def record_step(
 LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity", "escaped", "non_finite", "t")
 
 
-class FrameGraph:
+class FrameGraph(RecordedGraph):
     """Replays a recorded loop over steps until the simulation reaches an end time: one replay
     per up to ``log_capacity`` steps, with the statistics read back once per replay."""
 
     def __init__(self, sim, log_capacity: int = 256):
-        self.sim = sim
         dev = sim.model.device
-        self.device = dev
         self.capacity = int(log_capacity)
-        self.graph = None
-        self._generation = None
-        self.captures = 0
-        self.redone = 0
         self.replays = 0
         f64 = wp.float64
         self.time = wp.zeros(1, dtype=f64, device=dev)
@@ -186,14 +212,8 @@ class FrameGraph:
         self.log = wp.zeros((self.capacity, len(LOG_FIELDS)), dtype=f64, device=dev)
         self._no_iterations = wp.zeros(1, dtype=wp.int32, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
-        # what a replay changes and a redo must restore: the particles and the last step's top speed
-        self._sources = lambda: [*(getattr(self.sim.state, k) for k in ("x", "v", "rho", "p", "id")), self.sim.solver._max_speed2]
-        self._backup = [wp.empty_like(a) for a in self._sources()]
+        super().__init__(sim)
         wp.load_module(module="warp_iisph.graph", device=dev)
-
-    def _generations(self):
-        s = self.sim.solver.search
-        return (s.fluid.generation, s.boundary.generation)
 
     def _step_body(self) -> None:
         sim = self.sim
@@ -215,63 +235,38 @@ class FrameGraph:
             search.boundary.needed if search.boundary_grid is not None else self._zero_total,
             self.time, self.end, self.steps, self.slot, self.log, self.keep_going])
 
-    def _capture(self) -> None:
-        with recording(), wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
-            for copy, src in zip(self._backup, self._sources()):
-                wp.copy(copy, src)
-            self.slot.zero_()
-            self.needed.zero_()
-            self.keep_going.fill_(1)
-            wp.capture_while(self.keep_going, self._step_body)
-        self.graph = capture.graph
-        self._generation = self._generations()
-        self.captures += 1
+    def _body(self) -> None:
+        self.slot.zero_()
+        self.needed.zero_()
+        self.keep_going.fill_(1)
+        wp.capture_while(self.keep_going, self._step_body)
 
-    def _overflowing(self) -> list:
-        needed = self.needed.numpy()
-        search = self.sim.solver.search
-        return [(b, int(k)) for b, k in ((search.fluid, needed[0]), (search.boundary, needed[1])) if k > b.capacity]
+    def _needed(self) -> tuple[int, int]:
+        fluid, boundary = self.needed.numpy()
+        return int(fluid), int(boundary)
 
-    def run_until(self, end: float) -> list[dict]:
-        """Replay until the clock reaches ``end`` (or a divergence); returns the steps' records."""
-        import numpy as np
+    def _rewind(self) -> None:
+        self.time.fill_(self.sim.time)
+        self.steps.fill_(self.sim.solver.steps)
 
+    def replay_until(self, end: float):
+        """Replay until the clock reaches ``end``, yielding each step's record (with its end time
+        ``t``) once per replay; the caller advances ``sim.time`` and stops on a divergence."""
         sim = self.sim
-        records = []
         while sim.time < end - 1e-9:
-            self.time.fill_(sim.time)
             self.end.fill_(end)
-            self.steps.fill_(sim.solver.steps)
-            if self.graph is None or self._generation != self._generations():
-                self._capture()
+            self._rewind()
             t0 = time.perf_counter()
-            wp.capture_launch(self.graph)
-            over = self._overflowing()
-            if over:  # restore the replay's start, grow, record again, replay
-                for copy, dst in zip(self._backup, self._sources()):
-                    wp.copy(dst, copy)
-                self.time.fill_(sim.time)
-                self.steps.fill_(sim.solver.steps)
-                for buffer, needed in over:
-                    buffer.grow(needed)
-                self._capture()
-                wp.capture_launch(self.graph)
-                self.redone += 1
+            self._launch()
             self.replays += 1
             k = int(self.slot.numpy()[0])
+            if k == 0:
+                raise RuntimeError("graph replay made no progress")
             log = self.log.numpy()[:k]
-            wall_ms = 1e3 * (time.perf_counter() - t0)
+            ms = {"step": round(1e3 * (time.perf_counter() - t0) / k, 4)}
+            sim.solver.steps += k
             for row in log:
                 rec = dict(zip(LOG_FIELDS, (float(v) for v in row)))
                 for key in ("iterations", "escaped", "non_finite"):
                     rec[key] = int(rec[key])
-                rec["ms"] = {"step": round(wall_ms / max(k, 1), 4)}
-                records.append(rec)
-            sim.solver.steps += k
-            if k and not np.isfinite(log[-1, 7]):
-                break
-            sim.time = float(log[-1, 7]) if k else sim.time
-            last = records[-1] if records else None
-            if last and (last["escaped"] or last["non_finite"] or last["max_velocity"] > sim.velocity_limit):
-                break
-        return records
+                yield {**rec, "ms": ms}

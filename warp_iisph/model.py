@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
@@ -74,6 +74,7 @@ class State:
     rho: wp.array
     p: wp.array
     id: wp.array
+    _scratch: dict = field(default_factory=dict, repr=False)  # reorder's buffers, one per dtype
 
     @property
     def n(self) -> int:
@@ -84,7 +85,7 @@ class State:
         (through one scratch array per type: the arrays keep their memory, which captured
         graphs point at)."""
         n = self.n
-        scratch = self.__dict__.setdefault("_scratch", {})
+        scratch = self._scratch
         for name in ("x", "v", "rho", "p", "id"):
             src = getattr(self, name)
             tmp = scratch.get(src.dtype)

@@ -100,13 +100,12 @@ class NeighborListBuffer:
         self.lists = NeighborList()
         self.lists.start = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
         self.lists.count = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
-        self._reserve(max(32 * n, 1))
-        self.total = 0
         self.needed = wp.zeros(1, dtype=wp.int32, device=device)  # entries the last build needed
-        self.generation = 0  # bumped when the storage moves (captured graphs must be re-made)
+        self.generation = -1  # bumped when the storage moves (captured graphs must be re-made)
+        self._reserve(max(32 * n, 1))
 
     def _reserve(self, capacity: int) -> None:
-        self.generation = getattr(self, "generation", -1) + 1
+        self.generation += 1
         self.capacity = capacity
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
         self.lists.grad_W = wp.zeros(capacity, dtype=wp.vec3, device=self.device)
@@ -115,22 +114,16 @@ class NeighborListBuffer:
         """Count, scan, fill. With ``sync`` the storage grows first when too small; without it
         (inside a captured graph) nothing is read back and ``needed`` tells afterwards."""
         if n == 0:
-            self.total = 0
             return
         lists = self.lists
         launch_particles(count_neighbors, n, [grid.id, points, queries, radius, int(same_set), lists.count], self.device)
         wp.utils.array_scan(lists.count[:n], lists.start[:n], inclusive=False)
         wp.launch(list_total, dim=1, inputs=[n, lists, self.needed], device=self.device)
         if sync:
-            self.total = int(self.needed.numpy()[0])
-            if self.total > self.capacity:
-                self.grow(self.total)
+            total = int(self.needed.numpy()[0])
+            if total > self.capacity:
+                self.grow(total)
         launch_particles(fill_neighbors, n, [grid.id, points, queries, radius, int(same_set), self.lists], self.device)
-
-    def overflowed(self) -> bool:
-        """Did the last unsynchronised build need more entries than the storage holds?"""
-        self.total = int(self.needed.numpy()[0])
-        return self.total > self.capacity
 
     def grow(self, needed: int) -> None:
         self._reserve(int(needed * 1.25) + 16)
