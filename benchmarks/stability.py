@@ -9,16 +9,12 @@ dt * v_ref / h (v_ref = sqrt(2 g 2a)) of each limit.
 """
 
 import argparse
-import datetime
-import json
-import platform
-from pathlib import Path
 
 import numpy as np
 import warp as wp
 
+from common import RESULTS, header, pyplot, save
 from warp_iisph import DivergenceError, Simulation, scenes
-from warp_iisph.runner import versions
 
 G, A = 9.81, 0.2
 CRITERIA = {"duration_s": 0.6, "max_mean_density_error": 0.01, "max_speed_over_free_fall": 3.0}
@@ -63,7 +59,7 @@ def main():
     ap.add_argument("--spacings", default="0.04,0.02,0.0133")
     ap.add_argument("--steps", type=int, default=7, help="bisection steps")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
     duration = CRITERIA["duration_s"]
     if args.quick:
@@ -79,21 +75,13 @@ def main():
             rows.append(r)
             dt = "none" if r["dt_max"] is None else f"{1e3 * r['dt_max']:.2f} ms (CFL {r['cfl_at_limit']:.2f})"
             print(f"{method:>5} h = {h:g} m: largest stable dt {dt}; fails by: {r.get('failure', r.get('note', ''))}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    stem = "stability_quick" if args.quick else "stability"
-    (out / f"{stem}.json").write_text(json.dumps({
-        "benchmark": "stability", "scene": "martin_moyce (a = 0.2 m, 0.1 m deep)", "criteria": {**CRITERIA, "duration_s": duration},
-        "wcsph_stiffness_pa": 50000, "iisph_eta": 1e-3, "device": "cpu", "machine": platform.processor() or platform.machine(),
-        "date": datetime.date.today().isoformat(), "versions": versions(), "results": rows}, indent=2) + "\n")
-    chart(rows, out / f"{stem}.png")
+    record = header("stability", scene="martin_moyce (a = 0.2 m, 0.1 m deep)", criteria={**CRITERIA, "duration_s": duration},
+                    wcsph_stiffness_pa=50000, iisph_eta=1e-3, results=rows)
+    chart(rows, save(record, args.out, "stability", args.quick))
 
 
 def chart(rows, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for method, marker in (("wcsph", "s-"), ("iisph", "o-")):

@@ -7,9 +7,6 @@ benchmarks/results/surface.json and surface.png.
 """
 
 import argparse
-import datetime
-import json
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -17,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from common import RESULTS, header, pyplot, save
 from warp_iisph.launch import available_cores, set_threads
 from warp_iisph.meshing import FrameMesher
-from warp_iisph.runner import versions
 from warp_iisph.sampling import sample_box, sample_sphere
 from warp_iisph.scene import Box, Sphere, Surface
 
@@ -43,7 +40,7 @@ def main():
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--frames", type=int, default=3, help="frames per measurement (median)")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
     if args.quick:
         args.counts, args.frames = "20000", 1
@@ -69,22 +66,13 @@ def main():
                                 "median_ms": med})
                 print(f"{len(x):>8} particles, {threads} threads: " + ", ".join(f"{s} {v:.0f}" for s, v in med.items())
                       + f" ms ({len(mesh.faces)} triangles)")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    stem = "surface_quick" if args.quick else f"surface_{args.device}"
-    record = {"benchmark": "surface", "device": str(wp.get_device(device)), "machine": platform.processor() or platform.machine(),
-              "cores": available_cores(), "date": datetime.date.today().isoformat(), "versions": versions(),
-              "cell": "h/2", "smoothing": "laplacian x3", "results": results,
-              "reference": "splashsurf 0.14 on this 2-core machine: 50k particles 0.25-0.37 s, 160k 0.5-0.9 s"}
-    (out / f"{stem}.json").write_text(json.dumps(record, indent=2) + "\n")
-    chart(results, out / f"{stem}.png")
+    record = header("surface", args.device, cell="h/2", smoothing="laplacian x3", results=results,
+                    reference="splashsurf 0.14 on this 2-core machine: 50k particles 0.25-0.37 s, 160k 0.5-0.9 s")
+    chart(results, save(record, args.out, "surface" if args.quick else f"surface_{args.device}", args.quick))
 
 
 def chart(results, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     counts = sorted({r["particles"] for r in results})
     fig, axes = plt.subplots(1, len(counts), figsize=(5 * len(counts), 4), squeeze=False)

@@ -6,18 +6,13 @@ and ms per stage for each count. Writes benchmarks/results/thread_scaling.json a
 """
 
 import argparse
-import datetime
-import json
-import platform
 import time
-from pathlib import Path
 
 import numpy as np
-import warp as wp
 
+from common import RESULTS, header, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
 from warp_iisph.launch import available_cores, set_threads
-from warp_iisph.runner import versions
 
 SPLISHSPLASH_S_PER_S = {"IISPH, volume maps": 66.0, "DFSPH": 38.6}
 
@@ -42,11 +37,8 @@ def run(threads: int, spacing: float, duration: float) -> dict:
     }
 
 
-def chart(results: list, path: Path, spacing: float) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def chart(results: list, path, spacing: float) -> None:
+    plt = pyplot()
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     th = [r["threads"] for r in results]
@@ -80,12 +72,11 @@ def main():
     ap.add_argument("--spacing", type=float, default=0.03)
     ap.add_argument("--threads", default=",".join(str(t) for t in sorted({1, 2, available_cores()})))
     ap.add_argument("--quick", action="store_true", help="a coarse, short run (under a minute)")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
     if args.quick:
         args.duration = 0.01  # a few steps of the full-size scene
-    wp.config.log_level = wp.LOG_WARNING
-    Simulation(scenes.hydrostatic_tank(spacing=0.05), "cpu").step()  # compile outside the timing
+    warm_up()  # compile outside the timing
     results = [run(int(t), args.spacing, args.duration) for t in args.threads.split(",")]
     print(f"{results[0]['particles']} particles, {args.duration} s simulated, CPU")
     print(f"{'threads':>7} {'s/sim s':>8} {'speed-up':>8} {'steps':>6} {'iters':>6}  median ms per step")
@@ -93,16 +84,9 @@ def main():
         ms = ", ".join(f"{k} {v:.1f}" for k, v in r["median_ms_per_step"].items())
         print(f"{r['threads']:>7} {r['wall_seconds_per_simulated_second']:>8.1f} "
               f"{results[0]['wall_seconds'] / r['wall_seconds']:>8.2f} {r['steps']:>6} {r['mean_iterations']:>6.2f}  {ms}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    stem = "thread_scaling_quick" if args.quick else "thread_scaling"
-    record = {
-        "benchmark": "thread_scaling", "scene": "dam_break_cube", "spacing": args.spacing, "duration": args.duration,
-        "device": "cpu", "machine": platform.processor() or platform.machine(), "cores": available_cores(),
-        "date": datetime.date.today().isoformat(), "versions": versions(), "results": results,
-    }
-    (out / f"{stem}.json").write_text(json.dumps(record, indent=2) + "\n")
-    chart(results, out / f"{stem}.png", args.spacing)
+    record = header("thread_scaling", scene="dam_break_cube", spacing=args.spacing, duration=args.duration,
+                    available_cores=available_cores(), results=results)
+    chart(results, save(record, args.out, "thread_scaling", args.quick), args.spacing)
 
 
 if __name__ == "__main__":

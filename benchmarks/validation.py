@@ -7,17 +7,12 @@ benchmarks/results/validation.json and .png.
 """
 
 import argparse
-import datetime
-import json
-import platform
-from pathlib import Path
 
 import numpy as np
 import warp as wp
 
-from common import martin_moyce_front
+from common import RESULTS, header, martin_moyce_front, pyplot, save
 from warp_iisph.analysis import front_errors, load_martin_moyce
-from warp_iisph.runner import versions
 
 G, A = 9.81, 0.1
 
@@ -32,7 +27,7 @@ def main():
     ap.add_argument("--resolutions", default="10,15,20", help="a/h values")
     ap.add_argument("--friction", type=float, default=0.003, help="wall friction, m^2/s")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
     if args.quick:
         args.resolutions = "10"
@@ -47,21 +42,12 @@ def main():
                          "mean_abs_error": float(np.mean(np.abs(e))), "max_abs_error": float(np.max(np.abs(e)))})
             print(f"a/h = {res:>3} ({n:>5} particles), friction {friction:g} m^2/s: front error against the experiment "
                   f"mean {100 * rows[-1]['mean_abs_error']:.1f} %, worst {100 * rows[-1]['max_abs_error']:.1f} % (T <= 3)")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    stem = "validation_quick" if args.quick else "validation"
-    (out / f"{stem}.json").write_text(json.dumps({
-        "benchmark": "validation", "reference": "Martin & Moyce 1952", "device": "cpu",
-        "machine": platform.processor() or platform.machine(), "date": datetime.date.today().isoformat(),
-        "versions": versions(), "runs": rows}, indent=2) + "\n")
-    chart(rows, ref, out / f"{stem}.png")
+    record = header("validation", reference="Martin & Moyce 1952", runs=rows)
+    chart(rows, ref, save(record, args.out, "validation", args.quick))
 
 
 def chart(rows, ref, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(7, 5))
     for name, pts in ref.items():
