@@ -2,9 +2,12 @@
 run that writes particles and a surface mesh every frame (30 frames per simulated second):
 neighbour search, density, advection (non-pressure forces and IISPH's predictions), pressure
 solve, integration, distance field, marching cubes, smoothing, export, and the rest (Python,
-statistics, progress). Writes benchmarks/results/breakdown.json and .png.
+statistics, progress). Frame files are written on a background thread while the next frame
+simulates; ``export`` is what that still costs the main thread (host copies and waits), and the
+record also gives the writer thread's own seconds and, with --compare-inline, the wall time of
+the same run writing inline. Writes benchmarks/results/breakdown.json and .png.
 
-    python benchmarks/breakdown.py [--particles 32768] [--duration 1.0] [--device cpu] [--quick]
+    python benchmarks/breakdown.py [--particles 32768] [--duration 1.0] [--device cpu] [--compare-inline] [--quick]
 """
 
 import argparse
@@ -47,6 +50,7 @@ def main():
     ap.add_argument("--duration", type=float, default=1.0)
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--compare-inline", action="store_true", help="also time the run with frames written inline")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
@@ -59,6 +63,11 @@ def main():
     scene.output.mesh = True
     with tempfile.TemporaryDirectory() as tmp:
         run = run_scene(scene, tmp, duration=args.duration, fps=args.fps, device=device, progress=False)
+    inline = None
+    if args.compare_inline:
+        with tempfile.TemporaryDirectory() as tmp:
+            inline = run_scene(scene, tmp, duration=args.duration, fps=args.fps, device=device, progress=False,
+                               background_output=False)["totals"]["wall_seconds"]
     if run["ended"] != "completed":
         raise SystemExit(f"breakdown: the run {run['ended']}: {run['message']}")
     stages = dict(run["stage_seconds"])
@@ -68,8 +77,11 @@ def main():
     record = header("breakdown", device, scene="dam_break_cube with meshing", particles=run["particles"]["fluid"],
                     threads=get_threads() if device == "cpu" else None, frames=run["totals"]["frames"],
                     simulated_seconds=run["totals"]["simulated_time"], steps=run["totals"]["steps"], wall_seconds=wall,
-                    stage_seconds=stages, share=share, surface=run["scene"]["surface"])
-    print(f"{record['particles']} particles, {record['steps']} steps, {record['frames']} frames, {wall:.1f} s wall on {device}")
+                    stage_seconds=stages, share=share, surface=run["scene"]["surface"],
+                    writer_thread_seconds=run["output"]["writer_seconds"], inline_output_wall_seconds=inline)
+    print(f"{record['particles']} particles, {record['steps']} steps, {record['frames']} frames, {wall:.1f} s wall on {device}"
+          + (f" ({inline:.1f} s writing frames inline)" if inline else "")
+          + f"; the writer thread worked {run['output']['writer_seconds']:.1f} s alongside")
     for k, v in sorted(stages.items(), key=lambda kv: -kv[1]):
         print(f"{k:>15} {v:8.2f} s {100 * share[k]:5.1f} %")
     chart(record, save(record, args.out, "breakdown", args.quick))

@@ -82,3 +82,4 @@ def test_breakdown_quick_mode(tmp_path):
         assert st[stage] > 0, stage
     assert sum(record["share"].values()) == pytest.approx(1.0, abs=1e-6)
     assert record["frames"] == 4
+    assert record["writer_thread_seconds"] > 0

@@ -86,6 +86,29 @@ def test_obj_round_trip(tmp_path, ball):
     assert np.allclose(back.vertices, m.vertices, atol=1e-5)
 
 
+def test_obj_text_is_printf_formatting(tmp_path):
+    """The kernel-formatted OBJ says what printf's %.6f / %.4f / %d say (up to padding)."""
+    from warp_iisph.io import obj_bytes
+
+    rng = np.random.default_rng(0)
+    v = rng.normal(0.0, 2.0, (500, 3)).astype(np.float32)
+    v[0] = (0.0, 12.5, -3.0000001)
+    v[1] = (-0.4e-6, 1234.5678, 7e-7)
+    n = rng.normal(0.0, 1.0, (500, 3))
+    n = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+    f = rng.integers(0, 500, (900, 3)).astype(np.int32)
+    f[0] = (0, 9, 499)  # one- to three-digit indices
+    ref = ["# warp_iisph surface: 500 vertices, 900 triangles"]
+    ref += ["v %.6f %.6f %.6f" % tuple(map(float, r)) for r in v] + ["vn %.4f %.4f %.4f" % tuple(map(float, r)) for r in n]
+    plain = ref[:501] + ["f %d %d %d" % tuple(r + 1) for r in f]
+    ref += ["f %d//%d %d//%d %d//%d" % tuple(np.repeat(r + 1, 2)) for r in f]
+    assert [" ".join(s.split()) for s in obj_bytes(v, f, n).decode().splitlines()] == ref
+    assert [" ".join(s.split()) for s in obj_bytes(v, f).decode().splitlines()] == plain
+    assert obj_bytes(np.zeros((0, 3)), np.zeros((0, 3))).decode() == "# warp_iisph surface: 0 vertices, 0 triangles\n"
+    with pytest.raises(ValueError, match="outside 0..499"):
+        obj_bytes(v, f + 1)
+
+
 def test_run_with_mesh_and_mesh_command(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["run", "martin_moyce", "--spacing", "0.04", "--duration", "0.1", "--fps", "20", "--out", str(out),

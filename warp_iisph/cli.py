@@ -158,7 +158,7 @@ def main(argv=None) -> int:
             return 2
     if args.command == "mesh":
         return _mesh_command(args, wp)
-    source = args.scene
+    source, out = args.scene, args.out
     try:
         overrides = list(args.overrides)
         if args.spacing is not None:
@@ -183,6 +183,9 @@ def main(argv=None) -> int:
     except ValueError as e:  # found while building the particles (memory, nothing fits)
         print(f"warp-iisph: error: {source}: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a frame could not be written (disk full, permissions); earlier frames are kept
+        print(f"warp-iisph: error: writing the run to {out}: {e}", file=sys.stderr)
+        return 1
     t = record["totals"]
     summary = (
         f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated in {t['wall_seconds']:.1f} s wall, "

@@ -22,13 +22,22 @@ class FrameMesher:
         self.reconstructor = SurfaceReconstructor(h, params, device)
         self.seconds = dict.fromkeys(MESH_STAGES, 0.0)
 
-    def write(self, positions, path: Path):
+    def mesh(self, positions):
+        """The surface of ``positions`` (device work; adds its stage times)."""
         mesh = self.reconstructor.reconstruct(positions)
-        t = time.perf_counter()
-        write_obj(path, mesh.vertices, mesh.faces, mesh.normals)
-        mesh.ms["export"] = 1e3 * (time.perf_counter() - t)
         for k, v in mesh.ms.items():
             self.seconds[k] += v / 1e3
+        return mesh
+
+    def export(self, mesh, path: Path) -> None:
+        """Write ``mesh`` as OBJ (host work only, so it may run on a writer thread)."""
+        t = time.perf_counter()
+        write_obj(path, mesh.vertices, mesh.faces, mesh.normals)
+        self.seconds["export"] += time.perf_counter() - t
+
+    def write(self, positions, path: Path):
+        mesh = self.mesh(positions)
+        self.export(mesh, path)
         return mesh
 
 
