@@ -50,12 +50,20 @@ def test_device_switch_quick_mode(tmp_path):
     record = _quick("device_switch.py", tmp_path, "device_switch_quick")
     rows = [r for r in record["results"] if r["device"] == "cpu"]
     assert [r["particles"] for r in rows] == sorted(r["particles"] for r in rows) and len(rows) == 2
+    assert ("cuda" in record["devices_missing"]) != any(r["device"] == "cuda" for r in record["results"])
     for r in rows:  # the throughput is what the steps and wall time say
         assert r["particle_steps_per_second"] == pytest.approx(r["particles"] * r["steps"] / r["wall_seconds"])
-    assert ("cuda" in record["devices_missing"]) != any(r["device"] == "cuda" for r in record["results"])
-    graph = _quick("device_switch.py", tmp_path, "device_switch_graph_quick", "--devices", "cpu", "--graph")
+        # the traffic bound: more bytes for more particles, a bound below the measured step
+        assert r["bytes_per_step"] > 16 * r["neighbour_entries"]["fluid"] * 4 > 0
+        assert 0 < r["fraction_of_bandwidth_bound"] < 1
+        assert r["realtime_ratio"] == pytest.approx(r["simulated_seconds"] / r["wall_seconds"])
+    assert rows[1]["bytes_per_step"] > 2 * rows[0]["bytes_per_step"]
+    graph = _quick("device_switch.py", tmp_path, "device_switch_graph_mesh_quick", "--devices", "cpu", "--graph", "--mesh")
     assert graph["graph"] and all(r["graph"] for r in graph["results"])
     assert [r["steps"] for r in graph["results"]] == [r["steps"] for r in rows]  # same steps, replayed
+    for r in graph["results"]:  # meshing at 30 frames per simulated second, counted in the real-time ratio
+        assert r["mesh_frames"] == 2 and r["mesh_triangles"] > 100 and r["mesh_ms_per_frame"] > 0
+        assert r["realtime_ratio"] == pytest.approx(r["simulated_seconds"] / r["wall_seconds_with_mesh"])
 
 
 def test_speed_accuracy_quick_mode(tmp_path):
