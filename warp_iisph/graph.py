@@ -210,7 +210,6 @@ class FrameGraph(RecordedGraph):
         self.due = wp.zeros(1, dtype=wp.int32, device=dev)
         self.needed = wp.zeros(2, dtype=wp.int32, device=dev)
         self.log = wp.zeros((self.capacity, len(LOG_FIELDS)), dtype=f64, device=dev)
-        self._no_iterations = wp.zeros(1, dtype=wp.int32, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
         super().__init__(sim)
         wp.load_module(module="warp_iisph.graph", device=dev)
@@ -227,10 +226,8 @@ class FrameGraph(RecordedGraph):
         wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x)))
         solver.launch_step(model, state, sync=False)
         search = solver.search
-        iisph = hasattr(solver, "_iterations")
         wp.launch(record_step, dim=1, device=dev, inputs=[
-            model.n_fluid, self.capacity, f64(sim.velocity_limit), self.dt64, solver._compression_sum,
-            solver._error_sum if iisph else solver._compression_sum, solver._iterations if iisph else self._no_iterations,
+            model.n_fluid, self.capacity, f64(sim.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
             solver._max_speed2, solver._counts, self.needed, search.fluid.needed,
             search.boundary.needed if search.boundary_grid is not None else self._zero_total,
             self.time, self.end, self.steps, self.slot, self.log, self.keep_going])

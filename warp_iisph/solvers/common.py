@@ -26,6 +26,24 @@ STAGES = ("neighbours", "density", "advection", "pressure", "integration")
 
 
 @wp.kernel
+def pack_stats(
+    compression_sum: wp.array(dtype=wp.float64),
+    error_sum: wp.array(dtype=wp.float64),
+    iterations: wp.array(dtype=wp.int32),
+    max_speed2: wp.array(dtype=float),
+    counts: wp.array(dtype=wp.int32),
+    out: wp.array(dtype=wp.float64),
+):
+    """The step's statistics in one array, so the host reads them back in one copy."""
+    out[0] = compression_sum[0]
+    out[1] = error_sum[0]
+    out[2] = wp.float64(iterations[0])
+    out[3] = wp.float64(max_speed2[0])
+    out[4] = wp.float64(counts[0])
+    out[5] = wp.float64(counts[1])
+
+
+@wp.kernel
 def compute_density(
     offset: int,
     x: wp.array(dtype=wp.vec3),
@@ -146,6 +164,8 @@ class SPHSolver:
         self._max_speed2 = wp.zeros(1, dtype=float, device=model.device)
         self._counts = wp.zeros(2, dtype=wp.int32, device=model.device)
         self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
+        self._no_iterations = wp.zeros(1, dtype=wp.int32, device=model.device)
+        self._stats = wp.zeros(6, dtype=wp.float64, device=model.device)
         self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
         self.steps = 0
 
@@ -203,26 +223,28 @@ class SPHSolver:
             )
 
     def read_stats(self, model, dt: float, ms: dict) -> dict:
-        """The step's statistics, read back from the device."""
+        """The step's statistics, read back from the device in one copy."""
         n = max(model.n_fluid, 1)
-        compression = self.mean_compression = float(self._compression_sum.numpy()[0]) / n
-        iterations, density_error = self.solver_stats(n)
-        counts = self._counts.numpy()
+        error_sum, iterations = self.solver_stats()
+        wp.launch(pack_stats, dim=1, inputs=[self._compression_sum, error_sum, iterations, self._max_speed2, self._counts, self._stats],
+                  device=model.device)
+        compression_sum, error_sum, iterations, max_speed2, escaped, non_finite = self._stats.numpy().tolist()
+        self.mean_compression = compression_sum / n
         return {
             "dt": float(dt),
             "iterations": int(iterations),
-            "density_error": float(density_error),
-            "compression": compression,
-            "max_velocity": float(np.sqrt(self._max_speed2.numpy()[0])),
-            "escaped": int(counts[0]),
-            "non_finite": int(counts[1]),
+            "density_error": error_sum / n,
+            "compression": self.mean_compression,
+            "max_velocity": float(np.sqrt(np.float32(max_speed2))),
+            "escaped": int(escaped),
+            "non_finite": int(non_finite),
             "ms": {k: round(v, 4) for k, v in ms.items()},
         }
 
-    def solver_stats(self, n: int) -> tuple[int, float]:
-        """Pressure-solver iterations and its final density error; WCSPH has no solver, so its
-        error is the compression."""
-        return 0, self.mean_compression
+    def solver_stats(self) -> tuple[wp.array, wp.array]:
+        """The device sums of the pressure solver's final density error and its iteration count;
+        WCSPH has no solver, so its error is the compression."""
+        return self._compression_sum, self._no_iterations
 
     def predict_advection(self, model, state) -> None:
         raise NotImplementedError

@@ -239,5 +239,5 @@ class IISPHSolver(SPHSolver):
         wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, n, wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
                                                      self._iterations, self._continue], device=dev)
 
-    def solver_stats(self, n: int) -> tuple[int, float]:
-        return int(self._iterations.numpy()[0]), float(self._error_sum.numpy()[0]) / n
+    def solver_stats(self) -> tuple[wp.array, wp.array]:
+        return self._error_sum, self._iterations
