@@ -28,10 +28,31 @@ def test_neighbor_lists_identical_to_brute_force():
     search.build(wp.array(x.astype(np.float32), dtype=wp.vec3, device="cpu"))
     assert search.fluid.to_sets(len(x)) == _brute(x, x, H, same=True)
     assert search.boundary.to_sets(len(x)) == _brute(xb, x, H, same=False)
-    # lists grow when the particles crowd together
+    # lists grow when the particles crowd together: the fluid lists' stride, the boundary's storage
     x2 = (x - 0.15) * 0.5 + 0.15
+    stride, capacity, generation = search.fluid.stride, search.boundary.capacity, search.fluid.generation
     search.build(wp.array(x2.astype(np.float32), dtype=wp.vec3, device="cpu"))
     assert search.fluid.to_sets(len(x)) == _brute(x2, x2, H, same=True)
+    assert search.boundary.to_sets(len(x)) == _brute(xb, x2, H, same=False)
+    longest = max(len(s) for s in _brute(x2, x2, H, same=True))
+    assert stride < longest <= search.fluid.stride and search.fluid.generation == generation + 1
+    assert int(search.fluid.needed.numpy()[0]) == len(x) * longest
+    assert search.boundary.capacity >= capacity
+
+
+def test_strided_lists_cut_at_the_stride_without_sync_and_say_what_they_needed():
+    """Inside a captured graph nothing is read back: a list longer than the stride is cut (no
+    write past the storage) and ``needed`` tells the host afterwards."""
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0, 0.2, size=(2000, 3)).astype(np.float32)
+    search = NeighborSearch(len(x), None, 0.04, "cpu")
+    search.fluid.grow(4 * len(x))  # a stride of about 5 slots
+    stride = search.fluid.stride
+    search.build(wp.array(x, dtype=wp.vec3, device="cpu"), sync=False)
+    full = _brute(x, x, 0.04, same=True)
+    got = search.fluid.to_sets(len(x))
+    assert all(len(g) == min(len(f), stride) and g <= f for g, f in zip(got, full))
+    assert int(search.fluid.needed.numpy()[0]) == len(x) * max(len(f) for f in full) > search.fluid.capacity
 
 
 def test_cell_order_is_a_permutation_grouping_cells():

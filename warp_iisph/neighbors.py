@@ -1,7 +1,9 @@
 """Neighbour search: ``wp.HashGrid`` queries turned into per-step compact neighbour lists.
 
-The grid is queried once per step (count, exclusive scan, fill); every later loop of the step
-walks the compact lists, which is several times cheaper than querying the grid again. Each list
+The grid is queried once per step; every later loop of the step walks the compact lists, which
+is several times cheaper than querying the grid again. Fluid-fluid lists have a fixed number of
+slots per particle and are filled in a single query pass; fluid-boundary lists, empty for most
+particles, are compact (CSR: count, exclusive scan, fill). Each list
 entry stores the neighbour index and ``grad W_ij`` (positions do not change until integration).
 Fluid particles are periodically reordered by grid cell so that neighbours are close in memory.
 """
@@ -81,6 +83,45 @@ def fill_neighbors(
 
 
 @wp.kernel
+def fill_neighbors_strided(
+    offset: int,
+    grid: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    radius: float,
+    stride: int,
+    nbrs: NeighborList,
+    wanted: wp.array(dtype=wp.int32),
+):
+    """One pass, no count: particle i's neighbours in its own ``stride`` slots from ``i * stride``
+    (in the same order as ``fill_neighbors``); ``wanted`` says how many it found, the count is cut
+    to the stride (``stride_needed`` flags it; the step is redone with a longer stride)."""
+    i = wp.tid() + offset
+    x_i = points[i]
+    r2 = radius * radius
+    k0 = i * stride
+    nbrs.start[i] = k0
+    k = int(0)
+    j = int(0)
+    query = wp.hash_grid_query(grid, x_i, radius)
+    while wp.hash_grid_query_next(query, j):
+        if j != i:
+            x_ij = x_i - points[j]
+            if wp.dot(x_ij, x_ij) < r2:
+                if k < stride:
+                    nbrs.index[k0 + k] = j
+                    nbrs.grad_W[k0 + k] = cubic_grad_W(x_ij, radius)
+                k += 1
+    nbrs.count[i] = wp.min(k, stride)
+    wanted[i] = k
+
+
+@wp.kernel
+def stride_needed(n: int, wanted: wp.array(dtype=wp.int32), needed: wp.array(dtype=wp.int32)):
+    # an atomic max: one launch, never split
+    wp.atomic_max(needed, 0, n * wanted[wp.tid()])
+
+
+@wp.kernel
 def list_total(n: int, nbrs: NeighborList, total: wp.array(dtype=wp.int32)):
     """Entries the lists need (the scan's end), on the device: no host read inside a step."""
     total[0] = nbrs.start[n - 1] + nbrs.count[n - 1]
@@ -95,14 +136,14 @@ def cell_order(grid: wp.uint64, order: wp.array(dtype=wp.int32)):
 class NeighborListBuffer:
     """Device storage of one :class:`NeighborList`, grown (never shrunk) as needed."""
 
-    def __init__(self, n: int, device):
+    def __init__(self, n: int, device, capacity: int | None = None):
         self.device = device
         self.lists = NeighborList()
         self.lists.start = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
         self.lists.count = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
         self.needed = wp.zeros(1, dtype=wp.int32, device=device)  # entries the last build needed
         self.generation = -1  # bumped when the storage moves (captured graphs must be re-made)
-        self._reserve(max(32 * n, 1))
+        self._reserve(capacity or max(32 * n, 1))
 
     def _reserve(self, capacity: int) -> None:
         self.generation += 1
@@ -136,6 +177,34 @@ class NeighborListBuffer:
         return [set(index[s : s + c].tolist()) for s, c in zip(start, count)]
 
 
+class StridedListBuffer(NeighborListBuffer):
+    """Fluid-fluid lists with a fixed number of slots per particle, filled in one grid query
+    per particle (the CSR buffer queries twice: count, then fill). Every fluid particle has
+    neighbours, so few slots go unused; ``needed`` is ``n`` times the longest list."""
+
+    def __init__(self, n: int, device, stride: int = 40):
+        self.n = max(n, 1)
+        self.wanted = wp.zeros(self.n, dtype=wp.int32, device=device)
+        super().__init__(n, device, capacity=stride * self.n)
+
+    def _reserve(self, capacity: int) -> None:
+        self.stride = max(1, -(-capacity // self.n))
+        super()._reserve(self.stride * self.n)
+
+    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, same_set: bool, sync: bool = True):
+        if n == 0:
+            return
+        assert same_set and queries is points, "strided lists hold one particle set's own neighbours"
+        self.needed.zero_()
+        launch_particles(fill_neighbors_strided, n, [grid.id, points, radius, self.stride, self.lists, self.wanted], self.device)
+        wp.launch(stride_needed, dim=n, inputs=[n, self.wanted, self.needed], device=self.device)
+        if sync:
+            needed = int(self.needed.numpy()[0])
+            if needed > self.capacity:
+                self.grow(needed)
+                self.build(grid, points, queries, n, radius, same_set, sync)
+
+
 def make_grid(device, dim: int = 128) -> wp.HashGrid:
     return wp.HashGrid(dim, dim, dim, device=device)
 
@@ -154,7 +223,7 @@ class NeighborSearch:
         if boundary_x is not None and boundary_x.shape[0] > 0:
             self.boundary_grid = make_grid(device)
             self.boundary_grid.build(boundary_x, self.radius)
-        self.fluid = NeighborListBuffer(n_fluid, device)
+        self.fluid = StridedListBuffer(n_fluid, device)
         self.boundary = NeighborListBuffer(n_fluid, device)
         self._order = wp.zeros(max(n_fluid, 1), dtype=wp.int32, device=device)
 
