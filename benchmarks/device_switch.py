@@ -79,7 +79,8 @@ def run(device: str, count: int, duration: float, graph: bool = False, mesh: boo
             mesh_wall += time.perf_counter() - t0
     st = sim.stats[steps0:]
     search = sim.solver.search
-    entries = (int(search.fluid.needed.numpy()[0]), int(search.boundary.needed.numpy()[0]) if search.boundary_grid else 0)
+    n = sim.n_particles  # entries the lists hold (the fluid lists' unused slots are not streamed)
+    entries = (int(search.fluid.lists.count.numpy()[:n].sum()), int(search.boundary.lists.count.numpy()[:n].sum()))
     iterations = float(np.mean([s["iterations"] for s in st]))
     simulated = sim.time - t_sim0
     return {
