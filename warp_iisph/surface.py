@@ -63,44 +63,26 @@ def coarse_count(counts: wp.array(dtype=wp.int32), c: wp.vec3i, cdims: wp.vec3i)
     return 0
 
 
-@wp.kernel
-def classify_blocks(
-    offset: int,
-    lower: wp.vec3,
-    cell: float,
-    nb: wp.vec3i,
-    R: float,
-    counts: wp.array(dtype=wp.int32),
-    cdims: wp.vec3i,
-    full: int,
-    kind: wp.array(dtype=wp.int32),
-):
-    """EMPTY when no particle can be within R of any of the block's nodes, FULL when all of them
-    lie deep in the liquid (the per-node test of ``signed_distance``, over the union of the
-    nodes' coarse neighbourhoods), else SURFACE: only those blocks are stored and meshed."""
-    b = wp.tid() + offset
-    bi = b // (nb[1] * nb[2])
-    bj = (b // nb[2]) % nb[1]
-    bk = b % nb[2]
-    # the block's lowest and highest node, computed exactly as signed_distance computes nodes
-    p0 = lower + cell * wp.vec3(float(BLOCK * bi), float(BLOCK * bj), float(BLOCK * bk))
-    p1 = lower + cell * wp.vec3(float(BLOCK * (bi + 1)), float(BLOCK * (bj + 1)), float(BLOCK * (bk + 1)))
-    c0 = _coarse_index(p0, lower, R, cdims)
-    c1 = _coarse_index(p1, lower, R, cdims)
+@wp.func
+def coarse_kind(counts: wp.array(dtype=wp.int32), cdims: wp.vec3i, c0: wp.vec3i, c1: wp.vec3i, full: int) -> int:
+    """The narrow-band test over coarse cells ``c0 - 1 .. c1 + 1`` (cells of size R counting
+    particles): EMPTY when all are empty (no particle within R of a point of cells c0..c1),
+    FULL when all hold at least ``full`` (at least R deep in the liquid, where only the sign
+    matters), else SURFACE. A node tests its own cell (c0 = c1), a block the span of its nodes,
+    so a block's kind is what each of its nodes would find."""
     lo_count = int(2147483647)
     hi_count = int(0)
     for a in range(c0[0] - 1, c1[0] + 2):
-        for e in range(c0[1] - 1, c1[1] + 2):
-            for f in range(c0[2] - 1, c1[2] + 2):
-                m = coarse_count(counts, wp.vec3i(a, e, f), cdims)
+        for b in range(c0[1] - 1, c1[1] + 2):
+            for e in range(c0[2] - 1, c1[2] + 2):
+                m = coarse_count(counts, wp.vec3i(a, b, e), cdims)
                 lo_count = wp.min(lo_count, m)
                 hi_count = wp.max(hi_count, m)
     if hi_count == 0:
-        kind[b] = EMPTY
-    elif lo_count >= full:
-        kind[b] = FULL
-    else:
-        kind[b] = SURFACE
+        return EMPTY
+    if lo_count >= full:
+        return FULL
+    return SURFACE
 
 
 @wp.kernel
@@ -141,14 +123,34 @@ class BlockField:
 
 
 @wp.func
-def block_coords(f: BlockField, kb: int) -> wp.vec3i:
-    b = f.blocks[kb]
+def unflatten_block(f: BlockField, b: int) -> wp.vec3i:
     return wp.vec3i(b // (f.nb[1] * f.nb[2]), (b // f.nb[2]) % f.nb[1], b % f.nb[2])
+
+
+@wp.func
+def block_coords(f: BlockField, kb: int) -> wp.vec3i:
+    return unflatten_block(f, f.blocks[kb])
 
 
 @wp.func
 def local_node(m: int) -> wp.vec3i:
     return wp.vec3i(m // (BLOCK * BLOCK), (m // BLOCK) % BLOCK, m % BLOCK)
+
+
+@wp.func
+def local_slot(l: wp.vec3i) -> int:
+    """Inverse of ``local_node``, for a node in [0, BLOCK]^3 taken into the block that owns it."""
+    return ((l[0] % BLOCK) * BLOCK + l[1] % BLOCK) * BLOCK + l[2] % BLOCK
+
+
+@wp.func
+def owner_block(f: BlockField, bc: wp.vec3i, l: wp.vec3i) -> int:
+    """Flat number of the block that owns node ``l`` in [0, BLOCK]^3 of the block at ``bc`` (the
+    block itself, or one above it for a node on its upper faces); -1 beyond the lattice."""
+    g = bc + wp.vec3i(l[0] // BLOCK, l[1] // BLOCK, l[2] // BLOCK)
+    if g[0] >= f.nb[0] or g[1] >= f.nb[1] or g[2] >= f.nb[2]:
+        return -1
+    return (g[0] * f.nb[1] + g[1]) * f.nb[2] + g[2]
 
 
 @wp.func
@@ -163,17 +165,34 @@ def node_phi(f: BlockField, kb: int, bc: wp.vec3i, l: wp.vec3i) -> float:
     it, which store them, or hold EMPTY/FULL, where every node has the value the narrow-band
     test of ``signed_distance`` gives."""
     if l[0] < BLOCK and l[1] < BLOCK and l[2] < BLOCK:
-        return f.phi[kb * CELLS3 + (l[0] * BLOCK + l[1]) * BLOCK + l[2]]
-    g = bc + wp.vec3i(l[0] // BLOCK, l[1] // BLOCK, l[2] // BLOCK)
-    if g[0] >= f.nb[0] or g[1] >= f.nb[1] or g[2] >= f.nb[2]:
+        return f.phi[kb * CELLS3 + local_slot(l)]
+    b = owner_block(f, bc, l)
+    if b < 0:
         return f.outside  # the lattice's top nodes lie in the margin, beyond R of every particle
-    b = (g[0] * f.nb[1] + g[1]) * f.nb[2] + g[2]
     m = f.block_map[b]
     if m >= 0:
-        return f.phi[m * CELLS3 + ((l[0] % BLOCK) * BLOCK + l[1] % BLOCK) * BLOCK + l[2] % BLOCK]
+        return f.phi[m * CELLS3 + local_slot(l)]
     if f.kind[b] == FULL:
         return f.inside
     return f.outside
+
+
+@wp.kernel
+def classify_blocks(
+    offset: int,
+    f: BlockField,
+    R: float,
+    counts: wp.array(dtype=wp.int32),
+    cdims: wp.vec3i,
+    full: int,
+):
+    """Each block's kind: the narrow-band test over the coarse cells of all its nodes, from its
+    lowest to its highest; only SURFACE blocks are stored and meshed."""
+    b = wp.tid() + offset
+    bc = unflatten_block(f, b)
+    c0 = _coarse_index(node_position(f, bc, wp.vec3i(0, 0, 0)), f.lower, R, cdims)
+    c1 = _coarse_index(node_position(f, bc, wp.vec3i(BLOCK, BLOCK, BLOCK)), f.lower, R, cdims)
+    f.kind[b] = coarse_kind(counts, cdims, c0, c1, full)
 
 
 @wp.kernel
@@ -191,22 +210,13 @@ def signed_distance(
     n = wp.tid() + offset
     kb = n // CELLS3
     p = node_position(f, block_coords(f, kb), local_node(n % CELLS3))
-    # Narrow band: coarse cells of size R count particles. A node whose 27 surrounding coarse
-    # cells are empty has no particle within R (outside); one whose cells are all full lies at
-    # least R deep in the liquid, where only the sign matters. Neither needs the grid query.
+    # narrow band: outside (EMPTY) and deep inside (FULL) need no grid query
     c = _coarse_index(p, f.lower, R, cdims)
-    lo_count = int(2147483647)
-    hi_count = int(0)
-    for a in range(-1, 2):
-        for b in range(-1, 2):
-            for e in range(-1, 2):
-                m = coarse_count(counts, c + wp.vec3i(a, b, e), cdims)
-                lo_count = wp.min(lo_count, m)
-                hi_count = wp.max(hi_count, m)
-    if hi_count == 0:
+    kind = coarse_kind(counts, cdims, c, c, full)
+    if kind == EMPTY:
         f.phi[n] = R
         return
-    if lo_count >= full:
+    if kind == FULL:
         f.phi[n] = -r0
         return
     wsum = float(0.0)
@@ -324,10 +334,8 @@ def emit_cell_triangles(
         # is stored whenever the edge crosses (see node_phi)
         owner = kb
         if l[0] == BLOCK or l[1] == BLOCK or l[2] == BLOCK:
-            g = bc + wp.vec3i(l[0] // BLOCK, l[1] // BLOCK, l[2] // BLOCK)
-            owner = f.block_map[(g[0] * f.nb[1] + g[1]) * f.nb[2] + g[2]]
-            l = wp.vec3i(l[0] % BLOCK, l[1] % BLOCK, l[2] % BLOCK)
-        indices[out + s] = vertex[(owner * CELLS3 + (l[0] * BLOCK + l[1]) * BLOCK + l[2]) * 3 + e[3]]
+            owner = f.block_map[owner_block(f, bc, l)]
+        indices[out + s] = vertex[(owner * CELLS3 + local_slot(l)) * 3 + e[3]]
 
 
 @wp.kernel
@@ -531,7 +539,7 @@ class SurfaceReconstructor:
         # a cube of side R = 2h holds about (R/h)^3 = 8 particles; "full" leaves room for jitter
         full = max(1, int(0.75 * (R / h) ** 3))
         f.kind = wp.empty(n_blocks, dtype=wp.int32, device=self.device)
-        launch_particles(classify_blocks, n_blocks, [f.lower, f.cell, f.nb, float(R), counts, cd, full, f.kind], self.device)
+        launch_particles(classify_blocks, n_blocks, [f, float(R), counts, cd, full], self.device)
         flag = wp.empty_like(f.kind)
         wp.launch(surface_flags, dim=n_blocks, inputs=[f.kind, flag], device=self.device)
         slot, n_surface = _exclusive_scan(flag)
