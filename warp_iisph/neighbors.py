@@ -34,7 +34,6 @@ def count_neighbors(
     points: wp.array(dtype=wp.vec3),
     queries: wp.array(dtype=wp.vec3),
     radius: float,
-    same_set: int,
     count: wp.array(dtype=wp.int32),
 ):
     i = wp.tid() + offset
@@ -44,10 +43,9 @@ def count_neighbors(
     j = int(0)
     query = wp.hash_grid_query(grid, x_i, radius)
     while wp.hash_grid_query_next(query, j):
-        if same_set == 0 or j != i:
-            d = x_i - points[j]
-            if wp.dot(d, d) < r2:
-                n += 1
+        d = x_i - points[j]
+        if wp.dot(d, d) < r2:
+            n += 1
     count[i] = n
 
 
@@ -58,7 +56,6 @@ def fill_neighbors(
     points: wp.array(dtype=wp.vec3),
     queries: wp.array(dtype=wp.vec3),
     radius: float,
-    same_set: int,
     nbrs: NeighborList,
 ):
     """Write the lists; entries past the storage's end are dropped and the counts cut to match
@@ -71,13 +68,12 @@ def fill_neighbors(
     j = int(0)
     query = wp.hash_grid_query(grid, x_i, radius)
     while wp.hash_grid_query_next(query, j):
-        if same_set == 0 or j != i:
-            x_ij = x_i - points[j]
-            if wp.dot(x_ij, x_ij) < r2:
-                if k < capacity:
-                    nbrs.index[k] = j
-                    nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
-                k += 1
+        x_ij = x_i - points[j]
+        if wp.dot(x_ij, x_ij) < r2:
+            if k < capacity:
+                nbrs.index[k] = j
+                nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
+            k += 1
     if k > capacity:  # keep every later loop inside the storage
         nbrs.count[i] = wp.max(capacity - nbrs.start[i], 0)
 
@@ -134,7 +130,8 @@ def cell_order(grid: wp.uint64, order: wp.array(dtype=wp.int32)):
 
 
 class NeighborListBuffer:
-    """Device storage of one :class:`NeighborList`, grown (never shrunk) as needed."""
+    """Device storage of one :class:`NeighborList`, grown (never shrunk) as needed; built as
+    compact (CSR) lists of one set's neighbours in another (fluid particles' walls)."""
 
     def __init__(self, n: int, device, capacity: int | None = None):
         self.device = device
@@ -151,20 +148,21 @@ class NeighborListBuffer:
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
         self.lists.grad_W = wp.zeros(capacity, dtype=wp.vec3, device=self.device)
 
-    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, same_set: bool, sync: bool = True):
-        """Count, scan, fill. With ``sync`` the storage grows first when too small; without it
+    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, sync: bool = True):
+        """Neighbours among ``points`` (another set: the walls) of each of the ``n`` ``queries``:
+        count, scan, fill. With ``sync`` the storage grows first when too small; without it
         (inside a captured graph) nothing is read back and ``needed`` tells afterwards."""
         if n == 0:
             return
         lists = self.lists
-        launch_particles(count_neighbors, n, [grid.id, points, queries, radius, int(same_set), lists.count], self.device)
+        launch_particles(count_neighbors, n, [grid.id, points, queries, radius, lists.count], self.device)
         wp.utils.array_scan(lists.count[:n], lists.start[:n], inclusive=False)
         wp.launch(list_total, dim=1, inputs=[n, lists, self.needed], device=self.device)
         if sync:
             total = int(self.needed.numpy()[0])
             if total > self.capacity:
                 self.grow(total)
-        launch_particles(fill_neighbors, n, [grid.id, points, queries, radius, int(same_set), self.lists], self.device)
+        launch_particles(fill_neighbors, n, [grid.id, points, queries, radius, self.lists], self.device)
 
     def grow(self, needed: int) -> None:
         self._reserve(int(needed * 1.25) + 16)
@@ -193,10 +191,11 @@ class StridedListBuffer(NeighborListBuffer):
         self.stride = max(1, -(-capacity // self.n))
         super()._reserve(self.stride * self.n)
 
-    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, same_set: bool, sync: bool = True):
+    def build(self, grid: wp.HashGrid, points, n: int, radius: float, sync: bool = True):
+        """Each of the ``n`` ``points``' neighbours among the others; with ``sync`` a stride that
+        proves too short grows and the lists are filled again."""
         if n == 0:
             return
-        assert same_set and queries is points, "strided lists hold one particle set's own neighbours"
         self.needed.zero_()
         launch_particles(fill_neighbors_strided, n, [grid.id, points, radius, self.stride, self.lists, self.wanted], self.device)
         wp.launch(stride_needed, dim=n, inputs=[n, self.wanted, self.needed], device=self.device)
@@ -204,7 +203,7 @@ class StridedListBuffer(NeighborListBuffer):
             needed = int(self.needed.numpy()[0])
             if needed > self.capacity:
                 self.grow(needed)
-                self.build(grid, points, queries, n, radius, same_set, sync)
+                self.build(grid, points, n, radius, sync)
 
 
 def make_grid(device, dim: int = 128) -> wp.HashGrid:
@@ -239,9 +238,9 @@ class NeighborSearch:
         if self.n == 0:
             return
         self.grid.build(x, self.radius)
-        self.fluid.build(self.grid, x, x, self.n, self.radius, same_set=True, sync=sync)
+        self.fluid.build(self.grid, x, self.n, self.radius, sync=sync)
         if self.boundary_grid is not None:
-            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, same_set=False, sync=sync)
+            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, sync=sync)
         else:
             self.boundary.lists.count.zero_()
             self.boundary.lists.start.zero_()
