@@ -166,22 +166,20 @@ def format_obj(
     has_normals: int,
     coord_width: int,
     index_width: int,
-    base: int,
+    line_len: wp.vec3i,
     buf: wp.array(dtype=wp.uint8),
 ):
     """Line ``wp.tid() + offset`` of the OBJ body: V ``v`` lines, then V ``vn`` lines (with
-    normals), then F ``f`` lines; every line of a kind has one width, so each thread knows where
-    its line starts and writes it alone."""
+    normals), then F ``f`` lines; every line of a kind has one length (``line_len``: v, vn, f),
+    so each thread knows where its line starts and writes it alone."""
     line = wp.tid() + offset
     nv = verts.shape[0]
-    v_len = 1 + 3 * (1 + coord_width) + 1
-    n_len = 2 + 3 * 8 + 1
+    v_len = line_len[0]
+    n_len = line_len[1]
+    f_len = line_len[2]
     n_lines = nv * has_normals
-    f_len = 1 + 3 * (1 + index_width) + 1
-    if has_normals:
-        f_len = 1 + 3 * (1 + 2 * index_width + 2) + 1
     if line < nv:
-        p = put_char(buf, base + line * v_len, 118)  # 'v'
+        p = put_char(buf, line * v_len, 118)  # 'v'
         for c in range(3):
             p = put_char(buf, p, 32)
             put_number(buf, p, coord_width, wp.float64(verts[line][c]), 6)
@@ -189,7 +187,7 @@ def format_obj(
         put_char(buf, p, 10)
     elif line < nv + n_lines:
         k = line - nv
-        p = put_char(buf, base + nv * v_len + k * n_len, 118)
+        p = put_char(buf, nv * v_len + k * n_len, 118)
         p = put_char(buf, p, 110)  # 'vn'
         for c in range(3):
             p = put_char(buf, p, 32)
@@ -198,7 +196,7 @@ def format_obj(
         put_char(buf, p, 10)
     else:
         t = line - nv - n_lines
-        p = put_char(buf, base + nv * v_len + n_lines * n_len + t * f_len, 102)  # 'f'
+        p = put_char(buf, nv * v_len + n_lines * n_len + t * f_len, 102)  # 'f'
         for c in range(3):
             i = faces[3 * t + c] + 1
             n = digit_count(i)
@@ -230,13 +228,16 @@ def obj_bytes(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | Non
     index_width = len(str(max(len(v), 1)))
     has_normals = normals is not None
     n_lines = len(v) * (2 if has_normals else 1) + len(f)
-    size = len(v) * (1 + 3 * (1 + coord_width) + 1) + (len(v) * 27 if has_normals else 0)
-    size += len(f) * (1 + 3 * (1 + (2 * index_width + 2 if has_normals else index_width)) + 1)
+    # 'v' + 3 x (' ' + number) + newline; 'vn' + 3 x ' %7.4f' + newline; 'f' + 3 x (' ' + a or a//a) + newline
+    v_len, n_len = 1 + 3 * (1 + coord_width) + 1, 2 + 3 * (1 + 7) + 1
+    f_len = 1 + 3 * (1 + (2 * index_width + 2 if has_normals else index_width)) + 1
+    size = len(v) * (v_len + (n_len if has_normals else 0)) + len(f) * f_len
     cpu = wp.get_device("cpu")
     buf = wp.empty(size, dtype=wp.uint8, device=cpu)
     n = np.ascontiguousarray(normals if has_normals else np.zeros((0, 3)), dtype=np.float32).reshape(-1, 3)
     inputs = [wp.array(v, dtype=wp.vec3, device=cpu), wp.array(n, dtype=wp.vec3, device=cpu),
-              wp.array(f.reshape(-1), dtype=wp.int32, device=cpu), int(has_normals), coord_width, index_width, 0, buf]
+              wp.array(f.reshape(-1), dtype=wp.int32, device=cpu), int(has_normals), coord_width, index_width,
+              wp.vec3i(v_len, n_len, f_len), buf]
     launch_particles(format_obj, n_lines, inputs, cpu)
     return header + buf.numpy().tobytes()
 
