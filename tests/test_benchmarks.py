@@ -91,3 +91,17 @@ def test_breakdown_quick_mode(tmp_path):
     assert sum(record["share"].values()) == pytest.approx(1.0, abs=1e-6)
     assert record["frames"] == 4
     assert record["writer_thread_seconds"] > 0
+
+
+def test_neighbor_access_quick_mode(tmp_path):
+    rows = _quick("neighbor_access.py", tmp_path, "neighbor_access_quick", "--devices", "cpu")["results"]
+    (r,) = rows
+    # the query twins compute the solver's own Jacobi iteration: same neighbours, same order
+    assert r["max_relative_difference"]["pressure"] < 1e-5 and r["max_relative_difference"]["sum_dij_pj"] < 1e-5
+    it, step = r["jacobi_iteration_ms"], r["modelled_step_ms"]
+    assert r["walks_per_step"] == pytest.approx(4 + 2 * r["mean_iterations"]) and r["mean_iterations"] >= 1
+    assert step["lists"] == pytest.approx(r["list_fill_ms"] + r["walks_per_step"] * it["lists"] / 2)
+    assert step["query"] == pytest.approx(r["walks_per_step"] * it["query"] / 2)
+    # on a CPU, filtering ~6x as many candidates and recomputing grad W costs several list walks
+    assert it["query"] > 2 * it["lists"] and r["faster"] == "lists"
+    assert r["break_even_walks"] == pytest.approx(r["list_fill_ms"] / ((it["query"] - it["lists"]) / 2))

@@ -1,0 +1,258 @@
+"""Neighbour access: compact per-step lists against querying the hash grid inside every loop.
+
+The solver builds fluid-fluid lists (index and grad W per entry) once per step and walks them
+in every later loop. The alternative keeps only the grid and queries it in each loop, filtering
+the candidates (27 cells, about 6 times the neighbours) and recomputing grad W every time. Which
+wins depends on the device: lists cost a build pass and 16 bytes per entry streamed per walk;
+queries cost compute and scattered candidate reads. This measures both on a dam-break state
+with the solver's own Jacobi iteration (``pressure_sum_dij_pj`` and ``pressure_jacobi``, two
+walks of the fluid lists) against twins of those two kernels that query the grid instead. Both
+give the same pressures (the query visits neighbours in the list's order; checked here).
+
+A step walks the fluid neighbours 4 times outside the Jacobi loop (density, advection velocity,
+advection density, pressure acceleration) and twice per iteration; per step the lists cost the
+fill plus those walks, the queries only the walks (the grid is built either way). Outside-loop
+walks are counted at the cost of an average Jacobi walk, so the per-step figures are a model;
+the per-iteration figures are measured. Writes benchmarks/results/neighbor_access.json and .png.
+
+    python benchmarks/neighbor_access.py [--devices cpu,cuda] [--counts 10000,30000] [--repeats 20] [--quick]
+    # on a GPU: --devices cuda --counts 100000,300000,1000000
+"""
+
+import argparse
+import time
+
+import numpy as np
+import warp as wp
+
+from common import RESULTS, header, pyplot, save, warm_up
+from warp_iisph import Simulation, scenes
+from warp_iisph.launch import launch_particles
+from warp_iisph.neighbors import NeighborList
+from warp_iisph.solvers.iisph import pressure_jacobi, pressure_sum_dij_pj
+from warp_iisph.sph import cubic_grad_W
+
+WALKS_OUTSIDE_JACOBI = 4  # density, advection velocity, advection density, pressure acceleration
+WALKS_PER_ITERATION = 2  # pressure_sum_dij_pj, pressure_jacobi
+
+
+@wp.kernel
+def pressure_sum_dij_pj_query(
+    offset: int,
+    grid: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    radius: float,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    sum_dij_pj: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    x_i = x[i]
+    r2 = radius * radius
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    j = int(0)
+    query = wp.hash_grid_query(grid, x_i, radius)
+    while wp.hash_grid_query_next(query, j):
+        if j != i:
+            x_ij = x_i - x[j]
+            if wp.dot(x_ij, x_ij) < r2:
+                rho_j = rho[j]
+                acc -= (mass * p[j] / (rho_j * rho_j)) * cubic_grad_W(x_ij, radius)
+    sum_dij_pj[i] = dt * dt * acc
+
+
+@wp.kernel
+def pressure_jacobi_query(
+    offset: int,
+    grid: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    radius: float,
+    rho: wp.array(dtype=float),
+    rho_adv: wp.array(dtype=float),
+    a_ii: wp.array(dtype=float),
+    d_ii: wp.array(dtype=wp.vec3),
+    sum_dij_pj: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    rho0: float,
+    omega: float,
+    p_new: wp.array(dtype=float),
+    density_error: wp.array(dtype=wp.float64),
+):
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    x_i = x[i]
+    r2 = radius * radius
+    rho_i = rho[i]
+    p_i = p[i]
+    sdp_i = sum_dij_pj[i]
+    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    sigma = float(0.0)
+    j = int(0)
+    query = wp.hash_grid_query(grid, x_i, radius)
+    while wp.hash_grid_query_next(query, j):
+        if j != i:
+            x_ij = x_i - x[j]
+            if wp.dot(x_ij, x_ij) < r2:
+                g = cubic_grad_W(x_ij, radius)
+                d_ji = d_ji_scale * g
+                sigma += mass * wp.dot(sdp_i - d_ii[j] * p[j] - (sum_dij_pj[j] - d_ji * p_i), g)
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        sigma += psi[nb.index[k]] * wp.dot(sdp_i, nb.grad_W[k])
+    a = a_ii[i]
+    p_next = float(0.0)
+    if wp.abs(a) > 1.0e-12:
+        p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv[i] - sigma), 0.0)
+    p_new[i] = p_next
+    rho_pred = rho_adv[i] + a * p_next + sigma
+    density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
+
+
+def timed(fn, device, repeats: int) -> float:
+    """Median wall seconds of ``fn`` over ``repeats`` synchronised calls (after one untimed)."""
+    fn()
+    wp.synchronize_device(device)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        wp.synchronize_device(device)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def run(device: str, count: int, settle: float, repeats: int) -> dict:
+    sim = Simulation(scenes.dam_break_cube(particles=count, eta=1e-3, cfl=0.5, dt_max=5e-3), device)
+    steps0 = sim.step_count
+    sim.advance(settle)  # a moving, compressed state with a converged pressure field
+    iterations = float(np.mean([s["iterations"] for s in sim.stats[steps0:]]))
+    model, state, solver = sim.model, sim.state, sim.solver
+    search, n, H, ph = solver.search, model.n_fluid, model.support_radius, solver.physics
+    search.build(state.x)  # lists of the current positions, as the next step would have them
+    nf, nb = search.fluid.lists, search.boundary.lists
+
+    def grid_build():
+        search.grid.build(state.x, search.radius)
+
+    def list_fill():
+        search.fluid.build(search.grid, state.x, n, search.radius)
+
+    sum_list, sum_query = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.sum_dij_pj)
+    p_list, p_query = wp.zeros_like(solver.p_next), wp.zeros_like(solver.p_next)
+
+    def iteration_lists():
+        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, solver.dt, sum_list], device)
+        launch_particles(pressure_jacobi, n,
+                         [state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_list, state.p, model.boundary_psi, nf, nb,
+                          model.mass, solver.dt, model.rho0, float(ph.omega), p_list, solver.density_error], device)
+
+    def iteration_query():
+        grid = search.grid.id
+        launch_particles(pressure_sum_dij_pj_query, n, [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, sum_query], device)
+        launch_particles(pressure_jacobi_query, n,
+                         [grid, state.x, H, state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_query, state.p,
+                          model.boundary_psi, nb, model.mass, solver.dt, model.rho0, float(ph.omega), p_query, solver.density_error],
+                         device)
+
+    t_grid = timed(grid_build, device, repeats)
+    t_fill = timed(list_fill, device, repeats)
+    t_lists = timed(iteration_lists, device, repeats)
+    t_query = timed(iteration_query, device, repeats)
+    # both give the same iteration (same neighbours in the same order, same grad W)
+    scale = max(float(np.abs(p_list.numpy()[:n]).max()), 1.0)
+    p_difference = float(np.abs(p_list.numpy()[:n] - p_query.numpy()[:n]).max()) / scale
+    s_l, s_q = sum_list.numpy()[:n], sum_query.numpy()[:n]
+    sum_difference = float(np.abs(s_l - s_q).max() / max(np.abs(s_l).max(), 1e-30))
+    walks = WALKS_OUTSIDE_JACOBI + WALKS_PER_ITERATION * iterations
+    per_walk_lists, per_walk_query = t_lists / WALKS_PER_ITERATION, t_query / WALKS_PER_ITERATION
+    step_lists = t_fill + walks * per_walk_lists
+    step_query = walks * per_walk_query
+    extra = per_walk_query - per_walk_lists
+    return {
+        "device": device,
+        "particles": n,
+        "spacing": model.spacing,
+        "settled_seconds": settle,
+        "mean_iterations": iterations,
+        "fluid_entries": int(nf.count.numpy()[:n].sum()),
+        "list_stride": search.fluid.stride,
+        "list_bytes": search.fluid.capacity * 16,
+        "grid_build_ms": 1e3 * t_grid,
+        "list_fill_ms": 1e3 * t_fill,
+        "jacobi_iteration_ms": {"lists": 1e3 * t_lists, "query": 1e3 * t_query},
+        "query_over_lists_per_iteration": t_query / t_lists,
+        "walks_per_step": walks,
+        "modelled_step_ms": {"lists": 1e3 * step_lists, "query": 1e3 * step_query},
+        # walks per step above which building the lists pays (never when a query walk is cheaper)
+        "break_even_walks": t_fill / extra if extra > 0 else None,
+        "faster": "lists" if step_lists <= step_query else "query",
+        "max_relative_difference": {"pressure": p_difference, "sum_dij_pj": sum_difference},
+    }
+
+
+def chart(rows, path):
+    plt = pyplot()
+    devices = sorted({r["device"] for r in rows})
+    fig, axes = plt.subplots(1, len(devices), figsize=(5 * len(devices) + 1, 4), squeeze=False)
+    for ax, dev in zip(axes[0], devices):
+        r = [x for x in rows if x["device"] == dev]
+        pos = np.arange(len(r))
+        fill = [x["list_fill_ms"] for x in r]
+        walks_lists = [x["modelled_step_ms"]["lists"] - x["list_fill_ms"] for x in r]
+        ax.bar(pos - 0.2, fill, 0.4, color="tab:blue", alpha=0.5, label="list fill")
+        ax.bar(pos - 0.2, walks_lists, 0.4, bottom=fill, color="tab:blue", label="walks over lists")
+        ax.bar(pos + 0.2, [x["modelled_step_ms"]["query"] for x in r], 0.4, color="tab:orange", label="walks querying the grid")
+        ax.set_xticks(pos, [f"{x['particles']:,}" for x in r])
+        ax.set_xlabel("fluid particles")
+        ax.set_ylabel("ms per step (neighbour access)")
+        ax.set_title(f"{dev}: lists against grid queries")
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--devices", default="cpu,cuda")
+    ap.add_argument("--counts", default="10000,30000")
+    ap.add_argument("--settle", type=float, default=0.1, help="simulated seconds before measuring")
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(RESULTS))
+    args = ap.parse_args()
+    if args.quick:
+        args.counts, args.settle, args.repeats = "4000", 0.02, 5
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
+    devices, missing = [], []
+    for d in args.devices.split(","):
+        (devices if d == "cpu" or (d == "cuda" and wp.is_cuda_available()) else missing).append(d)
+    for d in missing:
+        print(f"device {d}: not present on this machine, skipped")
+    rows = []
+    for dev in devices:
+        warm_up(dev)
+        rows += [run(dev, int(c), args.settle, args.repeats) for c in args.counts.split(",")]
+    print(f"{'device':>6} {'particles':>9} {'iters':>5} {'grid ms':>7} {'fill ms':>7} {'it lists':>8} {'it query':>8}"
+          f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8}")
+    for r in rows:
+        it, st = r["jacobi_iteration_ms"], r["modelled_step_ms"]
+        print(f"{r['device']:>6} {r['particles']:>9} {r['mean_iterations']:>5.2f} {r['grid_build_ms']:>7.2f} {r['list_fill_ms']:>7.2f}"
+              f" {it['lists']:>8.2f} {it['query']:>8.2f} {st['lists']:>10.2f} {st['query']:>10.2f} {r['faster']:>6}"
+              f" {r['max_relative_difference']['pressure']:>8.1e}")
+    record = header("neighbor_access", devices[0], scene="dam_break_cube", settle=args.settle, repeats=args.repeats,
+                    devices_missing=missing, walks_outside_jacobi=WALKS_OUTSIDE_JACOBI, results=rows)
+    if "cuda" in devices:
+        record["cuda_device_name"] = wp.get_device("cuda:0").name
+    chart(rows, save(record, args.out, "neighbor_access", args.quick))
+
+
+if __name__ == "__main__":
+    main()
