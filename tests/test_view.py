@@ -181,3 +181,82 @@ def test_blender_script_runs_in_blender(tiny_run, tmp_path):
     exec(compile(script.read_text(), str(script), "exec"), {"__name__": "__main__"})
     liquids = [o for o in bpy.data.objects if o.name.startswith("liquid_")]
     assert len(liquids) == 4 and bpy.context.scene.frame_end == 3
+
+
+# --- Obstacles ------------------------------------------------------------------------------------
+
+PILLAR = ((0.14, 0.0, 0.14), (0.26, 0.3, 0.26))
+
+
+@pytest.fixture(scope="module")
+def obstacle_run(tmp_path_factory):
+    """Shallow water around a box pillar that rises above it: 2 particle and mesh frames."""
+    from warp_iisph.scene import Box
+
+    out = tmp_path_factory.mktemp("obstacle") / "run"
+    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.12)
+    scene.tank.upper = (0.4, 0.5, 0.4)
+    scene.add_obstacle(Box(*PILLAR))
+    scene.output.mesh = True
+    record = run_scene(scene, out, duration=1 / 30, fps=30, progress=False)
+    assert record["ended"] == "completed" and record["obstacles"] == "obstacles.obj"
+    return out
+
+
+def test_run_writes_its_obstacles_once(obstacle_run, tiny_run, tmp_path):
+    from warp_iisph.frames import obstacle_mesh
+    from warp_iisph.runner import prepare_output
+
+    mesh = trimesh.load(obstacle_run / "obstacles.obj", force="mesh")
+    assert mesh.is_watertight and np.allclose(mesh.bounds, PILLAR, atol=1e-6)
+    assert np.isclose(mesh.volume, 0.12 * 0.3 * 0.12)  # wound outward
+    assert obstacle_mesh(tiny_run) is None and not (tiny_run / "obstacles.obj").exists()
+    # --overwrite clears a previous run's obstacles with its frames
+    (tmp_path / "obstacles.obj").write_text("v 0 0 0\n")
+    prepare_output(tmp_path, overwrite=True)
+    assert not (tmp_path / "obstacles.obj").exists()
+
+
+def _warm_pixels(image) -> int:
+    """Pixels redder than blue: the stone-coloured obstacle (background and still water are blue-grey)."""
+    im = image.astype(int)
+    return int(((im[..., 0] - im[..., 2]) > 8).sum())
+
+
+def test_preview_draws_the_obstacles(obstacle_run, tmp_path):
+    args = ["preview", str(obstacle_run), "--frames", "0:1", "--gif", "--no-progress"]
+    assert main(args + ["--out", str(tmp_path / "with.gif")]) == 0
+    hidden = obstacle_run / "obstacles.obj.hidden"
+    (obstacle_run / "obstacles.obj").rename(hidden)
+    try:
+        assert main(args + ["--out", str(tmp_path / "without.gif")]) == 0
+    finally:
+        hidden.rename(obstacle_run / "obstacles.obj")
+    with_, without = video_frames(tmp_path / "with.gif")[0], video_frames(tmp_path / "without.gif")[0]
+    # the pillar's 0.12 m wide top and sides fill a few percent of the 640x360 frame
+    assert _warm_pixels(with_) > 0.01 * 640 * 360 and _warm_pixels(without) < 0.001 * 640 * 360
+
+
+@needs_mitsuba
+def test_render_shows_the_obstacles(obstacle_run, tmp_path):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(obstacle_run, run)
+    args = ["render", str(run), "--resolution", "64x36", "--spp", "4", "--variant", "scalar_rgb", "--frames", "0:1", "--no-progress"]
+    assert main(args) == 0
+    with_ = imageio.imread(run / "frames" / "frame_00000.png")
+    (run / "obstacles.obj").unlink()
+    assert main(args + ["--overwrite"]) == 0
+    without = imageio.imread(run / "frames" / "frame_00000.png")
+    changed = np.abs(with_.astype(int) - without.astype(int)).max(axis=2) > 40
+    assert changed.mean() > 0.02
+
+
+def test_blender_script_imports_the_obstacles(obstacle_run, tiny_run):
+    from warp_iisph.blender import blender_script
+
+    text = blender_script(obstacle_run).read_text()
+    compile(text, "scene.py", "exec")
+    assert f"OBSTACLES = {str((obstacle_run / 'obstacles.obj').resolve())!r}" in text
+    assert "OBSTACLES = None" in blender_script(tiny_run).read_text()

@@ -68,6 +68,23 @@ def tank_bounds(record: dict) -> tuple[np.ndarray, np.ndarray] | None:
     return None
 
 
+OBSTACLES = "obstacles.obj"  # a run's obstacles, written once: they do not move
+
+
+def obstacle_mesh(run: Path):
+    """The run's obstacles as one ``trimesh.Trimesh``, or ``None`` when it has none."""
+    path = run / OBSTACLES
+    if not path.is_file():
+        return None
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except Exception as e:  # trimesh raises many kinds for a bad file
+        raise RunError(f"{path}: cannot read the obstacles ({type(e).__name__}: {e})") from None
+    return mesh if len(getattr(mesh, "faces", ())) else None
+
+
 def write_video(images, path, fps: float, gif: bool = False) -> None:
     """Write RGB uint8 frames (an iterable of (H, W, 3) arrays) as an MP4 (H.264) or a GIF."""
     import imageio.v2 as imageio

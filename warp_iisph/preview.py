@@ -1,6 +1,7 @@
 """A fast look at a run without the render extra: each frame's particles (coloured by speed) or
 its mesh's vertices (shaded by their normals) are splatted as small spheres through an
-orthographic camera with a z-buffer in NumPy, and the frames go into ``preview.mp4``."""
+orthographic camera with a z-buffer in NumPy, over the tank's edges and the run's obstacles
+(drawn once, as dense surface samples), and the frames go into ``preview.mp4``."""
 
 from __future__ import annotations
 
@@ -10,11 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .frames import RunError, frame_files, frame_index, load_run, select_frames, tank_bounds, write_video
+from .frames import RunError, frame_files, frame_index, load_run, obstacle_mesh, select_frames, tank_bounds, write_video
 
 # Speed colour ramp (slow -> fast): deep blue, blue, cyan, pale yellow, orange.
 RAMP = np.array([[0.05, 0.15, 0.45], [0.10, 0.40, 0.85], [0.30, 0.80, 0.95], [0.95, 0.95, 0.60], [0.95, 0.55, 0.15]])
 WATER = np.array([0.25, 0.55, 0.90])
+STONE = np.array([0.62, 0.58, 0.52])
 LIGHT = np.array([0.35, 0.8, 0.5]) / np.linalg.norm([0.35, 0.8, 0.5])
 
 
@@ -107,6 +109,17 @@ def box_edges(lower, upper, step: float) -> np.ndarray:
     return np.concatenate(pts)
 
 
+def splat_surface(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, mesh, color=STONE, max_points: int = 500_000) -> None:
+    """Draw a triangle mesh as random surface samples, about two per pixel of its area, each a
+    3x3-pixel square (no gaps) lit by its triangle's normal; the z-buffer hides its far side."""
+    import trimesh
+
+    count = int(np.clip(2.0 * mesh.area * view.scale**2, 1000, max_points))
+    points, face = trimesh.sample.sample_surface(mesh, count, seed=0)
+    lam = np.clip(mesh.face_normals[face] @ LIGHT, 0.0, 1.0)[:, None]
+    splat(image, depth_buffer, view, points, color * (0.35 + 0.65 * lam), 1.5 / view.scale, shade_spheres=False)
+
+
 def background(width: int, height: int) -> np.ndarray:
     t = np.linspace(0.0, 1.0, height)[:, None, None]
     top, bottom = np.array([0.93, 0.95, 0.98]), np.array([0.78, 0.80, 0.84])
@@ -138,13 +151,21 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
     if h <= 0:  # no record: estimate the spacing from the particle volume
         ext = np.ptp(first["x"], axis=0)
         h = float(np.cbrt(np.prod(np.maximum(ext, 1e-6)) / max(len(first["x"]), 1)))
+    obstacles = obstacle_mesh(run)
     bounds = tank_bounds(record)
     if bounds is None:
         lo, hi = first["x"].min(0) - h, first["x"].max(0) + h
         last = load(files[-1])["x"]
         bounds = (np.minimum(lo, last.min(0) - h), np.maximum(hi, last.max(0) + h))
+        if obstacles is not None:
+            bounds = (np.minimum(bounds[0], obstacles.bounds[0]), np.maximum(bounds[1], obstacles.bounds[1]))
     view = OrthoView(*bounds, width, height, yaw, pitch)
     edges = box_edges(*bounds, step=0.5 / view.scale)
+    # what does not move is drawn once: the tank's edges and the obstacles
+    still, still_depth = background(width, height), np.full((height, width), -np.inf)
+    splat(still, still_depth, view, edges, np.full((len(edges), 3), 0.45), 0.5 / view.scale, shade_spheres=False)
+    if obstacles is not None:
+        splat_surface(still, still_depth, view, obstacles)
     g = 9.81
     v_ref = math.sqrt(2 * g * max(float(bounds[1][1] - bounds[0][1]), h))
     out = Path(out) if out else run / ("preview.gif" if gif else "preview.mp4")
@@ -160,9 +181,7 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
             for k, path in enumerate(files):
                 t0 = time.perf_counter()
                 data = first if k == 0 else load(path)
-                img = background(width, height)
-                zb = np.full((height, width), -np.inf)
-                splat(img, zb, view, edges, np.full((len(edges), 3), 0.45), 0.5 / view.scale, shade_spheres=False)
+                img, zb = still.copy(), still_depth.copy()
                 if source == "particles":
                     colors = ramp(np.linalg.norm(data["v"], axis=1) / v_ref)
                     splat(img, zb, view, data["x"], colors, 0.5 * h)

@@ -1,6 +1,6 @@
 """Physically based frames of a run's meshes with Mitsuba 3 (the ``render`` extra): the liquid is
 a smooth dielectric (IOR 1.33) filled with an absorbing medium (its colour), under a procedural
-sky, over a checkered floor, optionally with the tank's far walls; a box-filtered path tracer at
+sky, over a checkered floor, with the run's obstacles (diffuse) and optionally the tank's far walls; a box-filtered path tracer at
 few samples, then OpenImageDenoise with albedo and normal guides. Frames go to
 ``frames/frame_NNNNN.png`` and, together, into ``video.mp4``."""
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .frames import RunError, frame_files, frame_index, load_run, select_frames, tank_bounds, write_video
+from .frames import OBSTACLES, RunError, frame_files, frame_index, load_run, obstacle_mesh, select_frames, tank_bounds, write_video
 from .preview import parse_resolution
 
 EXTRA = "pip install 'warp_iisph[render]'  (Mitsuba 3, pyoidn, imageio)"
@@ -143,7 +143,7 @@ def mesh_bounds(paths: list[Path]) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def scene_dict(mesh_path: Path | None, camera, floor_y: float, extent: float, color, spp: int, width: int, height: int,
-               fov: float, walls: list | None = None) -> dict:
+               fov: float, walls: list | None = None, obstacles: Path | None = None) -> dict:
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
@@ -174,6 +174,9 @@ def scene_dict(mesh_path: Path | None, camera, floor_y: float, extent: float, co
             "interior": {"type": "homogeneous", "albedo": 0.0, "scale": scale,
                          "sigma_t": {"type": "rgb", "value": [float(s / scale) for s in sigma]}},
         }
+    if obstacles is not None:  # flat-shaded: boxes keep their edges
+        d["obstacles"] = {"type": "obj", "filename": str(obstacles), "face_normals": True,
+                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}}}
     for k, (center, normal, size) in enumerate(walls or []):
         d[f"wall_{k}"] = {"type": "rectangle", "to_world": _rectangle(T, center, normal, size),
                           "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.72, 0.75]}}}
@@ -257,6 +260,9 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
     if liquid is None and tank is None:
         raise RunError(f"{run / 'mesh'}: the meshes are empty and the run has no box tank to frame")
     box = liquid if liquid is not None else tank
+    solid = obstacle_mesh(run)
+    if solid is not None:  # frame the obstacles with the liquid
+        box = (np.minimum(box[0], solid.bounds[0]), np.maximum(box[1], solid.bounds[1]))
     if cam.get("position"):
         eye = np.asarray(cam["position"], float)
         target = np.asarray(cam["target"], float) if cam.get("target") else 0.5 * (box[0] + box[1])
@@ -284,7 +290,8 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
             else:
                 t0 = time.perf_counter()
                 empty = os.path.getsize(path) == 0 or b"\nf " not in path.read_bytes()
-                sd = scene_dict(None if empty else path, (eye, target), floor_y, extent, color, spp, width, height, fov, wall_list)
+                sd = scene_dict(None if empty else path, (eye, target), floor_y, extent, color, spp, width, height, fov, wall_list,
+                                obstacles=run / OBSTACLES if solid is not None else None)
                 image = render_image(sd, use_denoiser, seed=frame_index(path))
                 tmp = png.with_name(png.stem + ".part.png")
                 imageio.imwrite(tmp, image)

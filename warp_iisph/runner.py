@@ -13,9 +13,10 @@ import numpy as np
 import warp as wp
 
 from . import __version__
-from .io import StatsWriter, write_json, write_particles
+from .frames import OBSTACLES
+from .io import StatsWriter, write_json, write_obj, write_particles
 from .meshing import FrameMesher
-from .scene import Scene
+from .scene import Scene, obstacles_mesh
 from .simulation import DivergenceError, Simulation
 from .writer import FrameWriter
 
@@ -28,7 +29,7 @@ def prepare_output(out: Path, overwrite: bool) -> None:
     if out.exists() and any(out.iterdir()):
         if not overwrite:
             raise OutputExistsError(f"--out {out}: folder exists and is not empty; pass --overwrite to replace it")
-        for name in ("particles", "mesh", "stats.jsonl", "run.json"):
+        for name in ("particles", "mesh", "stats.jsonl", "run.json", OBSTACLES):
             p = out / name
             if p.is_dir():
                 shutil.rmtree(p)
@@ -56,7 +57,8 @@ def versions() -> dict:
 def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True,
               graph: bool = False, background_output: bool = True) -> dict:
     """Simulate ``duration`` seconds, writing ``particles/frame_%05d.ply`` every ``1/fps`` s,
-    ``stats.jsonl`` (one record per step) and ``run.json``. Returns the run record; its
+    ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene with obstacles,
+    ``obstacles.obj``. Returns the run record; its
     ``ended`` is ``completed``, ``diverged`` or ``interrupted``. Frame files are written on a
     background thread while the next frame simulates (``background_output=False``: inline)."""
     duration = scene.output.duration if duration is None else duration
@@ -81,6 +83,10 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         "duration": duration,
         "fps": fps,
     }
+    if scene.obstacles:  # static: one file for the viewers and Blender, not one per frame
+        mesh = obstacles_mesh(scene.obstacles)
+        write_obj(out / OBSTACLES, np.asarray(mesh.vertices), np.asarray(mesh.faces))
+        record["obstacles"] = OBSTACLES
     stage_ms: dict[str, float] = {}
     frames_written = 0
     ended, message = "completed", ""

@@ -158,6 +158,16 @@ def shape_mesh(shape) -> "object":
     return mesh
 
 
+
+def obstacles_mesh(shapes) -> "object":
+    """Obstacles as one ``trimesh.Trimesh`` (their meshes side by side, not merged), for the
+    viewers; ``None`` for none."""
+    import trimesh
+
+    meshes = [shape_mesh(s) for s in shapes]
+    return trimesh.util.concatenate(meshes) if meshes else None
+
+
 Fluid = Union[Box, Sphere]
 Obstacle = Union[Box, Sphere, MeshShape]
 
