@@ -1,0 +1,83 @@
+#!/usr/bin/env bash
+# The GPU measurements in as few device calls as possible (a lent machine's time is short and
+# one command may run 10 minutes). Each phase fits in one call; results land in $OUT (or
+# benchmarks/results/gpu when OUT is unset).
+#
+# warp-lang is not on the GPU image and its wheel (150 MB) is over what one call may carry
+# (64 MiB), so it travels as an installed site folder, xz-packed and cut into parts of 56 MiB
+# under .gpu/ (git-ignored), one part per call. Once, here (a machine with pip):
+#     bash benchmarks/gpu_session.sh pack
+# Then, on a warm lent machine, back to back (it goes back after 30 s idle):
+#     run "bash benchmarks/gpu_session.sh receive" carrying .gpu/1     (parts land in /tmp/parts)
+#     run "bash benchmarks/gpu_session.sh receive tests" carrying .gpu/2  (unpacks into /tmp/site; then
+#                                            the CUDA and graph tests, CPU against CUDA)
+#     run "bash benchmarks/gpu_session.sh switch"   # device_switch at 100k, 300k, 1M: --graph --mesh, then plain
+#     run "bash benchmarks/gpu_session.sh access"   # lists against grid queries; meshing per stage on CUDA
+set -uo pipefail
+cd "$(dirname "$0")/.."
+phase="${1:?phase: pack, receive, tests, switch or access}"
+WARP_VERSION="${WARP_VERSION:-1.19.0}"
+SITE="${SITE:-/tmp/site}"
+PARTS="${PARTS:-/tmp/parts}"
+
+if [ "$phase" = pack ]; then
+    work=$(mktemp -d)
+    plat=""
+    for p in manylinux_2_34_x86_64 manylinux_2_28_x86_64 manylinux_2_27_x86_64 manylinux_2_17_x86_64 manylinux2014_x86_64; do
+        plat="$plat --platform $p"
+    done
+    python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp $plat -d "$work/whl" \
+        "warp-lang==$WARP_VERSION" "trimesh>=4" "meshio>=5.3" || exit 1
+    python3 -m pip install -q --no-deps --no-compile --target "$work/site" "$work"/whl/*.whl || exit 1
+    rm -rf "$work/site/warp/examples" "$work/site/warp/tests" "$work/site/bin"
+    rm -rf .gpu && mkdir -p .gpu
+    tar cf - -C "$work/site" . | xz -T0 -6 | split -b 56M -d -a 1 - "$work/site.tar.xz."
+    n=0
+    for part in "$work"/site.tar.xz.*; do
+        n=$((n + 1)); mkdir -p ".gpu/$n"; mv "$part" ".gpu/$n/"
+    done
+    for d in .gpu/*/; do echo "$n" >"$d/parts"; done
+    rm -rf "$work"
+    du -sh .gpu/*
+    exit 0
+fi
+
+if [ "$phase" = receive ]; then
+    mkdir -p "$PARTS"
+    cp .gpu/*/site.tar.xz.* "$PARTS"/ || exit 1
+    n=$(cat .gpu/*/parts | head -1)
+    have=$(ls "$PARTS" | wc -l)
+    if [ "$have" -lt "$n" ]; then
+        echo "received $have of $n parts; carry the next one"
+        exit 0
+    fi
+    mkdir -p "$SITE" && cat "$PARTS"/site.tar.xz.* | xz -d | tar xf - -C "$SITE" || exit 1
+    echo "unpacked $n parts into $SITE"
+    phase="${2:-none}"
+    [ "$phase" = none ] && exit 0
+fi
+
+out="${OUT:-benchmarks/results/gpu}"
+mkdir -p "$out"
+[ -d "$SITE/warp" ] && export PYTHONPATH="$SITE:$PWD:${PYTHONPATH:-}"
+export PYTHONUNBUFFERED=1 WARP_CACHE_PATH="${WARP_CACHE_PATH:-/tmp/warp_cache}"
+nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.memory --format=csv >"$out/gpu.txt" 2>&1
+python3 -c "import warp as wp; wp.init(); print('warp', wp.__version__, wp.get_device('cuda:0').name)" || exit 1
+
+case "$phase" in
+tests)
+    python3 -m pytest -q -rs tests -k "cuda or graph" 2>&1 | tee "$out/tests.log"
+    ;;
+switch)
+    python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --graph --mesh --out "$out" 2>&1 | tee "$out/switch_graph_mesh.log"
+    python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --out "$out" 2>&1 | tee "$out/switch_plain.log"
+    ;;
+access)
+    python3 benchmarks/neighbor_access.py --devices cuda --counts 100000,300000,1000000 --out "$out" 2>&1 | tee "$out/access.log"
+    python3 benchmarks/surface.py --device cuda --threads 1 --counts 200000,1000000 --out "$out" 2>&1 | tee "$out/surface.log"
+    ;;
+*)
+    echo "unknown phase $phase: pack, receive, tests, switch or access" >&2
+    exit 2
+    ;;
+esac
