@@ -4,6 +4,7 @@ smoothing keeps volume; edge cases; the OBJ sequence of a run."""
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 
 from warp_iisph.cli import main
 from warp_iisph.io import write_obj
@@ -217,3 +218,13 @@ def test_storage_follows_the_surface_not_the_box():
     t = trimesh.Trimesh(*(a.numpy().reshape(-1, 3) for a in r.marching_cubes(field)), process=False)
     assert t.is_watertight and t.body_count == 2
     assert abs(abs(t.volume) / (len(x) * H**3) - 1.0) < 0.1
+
+
+def test_exclusive_scan_and_total():
+    from warp_iisph.surface import _exclusive_scan
+
+    flags = np.random.default_rng(1).integers(0, 4, 10_001).astype(np.int32)
+    start, total = _exclusive_scan(wp.array(flags, dtype=wp.int32, device="cpu"))
+    assert total == flags.sum() and np.array_equal(start.numpy(), np.cumsum(flags) - flags)
+    start, total = _exclusive_scan(wp.zeros(0, dtype=wp.int32, device="cpu"))
+    assert total == 0 and start.shape[0] == 0

@@ -484,12 +484,14 @@ def _tables(device) -> dict:
 
 
 def _exclusive_scan(flags: wp.array) -> tuple[wp.array, int]:
-    """Exclusive prefix sum of ``flags`` and its total (one read back to the host)."""
-    start = wp.empty_like(flags)
-    wp.utils.array_scan(flags, start, inclusive=False)
+    """Exclusive prefix sum of ``flags`` and its total, in one read back to the host: the
+    inclusive sum is written one element on, after a leading zero."""
     n = flags.shape[0]
-    total = int(start[n - 1:].numpy()[0] + flags[n - 1:].numpy()[0]) if n else 0
-    return start, total
+    sums = wp.empty(n + 1, dtype=flags.dtype, device=flags.device)
+    sums[:1].zero_()
+    if n:
+        wp.utils.array_scan(flags, sums[1:], inclusive=True)
+    return sums[:n], int(sums[n:].numpy()[0])
 
 
 class SurfaceReconstructor:
