@@ -10,6 +10,7 @@ from warp_iisph.cli import main
 from warp_iisph.io import write_obj
 from warp_iisph.sampling import sample_box, sample_sphere
 from warp_iisph.scene import Box, Sphere, Surface
+from warp_iisph import surface
 from warp_iisph.surface import SurfaceReconstructor
 
 H = 0.02
@@ -181,11 +182,13 @@ def test_block_marching_cubes_equals_warps_dense_marching_cubes():
     assert np.array_equal(ours[np.lexsort(ours.T)], ref[np.lexsort(ref.T)])
 
 
-def test_field_equals_zhu_bridson_at_stored_nodes():
+@pytest.mark.parametrize("settings", [{}, {"cell": 0.3, "radius": 2.5}])
+def test_field_equals_zhu_bridson_at_stored_nodes(settings):
     """The stored nodes hold Zhu & Bridson's distance, computed here by brute force; EMPTY blocks
-    have no particle within R and FULL blocks lie inside the liquid."""
+    have no particle within R and FULL blocks lie inside the liquid. The second settings put the
+    2x2x2 node cubes of ``signed_distance`` across coarse cells (each node tests its own)."""
     x = _jittered_ball(0.1)
-    p = Surface()
+    p = Surface(**settings)
     R, r0 = p.radius * H, p.r0 * H
     field = SurfaceReconstructor(H, p).distance_field(x)
     dense = field.dense()
@@ -228,3 +231,65 @@ def test_exclusive_scan_and_total():
     assert total == flags.sum() and np.array_equal(start.numpy(), np.cumsum(flags) - flags)
     start, total = _exclusive_scan(wp.zeros(0, dtype=wp.int32, device="cpu"))
     assert total == 0 and start.shape[0] == 0
+
+
+@wp.kernel
+def per_node_signed_distance(
+    f: surface.BlockField,
+    grid: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    R: float,
+    r0: float,
+    counts: wp.array(dtype=wp.int32),
+    cdims: wp.vec3i,
+    full: int,
+    phi: wp.array(dtype=float),
+):
+    """The plain definition: one node per thread, its own narrow-band test and grid query."""
+    n = wp.tid()
+    p = surface.node_position(f, surface.block_coords(f, n // surface.CELLS3), surface.local_node(n % surface.CELLS3))
+    c = surface._coarse_index(p, f.lower, R, cdims)
+    kind = surface.coarse_kind(counts, cdims, c, c, full)
+    phi[n] = R
+    if kind == surface.FULL:
+        phi[n] = -r0
+    elif kind == surface.SURFACE:
+        wsum = float(0.0)
+        xbar = wp.vec3(0.0)
+        inv_R2 = 1.0 / (R * R)
+        for q in wp.hash_grid_query(grid, p, R):
+            d = x[q] - p
+            s2 = wp.dot(d, d) * inv_R2
+            if s2 < 1.0:
+                t = 1.0 - s2
+                w = t * t * t
+                wsum += w
+                xbar += w * x[q]
+        if wsum > 0.0:
+            phi[n] = wp.length(p - xbar / wsum) - r0
+
+
+@pytest.mark.parametrize("settings", [{}, {"cell": 0.3, "radius": 2.5}])
+def test_node_cubes_equal_the_per_node_field(settings, monkeypatch):
+    """signed_distance serves 2x2x2 nodes with one query and one narrow-band test where they
+    share a coarse cell: bitwise the field of one node per thread."""
+    launched = {}
+    plain = surface.launch_particles
+
+    def spy(kernel, n, inputs, device):
+        if kernel is surface.signed_distance:
+            launched["inputs"] = inputs
+        return plain(kernel, n, inputs, device)
+
+    monkeypatch.setattr(surface, "launch_particles", spy)
+    rec = SurfaceReconstructor(H, Surface(**settings))
+    pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)  # deep enough for FULL nodes
+    field = rec.distance_field(np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(1).normal(0, 0.1 * H, pool.shape)]))
+    f = launched["inputs"][0]
+    reference = wp.empty_like(f.phi)
+    wp.launch(per_node_signed_distance, dim=reference.shape[0], inputs=[*launched["inputs"], reference])
+    got, want = f.phi.numpy(), reference.numpy()
+    assert field.n_stored > 50 and np.array_equal(got, want), np.abs(got - want).max()
+    # every path is exercised: outside, deep inside, summed
+    assert (want == np.float32(f.outside)).sum() > 1000 and (want == np.float32(f.inside)).sum() > 1000
+    assert ((want != np.float32(f.outside)) & (want != np.float32(f.inside))).sum() > 1000

@@ -195,6 +195,16 @@ def classify_blocks(
     f.kind[b] = coarse_kind(counts, cdims, c0, c1, full)
 
 
+SUB = wp.constant(2)  # signed_distance gives each thread a cube of SUB^3 nodes: one grid query for all
+SUBS = wp.constant(BLOCK // SUB)
+Phi8 = wp.types.vector(length=8, dtype=float)
+
+
+@wp.func
+def sub_corner(c: int) -> wp.vec3i:
+    return wp.vec3i(c // 4, (c // 2) % 2, c % 2)
+
+
 @wp.kernel
 def signed_distance(
     offset: int,
@@ -207,33 +217,76 @@ def signed_distance(
     cdims: wp.vec3i,
     full: int,
 ):
+    """Zhu & Bridson's distance at the 8 nodes of one 2x2x2 cube of a stored block: one grid
+    query (radius R plus the cube's half-diagonal) serves all 8, whose candidates it reads once;
+    each node sums the particles within R in the order its own query would visit them."""
     n = wp.tid() + offset
-    kb = n // CELLS3
-    p = node_position(f, block_coords(f, kb), local_node(n % CELLS3))
-    # narrow band: outside (EMPTY) and deep inside (FULL) need no grid query
-    c = _coarse_index(p, f.lower, R, cdims)
-    kind = coarse_kind(counts, cdims, c, c, full)
-    if kind == EMPTY:
-        f.phi[n] = R
+    kb = n // (SUBS * SUBS * SUBS)
+    m = n % (SUBS * SUBS * SUBS)
+    bc = block_coords(f, kb)
+    l0 = SUB * wp.vec3i(m // (SUBS * SUBS), (m // SUBS) % SUBS, m % SUBS)
+    base = kb * CELLS3
+    # narrow band, per node: outside (EMPTY) and deep inside (FULL) need no sum; the 8 nodes
+    # share one coarse cell (and so one test) unless the cube straddles a cell boundary
+    ca = _coarse_index(node_position(f, bc, l0), f.lower, R, cdims)
+    cb = _coarse_index(node_position(f, bc, l0 + wp.vec3i(1, 1, 1)), f.lower, R, cdims)
+    shared = int(-1)
+    if ca[0] == cb[0] and ca[1] == cb[1] and ca[2] == cb[2]:
+        shared = coarse_kind(counts, cdims, ca, ca, full)
+    active = int(0)
+    for c in range(8):
+        l = l0 + sub_corner(c)
+        kind = shared
+        if kind < 0:
+            cc = _coarse_index(node_position(f, bc, l), f.lower, R, cdims)
+            kind = coarse_kind(counts, cdims, cc, cc, full)
+        if kind == EMPTY:
+            f.phi[base + local_slot(l)] = R
+        elif kind == FULL:
+            f.phi[base + local_slot(l)] = -r0
+        else:
+            active = active | (1 << c)
+    if active == 0:
         return
-    if kind == FULL:
-        f.phi[n] = -r0
-        return
-    wsum = float(0.0)
-    xbar = wp.vec3(0.0)
+    p0 = node_position(f, bc, l0)
+    half = 0.5 * f.cell
+    center = p0 + wp.vec3(half, half, half)
+    reach = R + wp.sqrt(3.0) * half
+    reach2 = reach * reach
     inv_R2 = 1.0 / (R * R)
-    for q in wp.hash_grid_query(grid, p, R):
-        d = x[q] - p
-        s2 = wp.dot(d, d) * inv_R2
-        if s2 < 1.0:
-            t = 1.0 - s2
-            w = t * t * t
-            wsum += w
-            xbar += w * x[q]
-    if wsum > 0.0:
-        f.phi[n] = wp.length(p - xbar / wsum) - r0
-    else:
-        f.phi[n] = R
+    px = Phi8()
+    py = Phi8()
+    pz = Phi8()
+    for c in range(8):
+        p = node_position(f, bc, l0 + sub_corner(c))
+        px[c] = p[0]
+        py[c] = p[1]
+        pz[c] = p[2]
+    wsum = Phi8()
+    sx = Phi8()
+    sy = Phi8()
+    sz = Phi8()
+    for q in wp.hash_grid_query(grid, center, reach):
+        xq = x[q]
+        dc = xq - center
+        if wp.dot(dc, dc) < reach2:
+            for c in range(8):
+                d = xq - wp.vec3(px[c], py[c], pz[c])
+                s2 = wp.dot(d, d) * inv_R2
+                if s2 < 1.0:
+                    t = 1.0 - s2
+                    w = t * t * t
+                    wsum[c] = wsum[c] + w
+                    sx[c] = sx[c] + w * xq[0]
+                    sy[c] = sy[c] + w * xq[1]
+                    sz[c] = sz[c] + w * xq[2]
+    for c in range(8):
+        if (active >> c) & 1:
+            phi = R
+            if wsum[c] > 0.0:
+                xbar = wp.vec3(sx[c], sy[c], sz[c]) / wsum[c]
+                phi = wp.length(wp.vec3(px[c], py[c], pz[c]) - xbar) - r0
+            f.phi[base + local_slot(l0 + sub_corner(c))] = phi
 
 
 @wp.func
@@ -550,8 +603,8 @@ class SurfaceReconstructor:
         wp.launch(compact_blocks, dim=n_blocks, inputs=[f.kind, slot, f.block_map, blocks], device=self.device)
         f.blocks = blocks[:n_surface]
         f.phi = wp.empty(n_surface * CELLS3, dtype=float, device=self.device)
-        launch_particles(signed_distance, n_surface * CELLS3, [f, self.grid.id, xd, float(R), float(r0), counts, cd, full],
-                         self.device)
+        launch_particles(signed_distance, n_surface * SUBS**3,
+                         [f, self.grid.id, xd, float(R), float(r0), counts, cd, full], self.device)
         return SparseField(f, tuple(int(b) for b in nb), lower, cell)
 
     def marching_cubes(self, field: SparseField) -> tuple[wp.array, wp.array]:
