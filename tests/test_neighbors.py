@@ -64,3 +64,30 @@ def test_cell_order_is_a_permutation_grouping_cells():
     cells = np.floor(x[order] / 0.04).astype(int)
     changes = np.count_nonzero(np.any(np.diff(cells, axis=0) != 0, axis=1))
     assert changes < len(np.unique(cells, axis=0)) + 1  # each cell is one contiguous run
+
+
+def test_wall_mask_skips_far_particles_and_keeps_every_wall_neighbour():
+    """Walls on a box's faces; fluid inside, near the walls, and beyond them: the static mask
+    clears far particles (they skip the walls' grid) and the lists still equal brute force."""
+    from warp_iisph.neighbors import near_mask
+    from warp_iisph.sampling import sample_tank_walls
+    from warp_iisph.scene import Box
+
+    H, h = 0.04, 0.02
+    walls = sample_tank_walls(Box((0.0, 0.0, 0.0), (0.6, 0.4, 0.4)), h)
+    rng = np.random.default_rng(5)
+    x = np.concatenate([rng.uniform(-0.1, 0.7, size=(4000, 3)), rng.uniform(0.0, 0.6, size=(1000, 3)) * [1, 0.05, 1]])
+    xb = wp.array(walls.astype(np.float32), dtype=wp.vec3, device="cpu")
+    search = NeighborSearch(len(x), xb, H, "cpu")
+    search.build(wp.array(x.astype(np.float32), dtype=wp.vec3, device="cpu"))
+    assert search.boundary.to_sets(len(x)) == _brute(walls, x, H, same=False)
+    # the mask: no wall within H of a cleared cell; most of the box's inside is cleared
+    m = near_mask(xb, H, "cpu")
+    dims, lower, cell = np.array([m.dims[0], m.dims[1], m.dims[2]]), np.array(m.lower), m.cell
+    c = np.floor((x - lower) / cell).astype(int)
+    inside = np.all((c >= 0) & (c < dims), axis=1)
+    near = np.zeros(len(x), bool)
+    near[inside] = m.near.numpy().reshape(dims)[tuple(c[inside].T)] != 0
+    has_wall = np.array([len(s) > 0 for s in _brute(walls, x, H, same=False)])
+    assert np.all(near[has_wall]) and has_wall.sum() > 500
+    assert (~near).mean() > 0.3

@@ -3,13 +3,15 @@
 The grid is queried once per step; every later loop of the step walks the compact lists, which
 is several times cheaper than querying the grid again. Fluid-fluid lists have a fixed number of
 slots per particle and are filled in a single query pass; fluid-boundary lists, empty for most
-particles, are compact (CSR: count, exclusive scan, fill). Each list
+particles, are compact (CSR: count, exclusive scan, fill), and a particle that a static mask of
+cells near the walls clears skips the walls' grid altogether. Each list
 entry stores the neighbour index and ``grad W_ij`` (positions do not change until integration).
 Fluid particles are periodically reordered by grid cell so that neighbours are close in memory.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from .launch import launch_particles
@@ -27,6 +29,64 @@ class NeighborList:
     grad_W: wp.array(dtype=wp.vec3)
 
 
+@wp.struct
+class NearMask:
+    """Cells of size a little over the radius, over the other set's bounding box grown by one
+    cell: ``near`` is 1 where a cell or one of its 26 neighbours holds a point of the set, so a
+    query point in a cell marked 0 (or outside the box) has no neighbour in it. ``dims`` 0:
+    no mask, every point queries."""
+
+    lower: wp.vec3
+    cell: float
+    dims: wp.vec3i
+    near: wp.array(dtype=wp.uint8)
+
+
+@wp.func
+def mask_cell(m: NearMask, p: wp.vec3) -> wp.vec3i:
+    q = (p - m.lower) / m.cell
+    return wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+
+
+@wp.func
+def mask_flat(m: NearMask, c: wp.vec3i) -> int:
+    if c[0] < 0 or c[1] < 0 or c[2] < 0 or c[0] >= m.dims[0] or c[1] >= m.dims[1] or c[2] >= m.dims[2]:
+        return -1
+    return (c[0] * m.dims[1] + c[1]) * m.dims[2] + c[2]
+
+
+@wp.func
+def may_have_neighbors(m: NearMask, p: wp.vec3) -> bool:
+    if m.dims[0] == 0:
+        return True
+    k = mask_flat(m, mask_cell(m, p))
+    if k < 0:
+        return False
+    return m.near[k] != wp.uint8(0)
+
+
+@wp.kernel
+def occupy_cells(m: NearMask, points: wp.array(dtype=wp.vec3), occupied: wp.array(dtype=wp.int32)):
+    k = mask_flat(m, mask_cell(m, points[wp.tid()]))
+    if k >= 0:
+        occupied[k] = 1  # every writer writes the same value: no atomic needed
+
+
+@wp.kernel
+def dilate_cells(offset: int, m: NearMask, occupied: wp.array(dtype=wp.int32)):
+    k = wp.tid() + offset
+    c = wp.vec3i(k // (m.dims[1] * m.dims[2]), (k // m.dims[2]) % m.dims[1], k % m.dims[2])
+    hit = wp.uint8(0)
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for e in range(-1, 2):
+                j = mask_flat(m, c + wp.vec3i(a, b, e))
+                if j >= 0:
+                    if occupied[j] != 0:
+                        hit = wp.uint8(1)
+    m.near[k] = hit
+
+
 @wp.kernel
 def count_neighbors(
     offset: int,
@@ -34,10 +94,14 @@ def count_neighbors(
     points: wp.array(dtype=wp.vec3),
     queries: wp.array(dtype=wp.vec3),
     radius: float,
+    mask: NearMask,
     count: wp.array(dtype=wp.int32),
 ):
     i = wp.tid() + offset
     x_i = queries[i]
+    if not may_have_neighbors(mask, x_i):
+        count[i] = 0
+        return
     r2 = radius * radius
     n = int(0)
     j = int(0)
@@ -61,6 +125,8 @@ def fill_neighbors(
     """Write the lists; entries past the storage's end are dropped and the counts cut to match
     (``list_total`` has flagged the overflow; the step is redone with more storage)."""
     i = wp.tid() + offset
+    if nbrs.count[i] == 0:
+        return
     x_i = queries[i]
     r2 = radius * radius
     k = nbrs.start[i]
@@ -148,14 +214,16 @@ class NeighborListBuffer:
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
         self.lists.grad_W = wp.zeros(capacity, dtype=wp.vec3, device=self.device)
 
-    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, sync: bool = True):
+    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, sync: bool = True, mask: NearMask | None = None):
         """Neighbours among ``points`` (another set: the walls) of each of the ``n`` ``queries``:
-        count, scan, fill. With ``sync`` the storage grows first when too small; without it
-        (inside a captured graph) nothing is read back and ``needed`` tells afterwards."""
+        count, scan, fill; queries in cells that ``mask`` (see :func:`near_mask`) clears skip
+        the grid. With ``sync`` the storage grows first when too small; without it (inside a
+        captured graph) nothing is read back and ``needed`` tells afterwards."""
         if n == 0:
             return
         lists = self.lists
-        launch_particles(count_neighbors, n, [grid.id, points, queries, radius, lists.count], self.device)
+        mask = mask if mask is not None else _no_mask(self.device)
+        launch_particles(count_neighbors, n, [grid.id, points, queries, radius, mask, lists.count], self.device)
         wp.utils.array_scan(lists.count[:n], lists.start[:n], inclusive=False)
         wp.launch(list_total, dim=1, inputs=[n, lists, self.needed], device=self.device)
         if sync:
@@ -206,6 +274,46 @@ class StridedListBuffer(NeighborListBuffer):
                 self.build(grid, points, n, radius, sync)
 
 
+# Above this many mask cells (bytes) the walls' bounding box is too fine to mask; every point queries.
+MAX_MASK_CELLS = 1 << 27
+
+
+_no_masks: dict = {}
+
+
+def _no_mask(device) -> NearMask:
+    key = str(device)
+    if key not in _no_masks:
+        m = NearMask()
+        m.lower, m.cell, m.dims = wp.vec3(0.0), 1.0, wp.vec3i(0, 0, 0)
+        m.near = wp.zeros(1, dtype=wp.uint8, device=device)
+        _no_masks[key] = m
+    return _no_masks[key]
+
+
+def near_mask(points: wp.array, radius: float, device) -> NearMask:
+    """Where a point may have a neighbour among the static ``points`` (the walls): cells of
+    1.001 ``radius`` (so two points within ``radius`` lie in neighbouring cells even after
+    float rounding) over their bounding box grown by a cell, each marked when it or a neighbour
+    holds one of them. Built once; a point elsewhere has no neighbour there."""
+    xs = points.numpy()
+    if len(xs) == 0:
+        return _no_mask(device)
+    cell = 1.001 * float(radius)
+    lower = xs.min(axis=0) - cell
+    dims = np.floor((xs.max(axis=0) + cell - lower) / cell).astype(np.int64) + 1
+    if int(np.prod(dims)) > MAX_MASK_CELLS:
+        return _no_mask(device)
+    m = NearMask()
+    m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
+    cells = int(np.prod(dims))
+    m.near = wp.zeros(cells, dtype=wp.uint8, device=device)
+    occupied = wp.zeros(cells, dtype=wp.int32, device=device)
+    wp.launch(occupy_cells, dim=len(xs), inputs=[m, points, occupied], device=device)
+    launch_particles(dilate_cells, cells, [m, occupied], device)
+    return m
+
+
 def make_grid(device, dim: int = 128) -> wp.HashGrid:
     return wp.HashGrid(dim, dim, dim, device=device)
 
@@ -224,6 +332,7 @@ class NeighborSearch:
         if boundary_x is not None and boundary_x.shape[0] > 0:
             self.boundary_grid = make_grid(device)
             self.boundary_grid.build(boundary_x, self.radius)
+            self.boundary_mask = near_mask(boundary_x, self.radius, device)  # most particles are far from walls
         self.fluid = StridedListBuffer(n_fluid, device)
         self.boundary = NeighborListBuffer(n_fluid, device)
         self._order = wp.zeros(max(n_fluid, 1), dtype=wp.int32, device=device)
@@ -240,7 +349,7 @@ class NeighborSearch:
         self.grid.build(x, self.radius)
         self.fluid.build(self.grid, x, self.n, self.radius, sync=sync)
         if self.boundary_grid is not None:
-            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, sync=sync)
+            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, sync=sync, mask=self.boundary_mask)
         else:
             self.boundary.lists.count.zero_()
             self.boundary.lists.start.zero_()
