@@ -293,3 +293,18 @@ def test_node_cubes_equal_the_per_node_field(settings, monkeypatch):
     # every path is exercised: outside, deep inside, summed
     assert (want == np.float32(f.outside)).sum() > 1000 and (want == np.float32(f.inside)).sum() > 1000
     assert ((want != np.float32(f.outside)) & (want != np.float32(f.inside))).sum() > 1000
+
+
+def test_bounds_and_non_finite_count_on_the_device(ball):
+    """A device frame's bounding box and non-finite check need no copy of its positions."""
+    from warp_iisph.surface import _bounds
+
+    x = ball.astype(np.float32).copy()
+    lo, hi, bad = _bounds(wp.array(x, dtype=wp.vec3, device="cpu"))
+    assert bad == 0 and np.array_equal(lo, x.min(0)) and np.array_equal(hi, x.max(0))
+    x[3, 0], x[7, 2] = np.nan, np.inf
+    lo, hi, bad = _bounds(wp.array(x, dtype=wp.vec3, device="cpu"))
+    finite = np.isfinite(x).all(1)
+    assert bad == 2 and np.array_equal(lo, x[finite].min(0)) and np.array_equal(hi, x[finite].max(0))
+    with pytest.raises(ValueError, match="2 particles have non-finite positions"):
+        SurfaceReconstructor(H).reconstruct(wp.array(x, dtype=wp.vec3, device="cpu"))

@@ -536,6 +536,27 @@ def _tables(device) -> dict:
     }
 
 
+@wp.kernel
+def particle_bounds(x: wp.array(dtype=wp.vec3), bounds: wp.array(dtype=wp.vec3), bad: wp.array(dtype=wp.int32)):
+    """The finite particles' bounding box (``bounds`` starts at +-inf) and the non-finite count:
+    atomics, one launch, so a device frame needs no copy of its positions to the host."""
+    p = x[wp.tid()]
+    if wp.isfinite(p):
+        wp.atomic_min(bounds, 0, p)
+        wp.atomic_max(bounds, 1, p)
+    else:
+        wp.atomic_add(bad, 0, 1)
+
+
+def _bounds(x: wp.array) -> tuple[np.ndarray, np.ndarray, int]:
+    """Lower and upper corner of ``x`` and how many of its points are not finite."""
+    bounds = wp.array(np.array([[np.inf] * 3, [-np.inf] * 3], dtype=np.float32), dtype=wp.vec3, device=x.device)
+    bad = wp.zeros(1, dtype=wp.int32, device=x.device)
+    wp.launch(particle_bounds, dim=x.shape[0], inputs=[x, bounds, bad], device=x.device)
+    b = bounds.numpy()  # float32, as the positions
+    return b[0], b[1], int(bad.numpy()[0])
+
+
 def _exclusive_scan(flags: wp.array) -> tuple[wp.array, int]:
     """Exclusive prefix sum of ``flags`` and its total, in one read back to the host: the
     inclusive sum is written one element on, after a leading zero."""
@@ -570,15 +591,14 @@ class SurfaceReconstructor:
         cell, R, r0 = p.cell * h, p.radius * h, p.r0 * h
         if isinstance(x, wp.array):
             xd = x
-            xn = x.numpy()
         else:
-            xn = np.asarray(x, dtype=np.float32).reshape(-1, 3)
-            xd = wp.array(xn, dtype=wp.vec3, device=self.device)
-        if not np.all(np.isfinite(xn)):
-            raise ValueError(f"{int((~np.isfinite(xn).all(axis=1)).sum())} particles have non-finite positions")
+            xd = wp.array(np.asarray(x, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=self.device)
+        lo, hi, bad = _bounds(xd)
+        if bad:
+            raise ValueError(f"{bad} particles have non-finite positions")
         margin = R + 2.0 * cell
-        lower = xn.min(axis=0) - margin
-        nb = np.ceil((xn.max(axis=0) + margin - lower) / (cell * BLOCK)).astype(int)
+        lower = lo - margin
+        nb = np.ceil((hi + margin - lower) / (cell * BLOCK)).astype(int)
         n_blocks = int(np.prod(nb))
         if float(np.prod(nb.astype(float))) > 2.0**31 / (3 * CELLS3):
             raise ValueError(f"mesh grid of {(BLOCK * nb + 1).tolist()} nodes is too large; increase the cell size")
