@@ -214,7 +214,7 @@ class NeighborListBuffer:
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
         self.lists.grad_W = wp.zeros(capacity, dtype=wp.vec3, device=self.device)
 
-    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, sync: bool = True, mask: NearMask | None = None):
+    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, mask: NearMask, sync: bool = True):
         """Neighbours among ``points`` (another set: the walls) of each of the ``n`` ``queries``:
         count, scan, fill; queries in cells that ``mask`` (see :func:`near_mask`) clears skip
         the grid. With ``sync`` the storage grows first when too small; without it (inside a
@@ -222,7 +222,6 @@ class NeighborListBuffer:
         if n == 0:
             return
         lists = self.lists
-        mask = mask if mask is not None else _no_mask(self.device)
         launch_particles(count_neighbors, n, [grid.id, points, queries, radius, mask, lists.count], self.device)
         wp.utils.array_scan(lists.count[:n], lists.start[:n], inclusive=False)
         wp.launch(list_total, dim=1, inputs=[n, lists, self.needed], device=self.device)
@@ -278,17 +277,11 @@ class StridedListBuffer(NeighborListBuffer):
 MAX_MASK_CELLS = 1 << 27
 
 
-_no_masks: dict = {}
-
-
 def _no_mask(device) -> NearMask:
-    key = str(device)
-    if key not in _no_masks:
-        m = NearMask()
-        m.lower, m.cell, m.dims = wp.vec3(0.0), 1.0, wp.vec3i(0, 0, 0)
-        m.near = wp.zeros(1, dtype=wp.uint8, device=device)
-        _no_masks[key] = m
-    return _no_masks[key]
+    m = NearMask()
+    m.lower, m.cell, m.dims = wp.vec3(0.0), 1.0, wp.vec3i(0, 0, 0)
+    m.near = wp.zeros(1, dtype=wp.uint8, device=device)
+    return m
 
 
 def near_mask(points: wp.array, radius: float, device) -> NearMask:
@@ -349,7 +342,7 @@ class NeighborSearch:
         self.grid.build(x, self.radius)
         self.fluid.build(self.grid, x, self.n, self.radius, sync=sync)
         if self.boundary_grid is not None:
-            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, sync=sync, mask=self.boundary_mask)
+            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, self.boundary_mask, sync=sync)
         else:
             self.boundary.lists.count.zero_()
             self.boundary.lists.start.zero_()
