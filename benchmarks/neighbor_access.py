@@ -25,11 +25,12 @@ import time
 import numpy as np
 import warp as wp
 
-from common import RESULTS, header, pyplot, save, warm_up
+from common import RESULTS, header, present_devices, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
 from warp_iisph.launch import launch_particles
 from warp_iisph.neighbors import NeighborList
-from warp_iisph.solvers.iisph import pressure_jacobi, pressure_sum_dij_pj
+from warp_iisph.solvers.iisph import (dij_pj_term, jacobi_boundary_sigma, jacobi_sigma_term, jacobi_update, pressure_jacobi,
+                                     pressure_sum_dij_pj)
 from warp_iisph.sph import cubic_grad_W
 
 WALKS_OUTSIDE_JACOBI = 4  # density, advection velocity, advection density, pressure acceleration
@@ -59,8 +60,7 @@ def pressure_sum_dij_pj_query(
         if j != i:
             x_ij = x_i - x[j]
             if wp.dot(x_ij, x_ij) < r2:
-                rho_j = rho[j]
-                acc -= (mass * p[j] / (rho_j * rho_j)) * cubic_grad_W(x_ij, radius)
+                acc -= dij_pj_term(mass, p[j], rho[j], cubic_grad_W(x_ij, radius))
     sum_dij_pj[i] = dt * dt * acc
 
 
@@ -101,18 +101,9 @@ def pressure_jacobi_query(
             x_ij = x_i - x[j]
             if wp.dot(x_ij, x_ij) < r2:
                 g = cubic_grad_W(x_ij, radius)
-                d_ji = d_ji_scale * g
-                sigma += mass * wp.dot(sdp_i - d_ii[j] * p[j] - (sum_dij_pj[j] - d_ji * p_i), g)
-    s = nb.start[i]
-    for k in range(s, s + nb.count[i]):
-        sigma += psi[nb.index[k]] * wp.dot(sdp_i, nb.grad_W[k])
-    a = a_ii[i]
-    p_next = float(0.0)
-    if wp.abs(a) > 1.0e-12:
-        p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv[i] - sigma), 0.0)
-    p_new[i] = p_next
-    rho_pred = rho_adv[i] + a * p_next + sigma
-    density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
+                sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
+    sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
+    jacobi_update(i, sigma, p_i, a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
 
 
 def timed(fn, device, repeats: int) -> float:
@@ -231,11 +222,7 @@ def main():
         args.counts, args.settle, args.repeats = "4000", 0.02, 5
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    devices, missing = [], []
-    for d in args.devices.split(","):
-        (devices if d == "cpu" or (d == "cuda" and wp.is_cuda_available()) else missing).append(d)
-    for d in missing:
-        print(f"device {d}: not present on this machine, skipped")
+    devices, missing = present_devices(args.devices)
     rows = []
     for dev in devices:
         warm_up(dev)

@@ -96,6 +96,49 @@ def predict_advection_density(
     p[i] = 0.5 * p[i]
 
 
+@wp.func
+def dij_pj_term(mass: float, p_j: float, rho_j: float, grad_W: wp.vec3) -> wp.vec3:
+    """Neighbour j's part of ``-sum_j d_ij p_j / dt^2``."""
+    return (mass * p_j / (rho_j * rho_j)) * grad_W
+
+
+@wp.func
+def jacobi_sigma_term(mass: float, sdp_i: wp.vec3, d_jj_p_j: wp.vec3, sdp_j: wp.vec3, d_ji_p_i: wp.vec3, grad_W: wp.vec3) -> float:
+    """Fluid neighbour j's part of ``s_i``."""
+    return mass * wp.dot(sdp_i - d_jj_p_j - (sdp_j - d_ji_p_i), grad_W)
+
+
+@wp.func
+def jacobi_boundary_sigma(i: int, psi: wp.array(dtype=float), nb: NeighborList, sdp_i: wp.vec3, fluid_sigma: float) -> float:
+    """``s_i``: the walls' parts added, in list order, to the fluid neighbours' sum."""
+    sigma = fluid_sigma
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        sigma += psi[nb.index[k]] * wp.dot(sdp_i, nb.grad_W[k])
+    return sigma
+
+
+@wp.func
+def jacobi_update(
+    i: int,
+    sigma: float,
+    p_i: float,
+    a: float,
+    rho_adv_i: float,
+    rho0: float,
+    omega: float,
+    p_new: wp.array(dtype=float),
+    density_error: wp.array(dtype=wp.float64),
+):
+    """The relaxed Jacobi pressure from ``s_i`` and the predicted density error it leaves."""
+    p_next = float(0.0)
+    if wp.abs(a) > 1.0e-12:
+        p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv_i - sigma), 0.0)
+    p_new[i] = p_next
+    rho_pred = rho_adv_i + a * p_next + sigma
+    density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
+
+
 @wp.kernel
 def pressure_sum_dij_pj(
     offset: int,
@@ -112,8 +155,7 @@ def pressure_sum_dij_pj(
     s = nf.start[i]
     for k in range(s, s + nf.count[i]):
         j = nf.index[k]
-        rho_j = rho[j]
-        acc -= (mass * p[j] / (rho_j * rho_j)) * nf.grad_W[k]
+        acc -= dij_pj_term(mass, p[j], rho[j], nf.grad_W[k])
     sum_dij_pj[i] = dt * dt * acc
 
 
@@ -147,18 +189,9 @@ def pressure_jacobi(
     for k in range(s, s + nf.count[i]):
         j = nf.index[k]
         g = nf.grad_W[k]
-        d_ji = d_ji_scale * g
-        sigma += mass * wp.dot(sdp_i - d_ii[j] * p[j] - (sum_dij_pj[j] - d_ji * p_i), g)
-    s = nb.start[i]
-    for k in range(s, s + nb.count[i]):
-        sigma += psi[nb.index[k]] * wp.dot(sdp_i, nb.grad_W[k])
-    a = a_ii[i]
-    p_next = float(0.0)
-    if wp.abs(a) > 1.0e-12:
-        p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv[i] - sigma), 0.0)
-    p_new[i] = p_next
-    rho_pred = rho_adv[i] + a * p_next + sigma
-    density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
+        sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
+    sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
+    jacobi_update(i, sigma, p_i, a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
 
 
 @wp.kernel
