@@ -42,6 +42,18 @@ def save(record: dict, out, stem: str, quick: bool) -> Path:
     return out / f"{stem}.png"
 
 
+def present_devices(spec: str) -> tuple[list[str], list[str]]:
+    """The devices of a comma-separated ``cpu,cuda`` list that this machine has, and those it
+    lacks (each reported as skipped)."""
+    wp.init()
+    devices, missing = [], []
+    for d in spec.split(","):
+        (devices if d == "cpu" or (d == "cuda" and wp.is_cuda_available()) else missing).append(d)
+    for d in missing:
+        print(f"device {d}: not present on this machine, skipped")
+    return devices, missing
+
+
 def pyplot():
     import matplotlib
 

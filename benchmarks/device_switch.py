@@ -21,7 +21,7 @@ import time
 import numpy as np
 import warp as wp
 
-from common import RESULTS, header, pyplot, save, warm_up
+from common import RESULTS, header, present_devices, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
 from warp_iisph.surface import SurfaceReconstructor
 
@@ -142,11 +142,7 @@ def main():
         args.counts, args.duration = "2000,8000", 0.05
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    devices, missing = [], []
-    for d in args.devices.split(","):
-        (devices if d == "cpu" or (d == "cuda" and wp.is_cuda_available()) else missing).append(d)
-    for d in missing:
-        print(f"device {d}: not present on this machine, skipped")
+    devices, missing = present_devices(args.devices)
     rows, bandwidth = [], {}
     for dev in devices:
         warm_up(dev)
