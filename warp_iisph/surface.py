@@ -226,34 +226,6 @@ def signed_distance(
     bc = block_coords(f, kb)
     l0 = SUB * wp.vec3i(m // (SUBS * SUBS), (m // SUBS) % SUBS, m % SUBS)
     base = kb * CELLS3
-    # narrow band, per node: outside (EMPTY) and deep inside (FULL) need no sum; the 8 nodes
-    # share one coarse cell (and so one test) unless the cube straddles a cell boundary
-    ca = _coarse_index(node_position(f, bc, l0), f.lower, R, cdims)
-    cb = _coarse_index(node_position(f, bc, l0 + wp.vec3i(1, 1, 1)), f.lower, R, cdims)
-    shared = int(-1)
-    if ca[0] == cb[0] and ca[1] == cb[1] and ca[2] == cb[2]:
-        shared = coarse_kind(counts, cdims, ca, ca, full)
-    active = int(0)
-    for c in range(8):
-        l = l0 + sub_corner(c)
-        kind = shared
-        if kind < 0:
-            cc = _coarse_index(node_position(f, bc, l), f.lower, R, cdims)
-            kind = coarse_kind(counts, cdims, cc, cc, full)
-        if kind == EMPTY:
-            f.phi[base + local_slot(l)] = R
-        elif kind == FULL:
-            f.phi[base + local_slot(l)] = -r0
-        else:
-            active = active | (1 << c)
-    if active == 0:
-        return
-    p0 = node_position(f, bc, l0)
-    half = 0.5 * f.cell
-    center = p0 + wp.vec3(half, half, half)
-    reach = R + wp.sqrt(3.0) * half
-    reach2 = reach * reach
-    inv_R2 = 1.0 / (R * R)
     px = Phi8()
     py = Phi8()
     pz = Phi8()
@@ -262,6 +234,33 @@ def signed_distance(
         px[c] = p[0]
         py[c] = p[1]
         pz[c] = p[2]
+    # narrow band, per node: outside (EMPTY) and deep inside (FULL) need no sum; the 8 nodes
+    # share one coarse cell (and so one test) unless the cube straddles a cell boundary
+    ca = _coarse_index(wp.vec3(px[0], py[0], pz[0]), f.lower, R, cdims)
+    cb = _coarse_index(wp.vec3(px[7], py[7], pz[7]), f.lower, R, cdims)
+    shared = int(-1)
+    if ca[0] == cb[0] and ca[1] == cb[1] and ca[2] == cb[2]:
+        shared = coarse_kind(counts, cdims, ca, ca, full)
+    active = int(0)
+    for c in range(8):
+        slot = base + local_slot(l0 + sub_corner(c))
+        kind = shared
+        if kind < 0:
+            cc = _coarse_index(wp.vec3(px[c], py[c], pz[c]), f.lower, R, cdims)
+            kind = coarse_kind(counts, cdims, cc, cc, full)
+        if kind == EMPTY:
+            f.phi[slot] = R
+        elif kind == FULL:
+            f.phi[slot] = -r0
+        else:
+            active = active | (1 << c)
+    if active == 0:
+        return
+    half = 0.5 * f.cell
+    center = wp.vec3(px[0] + half, py[0] + half, pz[0] + half)
+    reach = R + wp.sqrt(3.0) * half
+    reach2 = reach * reach
+    inv_R2 = 1.0 / (R * R)
     wsum = Phi8()
     sx = Phi8()
     sy = Phi8()
