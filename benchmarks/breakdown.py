@@ -17,8 +17,9 @@ import warp as wp
 
 from common import RESULTS, header, pyplot, save, warm_up
 from warp_iisph import scenes
-from warp_iisph.launch import get_threads
-from warp_iisph.runner import run_scene
+from warp_iisph.engine.devices import device_name
+from warp_iisph.engine.launch import get_threads
+from warp_iisph.run.runner import run_scene
 
 SIMULATION = ("neighbours", "density", "advection", "pressure", "integration")
 SURFACE = ("distance_field", "marching_cubes", "smoothing")
@@ -57,7 +58,7 @@ def main():
     if args.quick:
         args.particles, args.duration = 4000, 0.1
     wp.config.log_level = wp.LOG_WARNING
-    device = "cuda:0" if args.device == "cuda" else args.device
+    device = device_name(args.device)
     warm_up(device)
     scene = scenes.dam_break_cube(particles=args.particles, eta=1e-3, cfl=0.5, dt_max=5e-3)
     scene.output.mesh = True

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import warp as wp
 
-from warp_iisph.runner import versions
+from warp_iisph.engine.devices import device_name
+from warp_iisph.run.runner import versions
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -19,7 +20,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def header(name: str, device: str = "cpu", **extra) -> dict:
     """The fields every result file starts with."""
     wp.init()
-    dev = wp.get_device("cuda:0" if device == "cuda" else device)
+    dev = wp.get_device(device_name(device))
     return {
         "benchmark": name,
         "device": str(dev),
@@ -80,7 +81,7 @@ def martin_moyce_front(resolution: int, a: float = 0.1, t_end: float = 3.2, samp
     import numpy as np
 
     from warp_iisph import Simulation, scenes
-    from warp_iisph.analysis import surge_front
+    from warp_iisph.analysis.dam_break import surge_front
 
     h = a / resolution
     sim = Simulation(scenes.martin_moyce(spacing=h, a=a, depth=4 * h, length=5 * a, height=2.5 * a, **physics), "cpu")

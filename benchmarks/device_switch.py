@@ -133,7 +133,7 @@ def main():
     ap.add_argument("--devices", default="cpu,cuda")
     ap.add_argument("--counts", default="10000,30000,100000")
     ap.add_argument("--duration", type=float, default=0.25, help="simulated seconds per run")
-    ap.add_argument("--graph", action="store_true", help="replay graph-captured steps (warp_iisph.graph) instead of plain launches")
+    ap.add_argument("--graph", action="store_true", help="replay graph-captured steps (warp_iisph.stepping.graph) instead of plain launches")
     ap.add_argument("--mesh", action="store_true", help=f"also rebuild the surface {FPS:g} times per simulated second")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))

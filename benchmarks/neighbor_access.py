@@ -27,11 +27,11 @@ import warp as wp
 
 from common import RESULTS, header, present_devices, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
-from warp_iisph.launch import launch_particles
-from warp_iisph.neighbors import NeighborList
-from warp_iisph.solvers.iisph import (dij_pj_term, jacobi_boundary_sigma, jacobi_sigma_term, jacobi_update, pressure_jacobi,
+from warp_iisph.engine.launch import launch_particles
+from warp_iisph.sph.neighbors import NeighborList
+from warp_iisph.sph.solvers.iisph import (dij_pj_term, jacobi_boundary_sigma, jacobi_sigma_term, jacobi_update, pressure_jacobi,
                                      pressure_sum_dij_pj)
-from warp_iisph.sph import cubic_grad_W
+from warp_iisph.sph.kernel import cubic_grad_W
 
 WALKS_OUTSIDE_JACOBI = 4  # density, advection velocity, advection density, pressure acceleration
 WALKS_PER_ITERATION = 2  # pressure_sum_dij_pj, pressure_jacobi
@@ -142,14 +142,14 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
         launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, solver.dt, sum_list], device)
         launch_particles(pressure_jacobi, n,
                          [state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_list, state.p, model.boundary_psi, nf, nb,
-                          model.mass, solver.dt, model.rho0, float(ph.omega), p_list, solver.density_error], device)
+                          model.mass, solver.dt, ph.rho0, float(ph.omega), p_list, solver.density_error], device)
 
     def iteration_query():
         grid = search.grid.id
         launch_particles(pressure_sum_dij_pj_query, n, [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, sum_query], device)
         launch_particles(pressure_jacobi_query, n,
                          [grid, state.x, H, state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_query, state.p,
-                          model.boundary_psi, nb, model.mass, solver.dt, model.rho0, float(ph.omega), p_query, solver.density_error],
+                          model.boundary_psi, nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_query, solver.density_error],
                          device)
 
     t_grid = timed(grid_build, device, repeats)

@@ -17,7 +17,7 @@ import warp as wp
 
 from common import RESULTS, header, martin_moyce_front, pyplot, save, warm_up
 from warp_iisph import DivergenceError
-from warp_iisph.analysis import front_errors
+from warp_iisph.analysis.dam_break import front_errors
 
 FRICTION = 0.003
 

@@ -16,10 +16,11 @@ import numpy as np
 import warp as wp
 
 from common import RESULTS, header, pyplot, save
-from warp_iisph.launch import available_cores, set_threads
-from warp_iisph.meshing import FrameMesher
-from warp_iisph.sampling import sample_box, sample_sphere
-from warp_iisph.scene import Box, Sphere, Surface
+from warp_iisph.engine.devices import device_name
+from warp_iisph.engine.launch import available_cores, set_threads
+from warp_iisph.run.meshing import FrameMesher
+from warp_iisph.setup.sampling import sample_box, sample_sphere
+from warp_iisph.scene import Box, Sphere, SurfaceSettings
 
 H = 0.01
 
@@ -46,22 +47,22 @@ def main():
     if args.quick:
         args.counts, args.frames = "20000", 1
     wp.config.log_level = wp.LOG_WARNING
-    device = "cuda:0" if args.device == "cuda" else args.device
+    device = device_name(args.device)
     thread_counts = [int(t) for t in args.threads.split(",")] if device == "cpu" else [1]
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        FrameMesher(H, Surface(), device).write(particles(1000), Path(tmp) / "warm.obj")  # compile
+        FrameMesher(H, SurfaceSettings(), device).write(particles(1000), Path(tmp) / "warm.obj")  # compile
         for n in (int(c) for c in args.counts.split(",")):
             x = particles(n)
             for threads in thread_counts:
                 set_threads(threads)
                 runs = []
                 for k in range(args.frames):
-                    mesher = FrameMesher(H, Surface(), device)
+                    mesher = FrameMesher(H, SurfaceSettings(), device)
                     t = time.perf_counter()
                     mesh = mesher.write(x, Path(tmp) / f"f{k}.obj")
                     total = time.perf_counter() - t
-                    runs.append({**{s: 1e3 * v for s, v in mesher.seconds.items()}, "total": 1e3 * total})
+                    runs.append({**{s: 1e3 * v for s, v in mesher.times.seconds.items()}, "total": 1e3 * total})
                 med = {s: float(np.median([r[s] for r in runs])) for s in runs[0]}
                 results.append({"particles": len(x), "threads": threads, "triangles": int(len(mesh.faces)),
                                 "stored_nodes": mesh.stored_nodes, "lattice_nodes": mesh.lattice_nodes, "median_ms": med})

@@ -12,7 +12,7 @@ import numpy as np
 
 from common import RESULTS, header, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
-from warp_iisph.launch import available_cores, set_threads
+from warp_iisph.engine.launch import available_cores, set_threads
 
 SPLISHSPLASH_S_PER_S = {"IISPH, volume maps": 66.0, "DFSPH": 38.6}
 

@@ -12,7 +12,7 @@ import numpy as np
 import warp as wp
 
 from common import RESULTS, header, martin_moyce_front, pyplot, save
-from warp_iisph.analysis import front_errors, load_martin_moyce
+from warp_iisph.analysis.dam_break import front_errors, load_martin_moyce
 
 G, A = 9.81, 0.1
 

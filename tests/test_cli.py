@@ -7,8 +7,8 @@ import numpy as np
 
 from warp_iisph import scenes
 from warp_iisph.cli import main
-from warp_iisph.io import read_particles, read_stats
-from warp_iisph.runner import run_scene
+from warp_iisph.run.formats import read_particles, read_stats
+from warp_iisph.run.runner import run_scene
 
 STAT_KEYS = {"step", "t", "dt", "iterations", "density_error", "max_velocity", "ms"}
 
@@ -75,10 +75,10 @@ def test_frame_writer_runs_in_order_overlaps_and_reports_errors():
 
     import pytest
 
-    from warp_iisph.writer import FrameWriter
+    from warp_iisph.run.frame_queue import FrameQueue
 
     done, main_thread = [], threading.get_ident()
-    with FrameWriter() as w:
+    with FrameQueue() as w:
         t = time.perf_counter()
         for k in range(3):
             w.submit(lambda k=k: (time.sleep(0.05), done.append((k, threading.get_ident() != main_thread))))
@@ -87,7 +87,7 @@ def test_frame_writer_runs_in_order_overlaps_and_reports_errors():
     assert handed < 0.14  # the last job was handed over, not waited for
     assert w.busy >= 0.15 and w.blocked >= 0.09  # two waits for the job in flight
 
-    w = FrameWriter()
+    w = FrameQueue()
     w.submit(lambda: (_ for _ in ()).throw(OSError(28, "No space left on device")))
     with pytest.raises(OSError, match="No space left"):
         w.submit(lambda: None)  # the failure surfaces at the next frame
@@ -114,7 +114,7 @@ def test_background_output_writes_the_same_files(tmp_path):
 
 
 def test_a_failed_write_is_one_line_and_keeps_earlier_frames(tmp_path, monkeypatch, capsys):
-    import warp_iisph.runner as runner
+    import warp_iisph.run.runner as runner
 
     real = runner.write_particles
 

@@ -43,7 +43,7 @@ def test_neighbour_overflow_inside_the_graph_is_redone():
 
 def test_single_captured_steps_and_a_short_log_match_plain():
     """Simulation.step replays a one-step graph; a log of 8 steps makes advance replay often."""
-    from warp_iisph.graph import FrameGraph
+    from warp_iisph.stepping.graph import FrameGraph
 
     scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1)  # noqa: E731
     plain, graph = Simulation(scene(), "cpu"), Simulation(scene(), "cpu", graph=True)

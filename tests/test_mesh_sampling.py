@@ -8,7 +8,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from warp_iisph import Simulation
-from warp_iisph.mesh_sampling import clear_fluid, sample_mesh
+from warp_iisph.setup.rasterize import clear_fluid, sample_mesh
 from warp_iisph.scene import Box, MeshShape, Scene
 
 

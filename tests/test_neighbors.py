@@ -3,7 +3,7 @@
 import numpy as np
 import warp as wp
 
-from warp_iisph.neighbors import NeighborSearch
+from warp_iisph.sph.neighbors import NeighborSearch
 
 
 def _brute(points, queries, H, same):
@@ -69,8 +69,8 @@ def test_cell_order_is_a_permutation_grouping_cells():
 def test_wall_mask_skips_far_particles_and_keeps_every_wall_neighbour():
     """Walls on a box's faces; fluid inside, near the walls, and beyond them: the static mask
     clears far particles (they skip the walls' grid) and the lists still equal brute force."""
-    from warp_iisph.neighbors import near_mask
-    from warp_iisph.sampling import sample_tank_walls
+    from warp_iisph.sph.wall_mask import near_mask
+    from warp_iisph.setup.sampling import sample_tank_walls
     from warp_iisph.scene import Box
 
     H, h = 0.04, 0.02

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from warp_iisph import DivergenceError, Simulation, scenes
-from warp_iisph.analysis import load_martin_moyce, surge_front
+from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
 
 G = 9.81
 

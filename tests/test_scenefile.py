@@ -4,7 +4,7 @@ import pytest
 
 from warp_iisph import Simulation
 from warp_iisph.cli import main
-from warp_iisph.scenefile import SceneFileError, bundled_scenes, load_scene
+from warp_iisph.scene import SceneFileError, bundled_scenes, load_scene
 
 REPORT_SCENES = ("dam_break", "drop_splash", "fluid_flow")
 

@@ -4,7 +4,7 @@ import numpy as np
 import warp as wp
 
 from warp_iisph import Scene, Box, Simulation
-from warp_iisph.sph import cubic_W, cubic_W_np, cubic_grad_W
+from warp_iisph.sph.kernel import cubic_W, cubic_W_np, cubic_grad_W
 
 
 @wp.kernel

@@ -7,10 +7,10 @@ import trimesh
 import warp as wp
 
 from warp_iisph.cli import main
-from warp_iisph.io import write_obj
-from warp_iisph.sampling import sample_box, sample_sphere
-from warp_iisph.scene import Box, Sphere, Surface
-from warp_iisph import surface
+from warp_iisph.run.formats import write_obj
+from warp_iisph.setup.sampling import sample_box, sample_sphere
+from warp_iisph.scene import Box, Sphere, SurfaceSettings as Surface
+from warp_iisph.surface import field as surface
 from warp_iisph.surface import SurfaceReconstructor
 
 H = 0.02
@@ -90,7 +90,7 @@ def test_obj_round_trip(tmp_path, ball):
 
 def test_obj_text_is_printf_formatting(tmp_path):
     """The kernel-formatted OBJ says what printf's %.6f / %.4f / %d say (up to padding)."""
-    from warp_iisph.io import obj_bytes
+    from warp_iisph.run.obj_text import obj_bytes
 
     rng = np.random.default_rng(0)
     v = rng.normal(0.0, 2.0, (500, 3)).astype(np.float32)
@@ -127,7 +127,10 @@ def test_run_with_mesh_and_mesh_command(tmp_path, capsys):
     assert main(["mesh", str(out), "--smoothing", "taubin", "--overwrite", "--no-progress"]) == 0
     assert "meshed 3 frames" in capsys.readouterr().out
     assert main(["mesh", str(tmp_path / "nothing"), "--no-progress"]) == 2
-    assert "no particles/frame_*.ply" in capsys.readouterr().err
+    assert "no such run folder" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    assert main(["mesh", str(tmp_path / "empty"), "--no-progress"]) == 2
+    assert "empty/particles: no frame_*.ply files" in capsys.readouterr().err
 
 
 def test_cuda_mesh_matches_cpu(ball):
@@ -224,7 +227,7 @@ def test_storage_follows_the_surface_not_the_box():
 
 
 def test_exclusive_scan_and_total():
-    from warp_iisph.surface import _exclusive_scan
+    from warp_iisph.surface.field import exclusive_scan as _exclusive_scan
 
     flags = np.random.default_rng(1).integers(0, 4, 10_001).astype(np.int32)
     start, total = _exclusive_scan(wp.array(flags, dtype=wp.int32, device="cpu"))
@@ -297,7 +300,7 @@ def test_node_cubes_equal_the_per_node_field(settings, monkeypatch):
 
 def test_bounds_and_non_finite_count_on_the_device(ball):
     """A device frame's bounding box and non-finite check need no copy of its positions."""
-    from warp_iisph.surface import _bounds
+    from warp_iisph.surface.field import particle_box as _bounds
 
     x = ball.astype(np.float32).copy()
     lo, hi, bad = _bounds(wp.array(x, dtype=wp.vec3, device="cpu"))

@@ -4,13 +4,15 @@ import numpy as np
 import pytest
 import warp as wp
 
-import warp_iisph.launch as launch
+import warp_iisph.engine.launch as launch
 from warp_iisph import Simulation, scenes
-from warp_iisph.scenefile import load_scene
+from warp_iisph.scene import load_scene
 
 # modules that launch per-particle kernels through the helper
-USERS = ["warp_iisph.model", "warp_iisph.boundary", "warp_iisph.neighbors", "warp_iisph.solvers.common",
-         "warp_iisph.solvers.iisph", "warp_iisph.solvers.wcsph", "warp_iisph.surface"]
+USERS = ["warp_iisph.setup.model", "warp_iisph.setup.boundary", "warp_iisph.sph.neighbors", "warp_iisph.sph.wall_mask",
+         "warp_iisph.sph.solvers.base", "warp_iisph.sph.solvers.iisph", "warp_iisph.sph.solvers.wcsph",
+         "warp_iisph.surface.field", "warp_iisph.surface.marching", "warp_iisph.surface.smoothing",
+         "warp_iisph.surface.reconstructor", "warp_iisph.run.obj_text"]
 
 
 def _arrays(inputs):

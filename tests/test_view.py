@@ -10,8 +10,8 @@ import trimesh
 
 from warp_iisph import scenes
 from warp_iisph.cli import main
-from warp_iisph.frames import RunError, frame_files, select_frames
-from warp_iisph.runner import run_scene
+from warp_iisph.run.folder import RunError, RunFolder, select_frames
+from warp_iisph.run.runner import run_scene
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,7 @@ def test_frame_selection():
 def test_missing_mesh_frames_say_how_to_make_them(tmp_path):
     (tmp_path / "mesh").mkdir()
     with pytest.raises(RunError, match="--mesh"):
-        frame_files(tmp_path, "mesh")
+        RunFolder(tmp_path).frames("mesh")
 
 
 # --- the render extra -----------------------------------------------------------------------------
@@ -81,7 +81,7 @@ needs_mitsuba = pytest.mark.skipif(not HAVE_MITSUBA, reason="the render extra (M
 
 @needs_mitsuba
 def test_tiny_render_shows_the_liquid(tmp_path):
-    from warp_iisph import render
+    from warp_iisph.view import render
 
     render.choose_variant("cpu", "scalar_rgb")
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
@@ -123,7 +123,7 @@ def test_missing_extra_is_a_clear_message(tiny_run, monkeypatch, capsys):
 
 @needs_mitsuba
 def test_old_libllvm_falls_back_to_scalar_and_says_what_to_install(monkeypatch):
-    from warp_iisph import render
+    from warp_iisph.view import render
 
     monkeypatch.setattr(render, "_cuda_present", lambda: False)
     monkeypatch.setattr(render, "llvm_libraries", lambda: [(15, "/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")])
@@ -134,7 +134,7 @@ def test_old_libllvm_falls_back_to_scalar_and_says_what_to_install(monkeypatch):
 
 
 def test_camera_keys_in_scene_files(tmp_path):
-    from warp_iisph.scenefile import SceneFileError, load_scene
+    from warp_iisph.scene import SceneFileError, load_scene
 
     base = 'spacing = 0.05\ntank = { lower = [0, 0, 0], upper = [1, 1, 1] }\n[[fluids]]\nlower = [0, 0, 0]\nupper = [0.3, 0.3, 0.3]\n'
     path = tmp_path / "s.toml"
@@ -148,7 +148,7 @@ def test_camera_keys_in_scene_files(tmp_path):
 
 
 def test_materials_and_camera_framing():
-    from warp_iisph import render
+    from warp_iisph.view import render
 
     assert render.material_color("0.5,0.25,1") == (0.5, 0.25, 1.0)
     for bad in ("0,0.5,0.5", "1,2", "milk"):
@@ -175,7 +175,7 @@ def test_blender_script_is_valid_python_listing_every_frame(tiny_run, capsys):
 
 def test_blender_script_runs_in_blender(tiny_run, tmp_path):
     bpy = pytest.importorskip("bpy", reason="Blender's Python module (bpy) is not installed")
-    from warp_iisph.blender import blender_script
+    from warp_iisph.view.blender import blender_script
 
     script = blender_script(tiny_run, tmp_path / "scene.py")
     exec(compile(script.read_text(), str(script), "exec"), {"__name__": "__main__"})
@@ -204,13 +204,12 @@ def obstacle_run(tmp_path_factory):
 
 
 def test_run_writes_its_obstacles_once(obstacle_run, tiny_run, tmp_path):
-    from warp_iisph.frames import obstacle_mesh
-    from warp_iisph.runner import prepare_output
+    from warp_iisph.run.runner import prepare_output
 
     mesh = trimesh.load(obstacle_run / "obstacles.obj", force="mesh")
     assert mesh.is_watertight and np.allclose(mesh.bounds, PILLAR, atol=1e-6)
     assert np.isclose(mesh.volume, 0.12 * 0.3 * 0.12)  # wound outward
-    assert obstacle_mesh(tiny_run) is None and not (tiny_run / "obstacles.obj").exists()
+    assert RunFolder(tiny_run).obstacle_mesh() is None and not (tiny_run / "obstacles.obj").exists()
     # --overwrite clears a previous run's obstacles with its frames
     (tmp_path / "obstacles.obj").write_text("v 0 0 0\n")
     prepare_output(tmp_path, overwrite=True)
@@ -254,7 +253,7 @@ def test_render_shows_the_obstacles(obstacle_run, tmp_path):
 
 
 def test_blender_script_imports_the_obstacles(obstacle_run, tiny_run):
-    from warp_iisph.blender import blender_script
+    from warp_iisph.view.blender import blender_script
 
     text = blender_script(obstacle_run).read_text()
     compile(text, "scene.py", "exec")

@@ -1,11 +1,16 @@
-"""warp_iisph: Implicit Incompressible SPH liquids on NVIDIA Warp."""
+"""warp_iisph: Implicit Incompressible SPH liquids on NVIDIA Warp.
+
+The package is laid out by pipeline stage: ``scene`` (what the user describes) -> ``setup``
+(particles on a device) -> ``stepping`` (time steps of the ``sph`` method) -> ``surface`` (meshes)
+-> ``run`` (files of a run) -> ``view`` (videos, renders, Blender); ``engine`` holds what every
+stage shares (devices, CPU thread launches, timing), ``analysis`` the checks against experiments.
+"""
 
 __version__ = "0.1.0"
 
-from . import scenes
-from .scene import Box, Camera, MeshShape, Output, Physics, Scene, Sphere
-from .scenefile import load_scene
-from .simulation import DivergenceError, Simulation
+from .scene import Box, Camera, MeshShape, Output, Physics, Scene, Sphere, load_scene
+from .scene import cases as scenes
+from .stepping import DivergenceError, Simulation
 
 __all__ = [
     "Box", "Camera", "MeshShape", "Output", "Physics", "Scene", "Sphere", "Simulation", "DivergenceError",

@@ -71,17 +71,17 @@ def _parser() -> argparse.ArgumentParser:
 
 def _view_command(args) -> int:
     """preview, render and blender-script: they read a run folder and write images or a script."""
-    from .frames import RunError
+    from .run.folder import RunError
 
     try:
         if args.command == "preview":
-            from .preview import preview_run
+            from .view.preview import preview_run
 
             r = preview_run(args.run_dir, args.out, args.source, args.resolution, args.frames, args.fps, args.gif, args.yaw,
                             args.pitch, progress=not args.no_progress)
             print(f"preview of {r['frames']} frames ({r['source']}, {1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}")
         elif args.command == "render":
-            from .render import RenderUnavailable, render_run
+            from .view.render import RenderUnavailable, render_run
 
             try:
                 r = render_run(args.run_dir, args.spp, args.resolution, args.material, args.frames, args.walls, not args.no_denoise,
@@ -92,7 +92,7 @@ def _view_command(args) -> int:
             print(f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
                   f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}")
         else:
-            from .blender import blender_script
+            from .view.blender import blender_script
 
             path = blender_script(args.run_dir, args.out, args.material, args.frames)
             print(f"wrote {path}; run: blender -b -P {path} -- --render")
@@ -102,14 +102,15 @@ def _view_command(args) -> int:
     return 0
 
 
-def _mesh_command(args, wp) -> int:
+def _mesh_command(args) -> int:
     from pathlib import Path
 
-    from .meshing import mesh_run
+    from .engine.devices import checked_device
+    from .run.meshing import mesh_run
 
     try:
         overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes") if getattr(args, k) is not None}
-        device = _device(args.device, wp)
+        device = checked_device(args.device)
         result = mesh_run(args.run_dir, overrides, device, overwrite=args.overwrite, progress=not args.no_progress)
     except ValueError as e:
         print(f"warp-iisph: error: {e}", file=sys.stderr)
@@ -119,37 +120,25 @@ def _mesh_command(args, wp) -> int:
     return 0
 
 
-def _device(name: str, wp) -> str:
-    device = "cuda:0" if name == "cuda" else name
-    if device.startswith("cuda") and not wp.is_cuda_available():
-        raise ValueError(f"--device {name}: no CUDA device is available on this machine; use --device cpu")
-    return device
-
-
-def _describe(path) -> str:
-    for line in path.read_text().splitlines():
-        if line.startswith("#"):
-            return line.lstrip("# ").strip()
-    return ""
-
-
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    from .scenefile import SceneFileError, bundled_scenes, load_scene, resolve_scene
+    from .scene import SceneFileError, bundled_scenes, load_scene, resolve_scene
+    from .scene.library import describe
 
     if args.command in ("preview", "render", "blender-script"):
         return _view_command(args)
     if args.command == "scenes":
         for name, path in bundled_scenes().items():
-            print(f"{name:16s} {_describe(path)}")
+            print(f"{name:16s} {describe(path)}")
         return 0
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
-    from .runner import OutputExistsError, run_scene
+    from .engine.devices import checked_device
+    from .run.runner import OutputExistsError, run_scene
 
     if args.threads is not None:
-        from .launch import set_threads
+        from .engine.launch import set_threads
 
         try:
             set_threads(args.threads)
@@ -157,7 +146,7 @@ def main(argv=None) -> int:
             print(f"warp-iisph: error: --{e}", file=sys.stderr)
             return 2
     if args.command == "mesh":
-        return _mesh_command(args, wp)
+        return _mesh_command(args)
     source, out = args.scene, args.out
     try:
         overrides = list(args.overrides)
@@ -172,7 +161,7 @@ def main(argv=None) -> int:
         duration = scene.output.duration if args.duration is None else args.duration
         fps = scene.output.fps if args.fps is None else args.fps
         try:
-            device = _device(args.device, wp)
+            device = checked_device(args.device)
         except ValueError as e:
             raise SceneFileError(str(e)) from None
         out = args.out or f"runs/{scene.name}"

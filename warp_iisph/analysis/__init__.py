@@ -1,0 +1,1 @@
+"""Measurements on simulation results against experiments and analytic solutions."""

@@ -1,0 +1,1 @@
+"""Experimental reference data (CSV) shipped with the package."""

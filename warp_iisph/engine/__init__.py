@@ -1,0 +1,1 @@
+"""How kernels meet the machine: device names, CPU thread launches, stage timing."""

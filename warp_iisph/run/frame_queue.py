@@ -1,0 +1,66 @@
+"""Frame output on a background thread, so that the next frame simulates while files are written.
+
+The main thread takes each frame's host copies (the device's work ends there) and hands the
+formatting and writing to one worker thread; Warp's launches release the GIL, so on the CPU the
+simulation's kernels and the writer share the cores, and on CUDA the copy is all the GPU waits
+for. At most one frame is in flight: a new one first waits for the last, which bounds memory and
+raises a failed write at the next frame. Files appear atomically (see :mod:`.formats`), so a
+frame on disk is always a whole frame.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Callable, Optional
+
+
+class FrameQueue:
+    """Runs ``submit(fn)`` jobs one at a time, in order, on a worker thread (or inline when
+    ``background`` is false). ``blocked`` is the main thread's seconds spent waiting for the
+    writer, ``busy`` the writer's seconds of work (overlapped with the simulation)."""
+
+    def __init__(self, background: bool = True):
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="warp-iisph-writer") if background else None
+        self._pending: Optional[Future] = None
+        self.blocked = 0.0
+        self.busy = 0.0
+
+    def _timed(self, fn: Callable[[], None]) -> None:
+        t = time.perf_counter()
+        try:
+            fn()
+        finally:
+            self.busy += time.perf_counter() - t
+
+    def submit(self, fn: Callable[[], None]) -> None:
+        self.wait()
+        if self._pool is None:
+            t = time.perf_counter()
+            self._timed(fn)
+            self.blocked += time.perf_counter() - t
+        else:
+            self._pending = self._pool.submit(self._timed, fn)
+
+    def wait(self) -> None:
+        """Block until the job in flight is written; re-raises its error."""
+        if self._pending is not None:
+            t = time.perf_counter()
+            job, self._pending = self._pending, None
+            try:
+                job.result()
+            finally:
+                self.blocked += time.perf_counter() - t
+
+    def close(self) -> None:
+        try:
+            self.wait()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+
+    def __enter__(self) -> "FrameQueue":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,12 @@
+"""The progress bar every long command shows: frames done, on stderr, off with --no-progress."""
+
+from __future__ import annotations
+
+import sys
+
+from tqdm import tqdm
+
+
+def frame_bar(total: int, enabled: bool = True, desc: str | None = None) -> tqdm:
+    """A bar over ``total`` frames; a disabled one accepts the same calls and draws nothing."""
+    return tqdm(total=total, unit="frame", dynamic_ncols=True, file=sys.stderr, desc=desc, disable=not enabled)

@@ -1,0 +1,117 @@
+"""Scene: a tank, fluid blocks, obstacles and settings, as plain Python data validated once.
+
+A scene is a tank (a closed box, or a closed triangle mesh used as a container), fluid blocks
+(boxes and spheres), obstacles (boxes, spheres, triangle meshes), physics parameters and output
+settings, all in SI units with y up. ``spacing`` is the particle diameter ``h``; the kernel support radius is
+``2 h`` and each fluid particle weighs ``rho0 * h^3``. Validation raises ``ValueError`` naming
+the field and its allowed range. No Warp here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Union
+
+import numpy as np
+
+from .checks import positive
+from .settings import Camera, Output, Physics, SurfaceSettings
+from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere
+
+
+@dataclass
+class Scene:
+    """A tank holding fluid blocks, with optional obstacles.
+
+    Example::
+
+        scene = Scene(spacing=0.02, tank=Box((0, 0, 0), (1.0, 0.6, 0.2)))
+        scene.add_fluid_box((0, 0, 0), (0.2, 0.4, 0.2))
+        scene.physics.viscosity = 1e-4
+    """
+
+    spacing: float
+    tank: Union[Box, MeshShape]
+    fluids: list = field(default_factory=list)
+    obstacles: list = field(default_factory=list)
+    physics: Physics = field(default_factory=Physics)
+    output: Output = field(default_factory=Output)
+    surface: SurfaceSettings = field(default_factory=SurfaceSettings)
+    name: str = "scene"
+    camera: Camera = field(default_factory=Camera)
+
+    def add_fluid_box(self, lower, upper) -> "Scene":
+        self.fluids.append(Box(tuple(lower), tuple(upper)))
+        return self
+
+    def add_fluid_sphere(self, center, radius) -> "Scene":
+        self.fluids.append(Sphere(tuple(center), radius))
+        return self
+
+    def add_obstacle(self, shape: Obstacle) -> "Scene":
+        self.obstacles.append(shape)
+        return self
+
+    def validate(self) -> "Scene":
+        """Check every value (``ValueError`` naming the key and its range) and normalise it. A
+        scene validated before and not changed since is trusted as it is."""
+        if getattr(self, "_validated", None) == self._fingerprint():
+            return self
+        self.spacing = positive(self.spacing, "spacing", "metres, the particle diameter")
+        if not isinstance(self.tank, (Box, MeshShape)):
+            raise ValueError(f"tank = {self.tank!r}: must be a box or a mesh")
+        self.tank.validate("tank")
+        if isinstance(self.tank, MeshShape) and not self.tank.load().is_watertight:
+            raise ValueError(f"tank.path = {self.tank.path!r}: a container mesh must be closed (watertight)")
+        tlo, thi = self.tank.bounds
+        if np.any((thi - tlo) < self.spacing):
+            raise ValueError(f"tank: every side must be at least spacing = {self.spacing} m long")
+        if not self.fluids:
+            raise ValueError("fluids: the scene needs at least one fluid block")
+        for k, f in enumerate(self.fluids):
+            name = f"fluids[{k}]"
+            if not isinstance(f, (Box, Sphere)):
+                raise ValueError(f"{name} = {f!r}: must be a Box or a Sphere")
+            f.validate(name)
+            lo, hi = f.bounds
+            eps = 1e-9 * max(1.0, float(np.max(np.abs(thi))))
+            if np.any(lo < tlo - eps) or np.any(hi > thi + eps):
+                raise ValueError(
+                    f"{name}: fluid {tuple(lo)}..{tuple(hi)} must lie inside the tank {tuple(tlo)}..{tuple(thi)}"
+                )
+        for a in range(len(self.fluids)):
+            for b in range(a + 1, len(self.fluids)):
+                if _overlap(self.fluids[a], self.fluids[b]):
+                    raise ValueError(f"fluids[{a}] and fluids[{b}] overlap: fluid blocks must be disjoint")
+        for k, o in enumerate(self.obstacles):
+            if not isinstance(o, (Box, Sphere, MeshShape)):
+                raise ValueError(f"obstacles[{k}] = {o!r}: must be a box, a sphere or a mesh")
+            o.validate(f"obstacles[{k}]")
+        self.physics.validate()
+        self.output.validate()
+        self.surface.validate()
+        self.camera.validate()
+        self._validated = self._fingerprint()
+        return self
+
+    def _fingerprint(self) -> str:
+        return repr(dataclasses.asdict(self))
+
+
+def _overlap(a: Fluid, b: Fluid) -> bool:
+    """True when two fluid blocks share a volume (touching faces are fine)."""
+    if isinstance(a, Sphere) and isinstance(b, Box):
+        a, b = b, a
+    if isinstance(a, Box) and isinstance(b, Box):
+        alo, ahi = a.bounds
+        blo, bhi = b.bounds
+        return bool(np.all(np.minimum(ahi, bhi) - np.maximum(alo, blo) > 1e-12))
+    if isinstance(a, Box) and isinstance(b, Sphere):
+        lo, hi = a.bounds
+        c = np.asarray(b.center)
+        nearest = np.clip(c, lo, hi)
+        return float(np.linalg.norm(nearest - c)) < b.radius - 1e-12
+    ca, cb = np.asarray(a.center), np.asarray(b.center)
+    return float(np.linalg.norm(ca - cb)) < a.radius + b.radius - 1e-12
+

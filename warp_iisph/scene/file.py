@@ -1,0 +1,144 @@
+"""Scene files: TOML in, a validated :class:`~warp_iisph.scene.Scene` out.
+
+Every key is checked: an unknown key, a wrong type or an out-of-range value raises
+:class:`SceneFileError` whose one-line message names the file and the key. The format is
+documented in ``docs/scenes.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+
+from .checks import SceneFileError
+from .description import Scene
+from .library import resolve_scene
+from .settings import Camera, Output, Physics, SurfaceSettings
+from .shapes import Box, MeshShape, Sphere
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output", "surface", "camera"}
+SHAPE_KEYS = {
+    "box": {"lower", "upper"},
+    "sphere": {"center", "radius"},
+    "mesh": {"path", "translate", "rotate", "scale"},
+}
+
+
+def _parse_value(text: str):
+    """A --set value as TOML (numbers, booleans, arrays, quoted strings), else a bare string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_override(data: dict, assignment: str) -> None:
+    """Apply ``key.path=value`` to the raw scene table; list items by index (``fluids.0.radius``)."""
+    if "=" not in assignment:
+        raise SceneFileError(f"--set {assignment!r}: must be KEY=VALUE, e.g. spacing=0.01 or physics.eta=0.0005")
+    key, _, text = assignment.partition("=")
+    parts = key.strip().split(".")
+    node = data
+    for depth, part in enumerate(parts[:-1]):
+        where = ".".join(parts[: depth + 1])
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise SceneFileError(f"--set {key}: {where} must index one of the {len(node)} items")
+            node = node[int(part)]
+        elif isinstance(node, dict):
+            node = node.setdefault(part, {})
+        else:
+            raise SceneFileError(f"--set {key}: {where} is not a table")
+    last = parts[-1]
+    if isinstance(node, list):
+        raise SceneFileError(f"--set {key}: cannot replace a whole list item")
+    node[last] = _parse_value(text.strip())
+
+
+def _check_keys(table, allowed: set, where: str) -> dict:
+    if not isinstance(table, dict):
+        raise ValueError(f"{where}: must be a table")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ValueError(f"{where}{'.' if where else ''}{unknown[0]}: unknown key; allowed: {', '.join(sorted(allowed))}")
+    return table
+
+
+def _shape(table, where: str, allowed: tuple, base_dir: Path):
+    _check_keys(table, {"shape"} | set().union(*(SHAPE_KEYS[s] for s in allowed)), where)
+    kind = table.get("shape", "box")
+    if kind not in allowed:
+        raise ValueError(f"{where}.shape = {kind!r}: must be one of {', '.join(allowed)}")
+    _check_keys(table, {"shape"} | SHAPE_KEYS[kind], where)
+    missing = [k for k in sorted(SHAPE_KEYS[kind]) if k not in table and k in ("lower", "upper", "center", "radius", "path")]
+    if missing:
+        raise ValueError(f"{where}.{missing[0]}: required for shape = {kind!r}")
+    args = {k: v for k, v in table.items() if k != "shape"}
+    if kind == "box":
+        return Box(**args)
+    if kind == "sphere":
+        return Sphere(**args)
+    return MeshShape(**args, base_dir=str(base_dir))
+
+
+def _fields(cls) -> set:
+    return {f.name for f in dataclasses.fields(cls)}
+
+
+def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = "scene") -> Scene:
+    """Build and validate a scene from a parsed TOML table (raises ValueError)."""
+    _check_keys(data, TOP_KEYS, "")
+    if "spacing" not in data:
+        raise ValueError("spacing: required (metres, the particle diameter)")
+    if "tank" not in data:
+        raise ValueError("tank: required (a box with lower/upper, or shape = 'mesh')")
+    fluids = data.get("fluids", [])
+    obstacles = data.get("obstacles", [])
+    for key, value in (("fluids", fluids), ("obstacles", obstacles)):
+        if not isinstance(value, list):
+            raise ValueError(f"{key}: must be an array of tables ([[{key}]])")
+    physics = _check_keys(data.get("physics", {}), _fields(Physics), "physics")
+    output = _check_keys(data.get("output", {}), _fields(Output), "output")
+    surface = _check_keys(data.get("surface", {}), _fields(SurfaceSettings), "surface")
+    camera = _check_keys(data.get("camera", {}), _fields(Camera), "camera")
+    name = data.get("name", default_name)
+    if not isinstance(name, str):
+        raise ValueError(f"name = {name!r}: must be a string")
+    scene = Scene(
+        spacing=data["spacing"],
+        tank=_shape(data["tank"], "tank", ("box", "mesh"), base_dir),
+        fluids=[_shape(f, f"fluids[{k}]", ("box", "sphere"), base_dir) for k, f in enumerate(fluids)],
+        obstacles=[_shape(o, f"obstacles[{k}]", ("box", "sphere", "mesh"), base_dir) for k, o in enumerate(obstacles)],
+        physics=Physics(**physics),
+        output=Output(**output),
+        surface=SurfaceSettings(**surface),
+        name=name,
+        camera=Camera(**camera),
+    )
+    return scene.validate()
+
+
+def load_scene(path, overrides=()) -> Scene:
+    """Read a scene file (a path or a bundled name), apply ``--set`` overrides, validate.
+    Every problem raises :class:`SceneFileError` with a one-line message naming the file."""
+    path = resolve_scene(str(path))
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise SceneFileError(f"{path}: not valid TOML: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneFileError(f"{path}: cannot read: {e}") from None
+    for assignment in overrides:
+        apply_override(data, assignment)
+    try:
+        return scene_from_dict(data, path.parent, default_name=path.stem)
+    except SceneFileError:
+        raise
+    except (ValueError, TypeError) as e:
+        raise SceneFileError(f"{path}: {e}") from None

@@ -1,0 +1,146 @@
+"""Settings of a scene besides its shapes: physics, output, surface reconstruction, camera."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .checks import in_range, positive, vec3
+
+METHODS = ("iisph", "wcsph")
+
+SMOOTHING = ("laplacian", "taubin", "none")
+
+
+@dataclass
+class SurfaceSettings:
+    """Surface reconstruction settings, in particle spacings ``h``: ``cell`` the distance-field
+    grid's cell (h/2), ``r0`` the particle radius of Zhu & Bridson's distance (h/2), ``radius``
+    their kernel radius R (2h); ``smoothing`` ``laplacian`` (the report's), ``taubin`` (keeps
+    droplets' volume) or ``none``, over ``passes`` passes with factors ``lam`` and ``mu``."""
+
+    cell: float = 0.5
+    r0: float = 0.5
+    radius: float = 2.0
+    smoothing: str = "laplacian"
+    passes: int = 3
+    lam: float = 0.5
+    mu: float = -0.53
+
+    def validate(self) -> "SurfaceSettings":
+        self.cell = in_range(self.cell, "surface.cell", 0.05, 4.0, "particle spacings")
+        self.r0 = in_range(self.r0, "surface.r0", 0.0, 4.0, "particle spacings")
+        self.radius = in_range(self.radius, "surface.radius", 0.5, 8.0, "particle spacings")
+        if self.smoothing not in SMOOTHING:
+            raise ValueError(f"surface.smoothing = {self.smoothing!r}: must be one of {', '.join(SMOOTHING)}")
+        if isinstance(self.passes, bool) or not isinstance(self.passes, (int, np.integer)) or not 0 <= self.passes <= 100:
+            raise ValueError(f"surface.passes = {self.passes!r}: must be an integer in [0, 100]")
+        self.lam = in_range(self.lam, "surface.lam", 0.0, 1.0, "smoothing factor", lo_open=True)
+        self.mu = in_range(self.mu, "surface.mu", -1.0, 0.0, "Taubin's inflation factor", hi_open=True)
+        return self
+
+
+@dataclass
+class Output:
+    """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
+    particle files (``particles``) and surface meshes (``mesh``)."""
+
+    fps: float = 30.0
+    duration: float = 2.0
+    particles: bool = True
+    mesh: bool = False
+
+    def validate(self) -> None:
+        self.fps = in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
+        self.duration = in_range(self.duration, "output.duration", 0.0, 1.0e6, "simulated seconds", lo_open=True)
+        for key in ("particles", "mesh"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"output.{key} = {getattr(self, key)!r}: must be true or false")
+
+
+@dataclass
+class Camera:
+    """Where `warp-iisph render` looks from: ``position`` and ``target`` (m) and a horizontal
+    field of view ``fov`` (degrees). Without a position the camera frames the liquid itself."""
+
+    position: Optional[tuple] = None
+    target: Optional[tuple] = None
+    fov: float = 40.0
+
+    def validate(self) -> None:
+        if self.position is not None:
+            self.position = tuple(float(c) for c in vec3(self.position, "camera.position"))
+        if self.target is not None:
+            self.target = tuple(float(c) for c in vec3(self.target, "camera.target"))
+        if self.target is not None and self.position is None:
+            raise ValueError("camera.target: needs camera.position too")
+        if self.position is not None and self.target is not None and np.allclose(self.position, self.target):
+            raise ValueError("camera.target: must differ from camera.position")
+        self.fov = in_range(self.fov, "camera.fov", 1.0, 170.0, "degrees", lo_open=False)
+
+
+@dataclass
+class Physics:
+    """Physical and numerical parameters.
+
+    - ``method``: ``"iisph"`` or ``"wcsph"``.
+    - ``rho0``: rest density (kg/m^3).
+    - ``viscosity``: the report's viscosity coefficient mu (m^2/s); 0 switches viscosity off.
+    - ``boundary_viscosity``: the same coefficient against the walls (wall friction, m^2/s);
+      0 leaves the walls free-slip.
+    - ``gravity``: (m/s^2).
+    - ``eta``: IISPH's target average density error, a fraction (0.001 = 0.1 %).
+    - ``max_iterations``: cap on IISPH's relaxed Jacobi iterations; ``min_iterations`` its floor.
+    - ``omega``: Jacobi relaxation factor.
+    - ``stiffness``: WCSPH's k in p = k((rho/rho0)^7 - 1) (Pa).
+    - ``dt``: fixed time step (s); ``None`` selects the CFL rule
+      ``dt = cfl * h / (max|v| + c)`` clamped to ``[dt_min, dt_max]`` (``c`` is WCSPH's speed of
+      sound sqrt(7 k / rho0), 0 for IISPH).
+    - ``max_velocity``: a speed (m/s) beyond which the run counts as diverged; ``None`` derives
+      one from the domain height (10 x the free-fall speed over it, at least 10 m/s).
+    """
+
+    method: str = "iisph"
+    rho0: float = 1000.0
+    viscosity: float = 0.0
+    boundary_viscosity: float = 0.0
+    gravity: tuple = (0.0, -9.81, 0.0)
+    eta: float = 1.0e-3
+    max_iterations: int = 100
+    min_iterations: int = 2
+    omega: float = 0.5
+    stiffness: float = 50_000.0
+    dt: Optional[float] = None
+    cfl: float = 0.5
+    dt_min: float = 1.0e-5
+    dt_max: float = 5.0e-3
+    max_velocity: Optional[float] = None
+
+    def validate(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"physics.method = {self.method!r}: must be one of {', '.join(METHODS)}")
+        self.rho0 = positive(self.rho0, "physics.rho0", "kg/m^3")
+        self.viscosity = in_range(self.viscosity, "physics.viscosity", 0.0, 1.0, "m^2/s")
+        self.boundary_viscosity = in_range(self.boundary_viscosity, "physics.boundary_viscosity", 0.0, 1.0, "m^2/s")
+        self.gravity = tuple(vec3(self.gravity, "physics.gravity"))
+        self.eta = in_range(self.eta, "physics.eta", 0.0, 0.5, "fraction of rho0, e.g. 0.001", lo_open=True)
+        for key in ("max_iterations", "min_iterations"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 100_000:
+                raise ValueError(f"physics.{key} = {v!r}: must be an integer in [1, 100000]")
+        if self.min_iterations > self.max_iterations:
+            raise ValueError(
+                f"physics.min_iterations = {self.min_iterations}: must be <= physics.max_iterations = {self.max_iterations}"
+            )
+        self.omega = in_range(self.omega, "physics.omega", 0.0, 1.0, "Jacobi relaxation", lo_open=True)
+        self.stiffness = positive(self.stiffness, "physics.stiffness", "Pa")
+        if self.dt is not None:
+            self.dt = in_range(self.dt, "physics.dt", 0.0, 1.0, "seconds", lo_open=True)
+        self.cfl = in_range(self.cfl, "physics.cfl", 0.0, 2.0, "Courant number", lo_open=True)
+        self.dt_min = in_range(self.dt_min, "physics.dt_min", 0.0, 1.0, "seconds", lo_open=True)
+        self.dt_max = in_range(self.dt_max, "physics.dt_max", self.dt_min, 1.0, "seconds, >= dt_min")
+        if self.max_velocity is not None:
+            self.max_velocity = positive(self.max_velocity, "physics.max_velocity", "m/s")
+

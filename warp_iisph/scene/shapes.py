@@ -1,0 +1,130 @@
+"""Shapes a scene is made of: boxes, spheres and triangle meshes read from files (SI units)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Union
+
+import numpy as np
+
+from .checks import positive, vec3
+
+
+@dataclass
+class Box:
+    """Axis-aligned box from ``lower`` to ``upper`` (metres)."""
+
+    lower: tuple
+    upper: tuple
+
+    def validate(self, name: str) -> None:
+        lo = vec3(self.lower, f"{name}.lower")
+        hi = vec3(self.upper, f"{name}.upper")
+        if np.any(hi <= lo):
+            raise ValueError(f"{name}: upper {tuple(hi)} must exceed lower {tuple(lo)} on every axis")
+        self.lower, self.upper = tuple(lo), tuple(hi)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(self.lower, dtype=np.float64), np.asarray(self.upper, dtype=np.float64)
+
+
+@dataclass
+class Sphere:
+    """Ball of ``radius`` around ``center`` (metres)."""
+
+    center: tuple
+    radius: float
+
+    def validate(self, name: str) -> None:
+        self.center = tuple(vec3(self.center, f"{name}.center"))
+        self.radius = positive(self.radius, f"{name}.radius", "metres")
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        c = np.asarray(self.center, dtype=np.float64)
+        return c - self.radius, c + self.radius
+
+
+@dataclass
+class MeshShape:
+    """A triangle mesh file (OBJ, STL, PLY, ... anything trimesh reads), transformed by ``scale``
+    (a number or three), then ``rotate`` (degrees about x, then y, then z), then ``translate``
+    (metres). A relative ``path`` is relative to ``base_dir`` (the scene file's folder)."""
+
+    path: str
+    translate: tuple = (0.0, 0.0, 0.0)
+    rotate: tuple = (0.0, 0.0, 0.0)
+    scale: Union[float, tuple] = 1.0
+    base_dir: str = "."
+
+    def validate(self, name: str) -> None:
+        if not isinstance(self.path, str) or not self.path:
+            raise ValueError(f"{name}.path = {self.path!r}: must be a mesh file path")
+        self.translate = tuple(vec3(self.translate, f"{name}.translate"))
+        self.rotate = tuple(vec3(self.rotate, f"{name}.rotate"))
+        if isinstance(self.scale, (list, tuple, np.ndarray)):
+            sc = vec3(self.scale, f"{name}.scale")
+            if np.any(sc <= 0):
+                raise ValueError(f"{name}.scale = {list(self.scale)}: every factor must be > 0")
+            self.scale = tuple(sc)
+        else:
+            self.scale = positive(self.scale, f"{name}.scale", "a factor, or three")
+        self.load(name)
+
+    def load(self, name: str = "mesh"):
+        """The transformed ``trimesh.Trimesh``, read once per file and transform."""
+        key = (self.path, self.base_dir, self.translate, self.rotate, self.scale)
+        if getattr(self, "_loaded", (None, None))[0] == key:
+            return self._loaded[1]
+        import trimesh
+        from pathlib import Path
+
+        path = Path(self.base_dir) / self.path
+        if not path.is_file():
+            raise ValueError(f"{name}.path = {self.path!r}: file not found ({path})")
+        try:
+            mesh = trimesh.load(str(path), force="mesh")
+        except Exception as e:  # trimesh raises many kinds for a bad file
+            raise ValueError(f"{name}.path = {self.path!r}: cannot read the mesh ({type(e).__name__}: {e})") from None
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise ValueError(f"{name}.path = {self.path!r}: holds no triangles")
+        m = np.diag(np.append(np.broadcast_to(np.asarray(self.scale, dtype=float), (3,)), 1.0))
+        r = trimesh.transformations.euler_matrix(*np.radians(self.rotate), axes="sxyz")
+        t = trimesh.transformations.translation_matrix(self.translate)
+        mesh.apply_transform(t @ r @ m)
+        self._loaded = (key, mesh)
+        return mesh
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        b = self.load().bounds
+        return np.asarray(b[0], dtype=np.float64), np.asarray(b[1], dtype=np.float64)
+
+
+def shape_mesh(shape) -> "object":
+    """A shape as a ``trimesh.Trimesh``: boxes and spheres are built, meshes loaded."""
+    import trimesh
+
+    if isinstance(shape, MeshShape):
+        return shape.load()
+    if isinstance(shape, Box):
+        lo, hi = shape.bounds
+        return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=shape.radius)
+    mesh.apply_translation(shape.center)
+    return mesh
+
+
+
+def obstacles_mesh(shapes) -> "object":
+    """Obstacles as one ``trimesh.Trimesh`` (their meshes side by side, not merged), for the
+    viewers; ``None`` for none."""
+    import trimesh
+
+    meshes = [shape_mesh(s) for s in shapes]
+    return trimesh.util.concatenate(meshes) if meshes else None
+
+
+Fluid = Union[Box, Sphere]
+Obstacle = Union[Box, Sphere, MeshShape]

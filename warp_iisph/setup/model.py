@@ -1,0 +1,96 @@
+"""Model (what a run does not change, on one device) and State (what every step changes)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from ..engine.launch import launch_particles
+from ..scene import Physics
+
+
+@dataclass
+class Model:
+    """Everything a solver needs that does not change during a run.
+
+    ``physics`` is the scene's validated physics (rest density, gravity, viscosities and the
+    solver's settings are read from it, never copied). ``spacing`` is the particle diameter h,
+    ``support_radius`` the kernel's support 2h, ``mass`` = rho0 h^3. ``domain_lower/upper`` bound where particles may go: a particle
+    beyond them has left the tank.
+    """
+
+    device: object
+    physics: Physics
+    n_fluid: int
+    spacing: float
+    support_radius: float
+    mass: float
+    boundary_x: wp.array
+    boundary_psi: wp.array
+    domain_lower: np.ndarray
+    domain_upper: np.ndarray
+
+    @property
+    def n_boundary(self) -> int:
+        return 0 if self.boundary_x is None else int(self.boundary_x.shape[0])
+
+
+@wp.kernel
+def gather_vec3(offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)):
+    i = wp.tid() + offset
+    dst[i] = src[order[i]]
+
+
+@wp.kernel
+def gather_float(offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype=float), dst: wp.array(dtype=float)):
+    i = wp.tid() + offset
+    dst[i] = src[order[i]]
+
+
+@wp.kernel
+def gather_int(offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int32)):
+    i = wp.tid() + offset
+    dst[i] = src[order[i]]
+
+
+_GATHER = {wp.vec3: gather_vec3, wp.float32: gather_float, wp.int32: gather_int}
+
+
+@dataclass
+class State:
+    """Per-particle fluid data: position ``x``, velocity ``v``, density ``rho``, pressure ``p``
+    and the particle's original index ``id`` (particles are reordered in memory by grid cell)."""
+
+    x: wp.array
+    v: wp.array
+    rho: wp.array
+    p: wp.array
+    id: wp.array
+    _scratch: dict = field(default_factory=dict, repr=False)  # reorder's buffers, one per dtype
+
+    @property
+    def n(self) -> int:
+        return int(self.x.shape[0])
+
+    def reorder(self, order: wp.array) -> None:
+        """Permute every per-particle array in place so that particle i becomes ``order[i]``
+        (through one scratch array per type: the arrays keep their memory, which captured
+        graphs point at)."""
+        n = self.n
+        scratch = self._scratch
+        for name in ("x", "v", "rho", "p", "id"):
+            src = getattr(self, name)
+            tmp = scratch.get(src.dtype)
+            if tmp is None:
+                tmp = scratch[src.dtype] = wp.empty_like(src)
+            launch_particles(_GATHER[src.dtype], n, [order, src, tmp], src.device)
+            wp.copy(src, tmp)
+
+    def numpy_by_id(self, name: str) -> np.ndarray:
+        """Host copy of a per-particle array in original particle order."""
+        values = getattr(self, name).numpy()
+        out = np.empty_like(values)
+        out[self.id.numpy()] = values
+        return out

@@ -1,0 +1,193 @@
+"""Triangle meshes as boundary particles, as the report samples obstacles.
+
+Each triangle is rasterised into a grid of cell size ``h``: only the cells of its bounding box
+are visited and each is kept when the triangle overlaps it (the separating-axis triangle/box test
+of Akenine-Moller 2001). Every occupied cell gives one boundary particle at its centre, so a
+surface is covered without gaps wider than ``h`` however thin or stretched its triangles are.
+Two kernel passes (count, then fill after a scan) write the cell keys; duplicates, where
+triangles share a cell, are removed on the host.
+
+Fluid particles that would overlap an obstacle are removed by :func:`clear_fluid`: those inside a
+closed mesh (winding number) and those closer than one spacing to a boundary particle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..sph.neighbors import make_grid
+
+
+@wp.func
+def _axis_separates(a: wp.vec3, v0: wp.vec3, v1: wp.vec3, v2: wp.vec3, e: wp.vec3) -> bool:
+    p0 = wp.dot(a, v0)
+    p1 = wp.dot(a, v1)
+    p2 = wp.dot(a, v2)
+    r = e[0] * wp.abs(a[0]) + e[1] * wp.abs(a[1]) + e[2] * wp.abs(a[2])
+    return wp.min(p0, wp.min(p1, p2)) > r or wp.max(p0, wp.max(p1, p2)) < -r
+
+
+@wp.func
+def triangle_box_overlap(c: wp.vec3, e: wp.vec3, a: wp.vec3, b: wp.vec3, d: wp.vec3) -> bool:
+    """True when triangle (a, b, d) overlaps the box of centre ``c`` and half extents ``e``."""
+    v0 = a - c
+    v1 = b - c
+    v2 = d - c
+    f0 = v1 - v0
+    f1 = v2 - v1
+    f2 = v0 - v2
+    # The box's face normals: the triangle's bounding box against the box.
+    for k in range(3):
+        if wp.min(v0[k], wp.min(v1[k], v2[k])) > e[k] or wp.max(v0[k], wp.max(v1[k], v2[k])) < -e[k]:
+            return False
+    # The triangle's plane.
+    n = wp.cross(f0, f1)
+    r = e[0] * wp.abs(n[0]) + e[1] * wp.abs(n[1]) + e[2] * wp.abs(n[2])
+    if wp.abs(wp.dot(n, v0)) > r:
+        return False
+    # The nine cross products of box axes and triangle edges.
+    for k in range(3):
+        u = wp.vec3(0.0)
+        u[k] = 1.0
+        if _axis_separates(wp.cross(u, f0), v0, v1, v2, e):
+            return False
+        if _axis_separates(wp.cross(u, f1), v0, v1, v2, e):
+            return False
+        if _axis_separates(wp.cross(u, f2), v0, v1, v2, e):
+            return False
+    return True
+
+
+@wp.func
+def _cell_range(a: wp.vec3, b: wp.vec3, d: wp.vec3, h: float, k: int) -> wp.vec2i:
+    lo = wp.min(a[k], wp.min(b[k], d[k]))
+    hi = wp.max(a[k], wp.max(b[k], d[k]))
+    return wp.vec2i(int(wp.floor(lo / h)), int(wp.floor(hi / h)))
+
+
+@wp.kernel
+def rasterize_triangles(
+    vertices: wp.array(dtype=wp.vec3),
+    faces: wp.array(dtype=wp.vec3i),
+    h: float,
+    origin: wp.vec3i,
+    dims: wp.vec3i,
+    start: wp.array(dtype=wp.int32),
+    fill: int,
+    count: wp.array(dtype=wp.int32),
+    keys: wp.array(dtype=wp.int64),
+):
+    """Pass 1 (fill = 0) counts the cells each triangle overlaps; pass 2 writes their keys."""
+    t = wp.tid()
+    f = faces[t]
+    a = vertices[f[0]]
+    b = vertices[f[1]]
+    d = vertices[f[2]]
+    rx = _cell_range(a, b, d, h, 0)
+    ry = _cell_range(a, b, d, h, 1)
+    rz = _cell_range(a, b, d, h, 2)
+    # A hair larger than half a cell, so a triangle lying on a cell face still claims a cell.
+    e = wp.vec3(0.5 * h * (1.0 + 1.0e-5))
+    n = int(0)
+    for i in range(rx[0], rx[1] + 1):
+        for j in range(ry[0], ry[1] + 1):
+            for k in range(rz[0], rz[1] + 1):
+                c = wp.vec3((float(i) + 0.5) * h, (float(j) + 0.5) * h, (float(k) + 0.5) * h)
+                if triangle_box_overlap(c, e, a, b, d):
+                    if fill != 0:
+                        key = wp.int64(i - origin[0]) + wp.int64(dims[0]) * (
+                            wp.int64(j - origin[1]) + wp.int64(dims[1]) * wp.int64(k - origin[2])
+                        )
+                        keys[start[t] + n] = key
+                    n += 1
+    if fill == 0:
+        count[t] = n
+
+
+def sample_mesh(vertices: np.ndarray, faces: np.ndarray, h: float, device="cpu") -> np.ndarray:
+    """Boundary particles of a triangle mesh: the centres of the grid cells (size ``h``, aligned
+    to the origin) that its triangles overlap, each cell once. Returns an (N, 3) float64 array."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int32).reshape(-1, 3)
+    if len(faces) == 0:
+        return np.zeros((0, 3))
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise ValueError(f"mesh face indices must lie in [0, {len(vertices) - 1}] (the vertex count)")
+    if not np.all(np.isfinite(vertices)):
+        raise ValueError("mesh has non-finite vertex coordinates")
+    lo = np.floor(vertices.min(axis=0) / h).astype(np.int64) - 1
+    hi = np.floor(vertices.max(axis=0) / h).astype(np.int64) + 1
+    dims = hi - lo + 1
+    if float(np.prod(dims.astype(np.float64))) >= 2.0**62:
+        raise ValueError(f"spacing = {h} m: the mesh spans too many cells")
+    device = wp.get_device(device)
+    v = wp.array(vertices.astype(np.float32), dtype=wp.vec3, device=device)
+    f = wp.array(faces, dtype=wp.vec3i, device=device)
+    count = wp.zeros(len(faces), dtype=wp.int32, device=device)
+    start = wp.zeros(len(faces), dtype=wp.int32, device=device)
+    origin = wp.vec3i(*[int(c) for c in lo])
+    dimv = wp.vec3i(*[int(c) for c in dims])
+    empty = wp.zeros(1, dtype=wp.int64, device=device)
+    args = [v, f, float(h), origin, dimv, start]
+    wp.launch(rasterize_triangles, dim=len(faces), inputs=[*args, 0, count, empty], device=device)
+    wp.utils.array_scan(count, start, inclusive=False)
+    total = int(start.numpy()[-1] + count.numpy()[-1])
+    keys = wp.zeros(max(total, 1), dtype=wp.int64, device=device)
+    wp.launch(rasterize_triangles, dim=len(faces), inputs=[*args, 1, count, keys], device=device)
+    k = np.unique(keys.numpy()[:total])
+    ijk = np.stack([k % dims[0], (k // dims[0]) % dims[1], k // (dims[0] * dims[1])], axis=1) + lo
+    return (ijk + 0.5) * h
+
+
+@wp.kernel
+def fluid_clearance(
+    x: wp.array(dtype=wp.vec3),
+    grid: wp.uint64,
+    xb: wp.array(dtype=wp.vec3),
+    min_distance: float,
+    meshes: wp.array(dtype=wp.uint64),
+    solid_inside: wp.array(dtype=wp.int32),
+    keep: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    p = x[i]
+    ok = int(1)
+    for b in wp.hash_grid_query(grid, p, min_distance):
+        if wp.length(xb[b] - p) < min_distance:
+            ok = 0
+    for m in range(meshes.shape[0]):
+        q = wp.mesh_query_point_sign_winding_number(meshes[m], p, 1.0e6)
+        if q.result:
+            if (q.sign < 0.0) == (solid_inside[m] != 0):
+                ok = 0
+    keep[i] = ok
+
+
+def clear_fluid(
+    x: np.ndarray, xb: np.ndarray, solids: list, h: float, containers: list = (), device="cpu"
+) -> np.ndarray:
+    """The fluid particles ``x`` that are outside every closed obstacle mesh in ``solids``, inside
+    every container mesh in ``containers`` (meshes as ``(vertices, faces)`` pairs) and at least one
+    spacing ``h`` from every boundary particle in ``xb``."""
+    closed_meshes = list(solids) + list(containers)
+    if len(x) == 0 or (len(xb) == 0 and not closed_meshes):
+        return x
+    device = wp.get_device(device)
+    xd = wp.array(x.astype(np.float32), dtype=wp.vec3, device=device)
+    xbd = wp.array(np.asarray(xb, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    grid = make_grid(device)
+    grid.build(xbd, h)
+    held = [
+        wp.Mesh(
+            points=wp.array(np.asarray(v, dtype=np.float32), dtype=wp.vec3, device=device),
+            indices=wp.array(np.asarray(f, dtype=np.int32).reshape(-1), dtype=wp.int32, device=device),
+        )
+        for v, f in closed_meshes
+    ]
+    ids = wp.array(np.array([m.id for m in held], dtype=np.uint64), dtype=wp.uint64, device=device)
+    solid = wp.array(np.array([1] * len(solids) + [0] * len(containers), dtype=np.int32), dtype=wp.int32, device=device)
+    keep = wp.zeros(len(x), dtype=wp.int32, device=device)
+    # Slightly under h: a fluid lattice point exactly one spacing from a wall particle stays.
+    wp.launch(fluid_clearance, dim=len(x), inputs=[xd, grid.id, xbd, 0.999 * h, ids, solid, keep], device=device)
+    return x[keep.numpy().astype(bool)]

@@ -1,0 +1,235 @@
+"""What WCSPH and IISPH share: density, pressure acceleration with symplectic Euler, the
+divergence check, stage timing and the step skeleton.
+
+Density (Akinci boundaries): ``rho_i = sum_j m W_ij + sum_b psi_b W_ib`` (j includes i).
+Pressure acceleration: ``a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij
+- sum_b psi_b (p_i/rho_i^2) grad W_ib``: a wall pushes with the fluid particle's own pressure
+(Akinci et al. 2012). This is the force that conserves energy (it is minus the gradient of the
+fluid's internal energy with respect to its position); its price is that fluid particles
+touching a wall carry about twice the hydrostatic pressure, since the wall contributes no
+``p_j`` term. Mirroring the pressure (a factor 2) fixes that but pumps energy into the flow.
+"""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+
+import numpy as np
+import warp as wp
+
+from ...engine.launch import launch_particles
+from ...engine.timing import StageTimes
+from ..kernel import cubic_W
+from ..neighbors import NeighborList, NeighborSearch
+
+STAGES = ("neighbours", "density", "advection", "pressure", "integration")
+
+
+@wp.kernel
+def pack_stats(
+    compression_sum: wp.array(dtype=wp.float64),
+    error_sum: wp.array(dtype=wp.float64),
+    iterations: wp.array(dtype=wp.int32),
+    max_speed2: wp.array(dtype=float),
+    counts: wp.array(dtype=wp.int32),
+    out: wp.array(dtype=wp.float64),
+):
+    """The step's statistics in one array, so the host reads them back in one copy."""
+    out[0] = compression_sum[0]
+    out[1] = error_sum[0]
+    out[2] = wp.float64(iterations[0])
+    out[3] = wp.float64(max_speed2[0])
+    out[4] = wp.float64(counts[0])
+    out[5] = wp.float64(counts[1])
+
+
+@wp.kernel
+def compute_density(
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    xb: wp.array(dtype=wp.vec3),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    H: float,
+    rho0: float,
+    rho: wp.array(dtype=float),
+    compression: wp.array(dtype=wp.float64),
+):
+    """Density of fluid particle i, and its compression max(rho/rho0 - 1, 0)."""
+    i = wp.tid() + offset
+    x_i = x[i]
+    r = mass * cubic_W(0.0, H)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        r += mass * cubic_W(wp.length(x_i - x[nf.index[k]]), H)
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        b = nb.index[k]
+        r += psi[b] * cubic_W(wp.length(x_i - xb[b]), H)
+    rho[i] = r
+    compression[i] = wp.max(wp.float64(r / rho0) - wp.float64(1.0), wp.float64(0.0))
+
+
+@wp.kernel
+def integrate(
+    offset: int,
+    v_adv: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    v: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+):
+    """Pressure acceleration, then symplectic Euler: v = v_adv + dt a_p; x += dt v."""
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    p_i = p[i] / (rho[i] * rho[i])
+    a = wp.vec3(0.0, 0.0, 0.0)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        j = nf.index[k]
+        a -= mass * (p_i + p[j] / (rho[j] * rho[j])) * nf.grad_W[k]
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        a -= psi[nb.index[k]] * p_i * nb.grad_W[k]
+    v_i = v_adv[i] + dt * a
+    v[i] = v_i
+    x[i] = x[i] + dt * v_i
+
+
+@wp.kernel
+def check_state(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    lower: wp.vec3,
+    upper: wp.vec3,
+    max_speed2: wp.array(dtype=float),
+    counts: wp.array(dtype=wp.int32),
+):
+    """Largest squared speed, particles outside the domain (counts[0]) and non-finite ones (counts[1])."""
+    i = wp.tid()
+    x_i = x[i]
+    v_i = v[i]
+    s2 = wp.dot(v_i, v_i)
+    if not (wp.isfinite(x_i) and wp.isfinite(v_i)):
+        wp.atomic_add(counts, 1, 1)
+        return
+    wp.atomic_max(max_speed2, 0, s2)
+    if x_i[0] < lower[0] or x_i[1] < lower[1] or x_i[2] < lower[2] or x_i[0] > upper[0] or x_i[1] > upper[1] or x_i[2] > upper[2]:
+        wp.atomic_add(counts, 0, 1)
+
+
+class SPHSolver:
+    """Skeleton of an SPH time step shared by the methods; subclasses supply
+    :meth:`predict_advection` and :meth:`pressure_solve`.
+
+    ``step`` = neighbour search, density, non-pressure forces and advection, pressure,
+    integration (symplectic Euler), each timed. Statistics come back as a dict.
+    """
+
+    #: reorder particles by grid cell every this many steps (1 = every step)
+    reorder_interval = 10
+
+    def __init__(self, model):
+        self.physics = model.physics
+        self.device = model.device
+        n = model.n_fluid
+        self.search = NeighborSearch(n, model.boundary_x, model.support_radius, model.device)
+        self.v_adv = wp.zeros(n, dtype=wp.vec3, device=model.device)
+        self.compression = wp.zeros(n, dtype=wp.float64, device=model.device)
+        self._max_speed2 = wp.zeros(1, dtype=float, device=model.device)
+        self._counts = wp.zeros(2, dtype=wp.int32, device=model.device)
+        self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
+        self._no_iterations = wp.zeros(1, dtype=wp.int32, device=model.device)
+        self._stats = wp.zeros(6, dtype=wp.float64, device=model.device)
+        self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
+        self.steps = 0
+
+    @property
+    def signal_speed(self) -> float:
+        """Speed of information the time step must resolve besides the flow (m/s)."""
+        return 0.0
+
+    def step(self, model, state, dt: float) -> dict:
+        """One time step with plain launches (the reference path: every stage timed, the
+        neighbour storage grown before it overflows, the Jacobi loop driven from the host)."""
+        timer = StageTimes(model.device, STAGES)
+        self.dt.fill_(float(dt))
+        with timer("neighbours"):
+            if self.steps % self.reorder_interval == 0:
+                state.reorder(self.search.cell_order(state.x))
+        self.launch_step(model, state, timer, sync=True)
+        self.steps += 1
+        return self.read_stats(model, dt, timer.ms())
+
+    def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
+        """Every launch of a step after the reorder, reading nothing back unless ``sync``: this
+        is what a graph captures. ``self.dt`` holds the step."""
+        timer = timer or nullcontext  # timer(name) -> a context that does nothing
+        n = model.n_fluid
+        with timer("neighbours"):
+            self.search.build(state.x, sync=sync)
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        with timer("density"):
+            launch_particles(
+                compute_density,
+                n,
+                [state.x, model.boundary_x, model.boundary_psi, nf, nb, model.mass, model.support_radius, self.physics.rho0, state.rho,
+                 self.compression],
+                model.device,
+            )
+            wp.utils.array_sum(self.compression[:n], out=self._compression_sum)
+        with timer("advection"):
+            self.predict_advection(model, state)
+        with timer("pressure"):
+            self.pressure_solve(model, state)
+        with timer("integration"):
+            launch_particles(
+                integrate,
+                n,
+                [self.v_adv, state.rho, state.p, model.boundary_psi, nf, nb, model.mass, self.dt, state.v, state.x],
+                model.device,
+            )
+            self._max_speed2.zero_()
+            self._counts.zero_()
+            wp.launch(
+                check_state,
+                dim=n,
+                inputs=[state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self._max_speed2, self._counts],
+                device=model.device,
+            )
+
+    def read_stats(self, model, dt: float, ms: dict) -> dict:
+        """The step's statistics, read back from the device in one copy."""
+        n = max(model.n_fluid, 1)
+        error_sum, iterations = self.solver_stats()
+        wp.launch(pack_stats, dim=1, inputs=[self._compression_sum, error_sum, iterations, self._max_speed2, self._counts, self._stats],
+                  device=model.device)
+        compression_sum, error_sum, iterations, max_speed2, escaped, non_finite = self._stats.numpy().tolist()
+        return {
+            "dt": float(dt),
+            "iterations": int(iterations),
+            "density_error": error_sum / n,
+            "compression": compression_sum / n,
+            "max_velocity": float(np.sqrt(np.float32(max_speed2))),
+            "escaped": int(escaped),
+            "non_finite": int(non_finite),
+            "ms": ms,
+        }
+
+    def solver_stats(self) -> tuple[wp.array, wp.array]:
+        """The device sums of the pressure solver's final density error and its iteration count;
+        WCSPH has no solver, so its error is the compression."""
+        return self._compression_sum, self._no_iterations
+
+    def predict_advection(self, model, state) -> None:
+        raise NotImplementedError
+
+    def pressure_solve(self, model, state) -> None:
+        raise NotImplementedError

@@ -1,0 +1,275 @@
+"""Implicit Incompressible SPH (Ihmsen et al. 2014, IEEE TVCG 20(3)), with Akinci boundaries.
+
+Per step, after densities: ``predict_advection`` computes ``v_adv = v + dt a_nonpressure``,
+``d_ii = -dt^2 sum_j m/rho_i^2 grad W_ij - dt^2 sum_b psi_b/rho_i^2 grad W_ib``,
+``rho_adv = rho_i + dt sum_j m v_adv_ij . grad W_ij + dt sum_b psi_b v_adv_i . grad W_ib`` and
+``a_ii = sum_j m (d_ii - d_ji) . grad W_ij + sum_b psi_b d_ii . grad W_ib`` with
+``d_ji = dt^2 m/rho_i^2 grad W_ij``; the pressure starts at ``0.5 p(t - dt)``.
+``pressure_solve`` runs relaxed Jacobi: ``sum_j d_ij p_j = -dt^2 sum_j m p_j/rho_j^2 grad W_ij``,
+then ``p_i = max((1 - omega) p_i + omega / a_ii (rho0 - rho_adv_i - s_i), 0)`` with
+``s_i = sum_j m (sum_dij_pj_i - d_jj p_j - (sum_dij_pj_j - d_ji p_i)) . grad W_ij
++ sum_b psi_b sum_dij_pj_i . grad W_ib``, until the average predicted density error
+``mean(max(rho_i/rho0 - 1, 0))`` (reduced in float64) is at most ``eta`` and at least
+``min_iterations`` ran, or ``max_iterations`` is reached.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ...engine.launch import launch_particles
+from ..neighbors import NeighborList
+from .base import SPHSolver
+from .forces import non_pressure_acceleration
+
+
+@wp.kernel
+def predict_advection_velocity(
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    viscosity: float,
+    h: float,
+    gravity: wp.vec3,
+    xb: wp.array(dtype=wp.vec3),
+    boundary_viscosity: float,
+    dt_step: wp.array(dtype=float),
+    v_adv: wp.array(dtype=wp.vec3),
+    d_ii: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, psi, nb, boundary_viscosity)
+    d = wp.vec3(0.0, 0.0, 0.0)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        d -= mass * nf.grad_W[k]
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        d -= psi[nb.index[k]] * nb.grad_W[k]
+    rho_i = rho[i]
+    d_ii[i] = d * (dt * dt / (rho_i * rho_i))
+
+
+@wp.kernel
+def predict_advection_density(
+    offset: int,
+    v_adv: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    d_ii: wp.array(dtype=wp.vec3),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    rho_adv: wp.array(dtype=float),
+    a_ii: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+):
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    v_i = v_adv[i]
+    rho_i = rho[i]
+    dii = d_ii[i]
+    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    r = float(0.0)
+    a = float(0.0)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        j = nf.index[k]
+        g = nf.grad_W[k]
+        r += mass * wp.dot(v_i - v_adv[j], g)
+        a += mass * wp.dot(dii - d_ji_scale * g, g)
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        g = nb.grad_W[k]
+        psi_b = psi[nb.index[k]]
+        r += psi_b * wp.dot(v_i, g)
+        a += psi_b * wp.dot(dii, g)
+    rho_adv[i] = rho_i + dt * r
+    a_ii[i] = a
+    p[i] = 0.5 * p[i]
+
+
+@wp.func
+def dij_pj_term(mass: float, p_j: float, rho_j: float, grad_W: wp.vec3) -> wp.vec3:
+    """Neighbour j's part of ``-sum_j d_ij p_j / dt^2``."""
+    return (mass * p_j / (rho_j * rho_j)) * grad_W
+
+
+@wp.func
+def jacobi_sigma_term(mass: float, sdp_i: wp.vec3, d_jj_p_j: wp.vec3, sdp_j: wp.vec3, d_ji_p_i: wp.vec3, grad_W: wp.vec3) -> float:
+    """Fluid neighbour j's part of ``s_i``."""
+    return mass * wp.dot(sdp_i - d_jj_p_j - (sdp_j - d_ji_p_i), grad_W)
+
+
+@wp.func
+def jacobi_boundary_sigma(i: int, psi: wp.array(dtype=float), nb: NeighborList, sdp_i: wp.vec3, fluid_sigma: float) -> float:
+    """``s_i``: the walls' parts added, in list order, to the fluid neighbours' sum."""
+    sigma = fluid_sigma
+    s = nb.start[i]
+    for k in range(s, s + nb.count[i]):
+        sigma += psi[nb.index[k]] * wp.dot(sdp_i, nb.grad_W[k])
+    return sigma
+
+
+@wp.func
+def jacobi_update(
+    i: int,
+    sigma: float,
+    p_i: float,
+    a: float,
+    rho_adv_i: float,
+    rho0: float,
+    omega: float,
+    p_new: wp.array(dtype=float),
+    density_error: wp.array(dtype=wp.float64),
+):
+    """The relaxed Jacobi pressure from ``s_i`` and the predicted density error it leaves."""
+    p_next = float(0.0)
+    if wp.abs(a) > 1.0e-12:
+        p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv_i - sigma), 0.0)
+    p_new[i] = p_next
+    rho_pred = rho_adv_i + a * p_next + sigma
+    density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
+
+
+@wp.kernel
+def pressure_sum_dij_pj(
+    offset: int,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    nf: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    sum_dij_pj: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        j = nf.index[k]
+        acc -= dij_pj_term(mass, p[j], rho[j], nf.grad_W[k])
+    sum_dij_pj[i] = dt * dt * acc
+
+
+@wp.kernel
+def pressure_jacobi(
+    offset: int,
+    rho: wp.array(dtype=float),
+    rho_adv: wp.array(dtype=float),
+    a_ii: wp.array(dtype=float),
+    d_ii: wp.array(dtype=wp.vec3),
+    sum_dij_pj: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    rho0: float,
+    omega: float,
+    p_new: wp.array(dtype=float),
+    density_error: wp.array(dtype=wp.float64),
+):
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    rho_i = rho[i]
+    p_i = p[i]
+    sdp_i = sum_dij_pj[i]
+    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    sigma = float(0.0)
+    s = nf.start[i]
+    for k in range(s, s + nf.count[i]):
+        j = nf.index[k]
+        g = nf.grad_W[k]
+        sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
+    sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
+    jacobi_update(i, sigma, p_i, a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
+
+
+@wp.kernel
+def jacobi_convergence(
+    error_sum: wp.array(dtype=wp.float64),
+    n: int,
+    eta: wp.float64,
+    min_iterations: int,
+    max_iterations: int,
+    iterations: wp.array(dtype=wp.int32),
+    keep_going: wp.array(dtype=wp.int32),
+):
+    """Count the iteration; stop once the mean predicted density error is at most eta (after
+    ``min_iterations``) or at ``max_iterations``."""
+    it = iterations[0] + 1
+    iterations[0] = it
+    converged = it >= min_iterations and error_sum[0] / wp.float64(n) <= eta
+    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
+
+
+class IISPHSolver(SPHSolver):
+    """Implicit incompressible SPH with relaxed Jacobi; statistics report the iterations and the
+    final average predicted density error."""
+
+    def __init__(self, model):
+        super().__init__(model)
+        n, dev = model.n_fluid, model.device
+        self.d_ii = wp.zeros(n, dtype=wp.vec3, device=dev)
+        self.a_ii = wp.zeros(n, dtype=float, device=dev)
+        self.rho_adv = wp.zeros(n, dtype=float, device=dev)
+        self.sum_dij_pj = wp.zeros(n, dtype=wp.vec3, device=dev)
+        self.p_next = wp.zeros(n, dtype=float, device=dev)
+        self.density_error = wp.zeros(n, dtype=wp.float64, device=dev)
+        self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
+        self._iterations = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
+
+    def predict_advection(self, model, state) -> None:
+        ph = self.physics
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        n, dev = model.n_fluid, model.device
+        launch_particles(
+            predict_advection_velocity,
+            n,
+            [state.x, state.v, state.rho, model.boundary_psi, nf, nb, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
+             model.boundary_x, ph.boundary_viscosity, self.dt, self.v_adv, self.d_ii],
+            dev,
+        )
+        launch_particles(
+            predict_advection_density,
+            n,
+            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, nf, nb, model.mass, self.dt, self.rho_adv, self.a_ii, state.p],
+            dev,
+        )
+
+    def pressure_solve(self, model, state) -> None:
+        """Relaxed Jacobi until converged; the loop's test runs on the device
+        (``wp.capture_while``), so a captured graph holds the whole loop."""
+        self._iterations.zero_()
+        self.keep_going.fill_(1)
+        wp.capture_while(self.keep_going, self.jacobi_iteration, model=model, state=state)
+
+    def jacobi_iteration(self, model, state) -> None:
+        ph = self.physics
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        n, dev = model.n_fluid, model.device
+        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, self.dt, self.sum_dij_pj], dev)
+        launch_particles(
+            pressure_jacobi,
+            n,
+            [state.rho, self.rho_adv, self.a_ii, self.d_ii, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
+             model.mass, self.dt, ph.rho0, float(ph.omega), self.p_next, self.density_error],
+            dev,
+        )
+        wp.copy(state.p, self.p_next, count=n)
+        wp.utils.array_sum(self.density_error[:n], out=self._error_sum)
+        wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, n, wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
+                                                     self._iterations, self.keep_going], device=dev)
+
+    def solver_stats(self) -> tuple[wp.array, wp.array]:
+        return self._error_sum, self._iterations

@@ -1,0 +1,46 @@
+"""Weakly compressible SPH (Becker & Teschner 2007), the baseline IISPH is measured against.
+
+Pressure from the state equation ``p = k ((rho/rho0)^7 - 1)``, clamped at 0 (no tensile
+pressure at the free surface), then the shared pressure acceleration and symplectic Euler.
+Its time step is bounded by the speed of sound ``c = sqrt(7 k / rho0)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from ...engine.launch import launch_particles
+from .base import SPHSolver
+from .forces import predict_velocity
+
+
+@wp.kernel
+def state_equation(offset: int, rho: wp.array(dtype=float), rho0: float, stiffness: float, p: wp.array(dtype=float)):
+    i = wp.tid() + offset
+    ratio = rho[i] / rho0
+    r2 = ratio * ratio
+    p[i] = wp.max(stiffness * (r2 * r2 * r2 * ratio - 1.0), 0.0)
+
+
+class WCSPHSolver(SPHSolver):
+    """Weakly compressible SPH. ``density_error`` in its statistics is the mean compression
+    ``max(rho/rho0 - 1, 0)`` at the start of the step (there is no solver to converge)."""
+
+    @property
+    def signal_speed(self) -> float:
+        return math.sqrt(7.0 * self.physics.stiffness / self.physics.rho0)
+
+    def predict_advection(self, model, state) -> None:
+        ph = self.physics
+        launch_particles(
+            predict_velocity,
+            model.n_fluid,
+            [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
+             model.boundary_x, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt, self.v_adv],
+            model.device,
+        )
+
+    def pressure_solve(self, model, state) -> None:
+        launch_particles(state_equation, model.n_fluid, [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p], model.device)

@@ -1,0 +1,101 @@
+"""Where a query may have a neighbour among static points (the walls): a mask of cells built once,
+so that particles far from every wall skip the walls' grid."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..engine.launch import launch_particles
+
+
+@wp.struct
+class NearMask:
+    """Cells of size a little over the radius, over the other set's bounding box grown by one
+    cell: ``near`` is 1 where a cell or one of its 26 neighbours holds a point of the set, so a
+    query point in a cell marked 0 (or outside the box) has no neighbour in it. ``dims`` 0:
+    no mask, every point queries."""
+
+    lower: wp.vec3
+    cell: float
+    dims: wp.vec3i
+    near: wp.array(dtype=wp.uint8)
+
+
+@wp.func
+def mask_cell(m: NearMask, p: wp.vec3) -> wp.vec3i:
+    q = (p - m.lower) / m.cell
+    return wp.vec3i(int(wp.floor(q[0])), int(wp.floor(q[1])), int(wp.floor(q[2])))
+
+
+@wp.func
+def mask_flat(m: NearMask, c: wp.vec3i) -> int:
+    if c[0] < 0 or c[1] < 0 or c[2] < 0 or c[0] >= m.dims[0] or c[1] >= m.dims[1] or c[2] >= m.dims[2]:
+        return -1
+    return (c[0] * m.dims[1] + c[1]) * m.dims[2] + c[2]
+
+
+@wp.func
+def may_have_neighbors(m: NearMask, p: wp.vec3) -> bool:
+    if m.dims[0] == 0:
+        return True
+    k = mask_flat(m, mask_cell(m, p))
+    if k < 0:
+        return False
+    return m.near[k] != wp.uint8(0)
+
+
+@wp.kernel
+def occupy_cells(m: NearMask, points: wp.array(dtype=wp.vec3), occupied: wp.array(dtype=wp.int32)):
+    k = mask_flat(m, mask_cell(m, points[wp.tid()]))
+    if k >= 0:
+        occupied[k] = 1  # every writer writes the same value: no atomic needed
+
+
+@wp.kernel
+def dilate_cells(offset: int, m: NearMask, occupied: wp.array(dtype=wp.int32)):
+    k = wp.tid() + offset
+    c = wp.vec3i(k // (m.dims[1] * m.dims[2]), (k // m.dims[2]) % m.dims[1], k % m.dims[2])
+    hit = wp.uint8(0)
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for e in range(-1, 2):
+                j = mask_flat(m, c + wp.vec3i(a, b, e))
+                if j >= 0:
+                    if occupied[j] != 0:
+                        hit = wp.uint8(1)
+    m.near[k] = hit
+
+
+# Above this many mask cells (bytes) the walls' bounding box is too fine to mask; every point queries.
+MAX_MASK_CELLS = 1 << 27
+
+
+def _no_mask(device) -> NearMask:
+    m = NearMask()
+    m.lower, m.cell, m.dims = wp.vec3(0.0), 1.0, wp.vec3i(0, 0, 0)
+    m.near = wp.zeros(1, dtype=wp.uint8, device=device)
+    return m
+
+
+def near_mask(points: wp.array, radius: float, device) -> NearMask:
+    """Where a point may have a neighbour among the static ``points`` (the walls): cells of
+    1.001 ``radius`` (so two points within ``radius`` lie in neighbouring cells even after
+    float rounding) over their bounding box grown by a cell, each marked when it or a neighbour
+    holds one of them. Built once; a point elsewhere has no neighbour there."""
+    xs = points.numpy()
+    if len(xs) == 0:
+        return _no_mask(device)
+    cell = 1.001 * float(radius)
+    lower = xs.min(axis=0) - cell
+    dims = np.floor((xs.max(axis=0) + cell - lower) / cell).astype(np.int64) + 1
+    if int(np.prod(dims)) > MAX_MASK_CELLS:
+        return _no_mask(device)
+    m = NearMask()
+    m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
+    cells = int(np.prod(dims))
+    m.near = wp.zeros(cells, dtype=wp.uint8, device=device)
+    occupied = wp.zeros(cells, dtype=wp.int32, device=device)
+    wp.launch(occupy_cells, dim=len(xs), inputs=[m, points, occupied], device=device)
+    launch_particles(dilate_cells, cells, [m, occupied], device)
+    return m

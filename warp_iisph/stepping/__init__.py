@@ -1,0 +1,5 @@
+"""Advancing a scene in time: Simulation (time steps, dt, divergence checks) and replays of captured graphs."""
+
+from .simulation import DivergenceError, Simulation
+
+__all__ = ["DivergenceError", "Simulation"]

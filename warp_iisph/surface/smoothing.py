@@ -1,0 +1,116 @@
+"""Mesh smoothing over a vertex-triangle adjacency built on the device: Laplacian (the report's) or
+Taubin's lambda/mu (no shrinking), and area-weighted vertex normals."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..engine.launch import launch_particles
+
+
+@wp.kernel
+def count_incident(indices: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32)):
+    # atomics: one launch, never split
+    wp.atomic_add(count, indices[wp.tid()], 1)
+
+
+@wp.kernel
+def fill_incident(
+    indices: wp.array(dtype=wp.int32),
+    start: wp.array(dtype=wp.int32),
+    cursor: wp.array(dtype=wp.int32),
+    tris: wp.array(dtype=wp.int32),
+):
+    # a scatter with an atomic cursor: one launch, never split
+    c = wp.tid()
+    v = indices[c]
+    slot = wp.atomic_add(cursor, v, 1)
+    tris[start[v] + slot] = c / 3
+
+
+@wp.func
+def triangle_corners(verts: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), t: int):
+    return verts[indices[3 * t]], verts[indices[3 * t + 1]], verts[indices[3 * t + 2]]
+
+
+@wp.kernel
+def smooth_vertices(
+    offset: int,
+    verts: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    start: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    tris: wp.array(dtype=wp.int32),
+    factor: float,
+    out: wp.array(dtype=wp.vec3),
+):
+    """One umbrella pass: move each vertex by ``factor`` towards the mean of its neighbours (each
+    incident triangle's two other corners, so every edge of a closed mesh counts twice)."""
+    v = wp.tid() + offset
+    p = verts[v]
+    s = wp.vec3(0.0)
+    m = count[v]
+    for k in range(start[v], start[v] + m):
+        a, b, c = triangle_corners(verts, indices, tris[k])
+        s += a + b + c - p
+    if m > 0:
+        out[v] = p + factor * (s / float(2 * m) - p)
+    else:
+        out[v] = p
+
+
+@wp.kernel
+def vertex_normals(
+    offset: int,
+    verts: wp.array(dtype=wp.vec3),
+    indices: wp.array(dtype=wp.int32),
+    start: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    tris: wp.array(dtype=wp.int32),
+    normals: wp.array(dtype=wp.vec3),
+):
+    v = wp.tid() + offset
+    n = wp.vec3(0.0)
+    for k in range(start[v], start[v] + count[v]):
+        a, b, c = triangle_corners(verts, indices, tris[k])
+        n += wp.cross(b - a, c - a)  # area-weighted
+    ln = wp.length(n)
+    if ln > 0.0:
+        normals[v] = n / ln
+    else:
+        normals[v] = wp.vec3(0.0, 1.0, 0.0)
+
+
+@wp.kernel
+def flip_winding(offset: int, indices: wp.array(dtype=wp.int32)):
+    t = wp.tid() + offset
+    a = indices[3 * t + 1]
+    indices[3 * t + 1] = indices[3 * t + 2]
+    indices[3 * t + 2] = a
+
+
+def adjacency(indices: wp.array, nv: int, device):
+    """Each vertex's incident triangles: ``tris[start[v] : start[v] + count[v]]``."""
+    count = wp.zeros(nv, dtype=wp.int32, device=device)
+    wp.launch(count_incident, dim=indices.shape[0], inputs=[indices, count], device=device)
+    start = wp.zeros(nv, dtype=wp.int32, device=device)
+    wp.utils.array_scan(count, start, inclusive=False)
+    cursor = wp.zeros(nv, dtype=wp.int32, device=device)
+    tris = wp.empty(indices.shape[0], dtype=wp.int32, device=device)
+    wp.launch(fill_incident, dim=indices.shape[0], inputs=[indices, start, cursor, tris], device=device)
+    return start, count, tris
+
+
+def smooth(verts, indices, start, count, tris, params, device):
+    """``params.passes`` passes of Laplacian smoothing, or of Taubin's lambda/mu pairs."""
+    p = params
+    if p.smoothing == "none" or p.passes == 0:
+        return verts
+    factors = [p.lam] if p.smoothing == "laplacian" else [p.lam, p.mu]
+    a = wp.clone(verts)
+    b = wp.empty_like(verts)
+    for _ in range(p.passes):
+        for f in factors:
+            launch_particles(smooth_vertices, a.shape[0], [a, indices, start, count, tris, float(f), b], device)
+            a, b = b, a
+    return a

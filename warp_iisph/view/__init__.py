@@ -1,0 +1,1 @@
+"""Looking at runs: a fast preview video, path-traced renders (Mitsuba 3), a Blender script."""

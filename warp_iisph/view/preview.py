@@ -1,0 +1,198 @@
+"""A fast look at a run without the render extra: each frame's particles (coloured by speed) or
+its mesh's vertices (shaded by their normals) are splatted as small spheres through an
+orthographic camera with a z-buffer in NumPy, over the tank's edges and the run's obstacles
+(drawn once, as dense surface samples), and the frames go into ``preview.mp4``."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..run.folder import MESHES, PARTICLES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.progress import frame_bar
+from .video import parse_resolution, write_video
+
+# Speed colour ramp (slow -> fast): deep blue, blue, cyan, pale yellow, orange.
+RAMP = np.array([[0.05, 0.15, 0.45], [0.10, 0.40, 0.85], [0.30, 0.80, 0.95], [0.95, 0.95, 0.60], [0.95, 0.55, 0.15]])
+WATER = np.array([0.25, 0.55, 0.90])
+STONE = np.array([0.62, 0.58, 0.52])
+LIGHT = np.array([0.35, 0.8, 0.5]) / np.linalg.norm([0.35, 0.8, 0.5])
+
+
+def ramp(t: np.ndarray) -> np.ndarray:
+    """Colour of values in [0, 1] along :data:`RAMP`."""
+    t = np.clip(t, 0.0, 1.0) * (len(RAMP) - 1)
+    k = np.minimum(t.astype(int), len(RAMP) - 2)
+    f = (t - k)[:, None]
+    return RAMP[k] * (1 - f) + RAMP[k + 1] * f
+
+
+def camera_basis(yaw: float, pitch: float) -> np.ndarray:
+    """Rows: screen right, screen up, towards the viewer (y is up in the scene)."""
+    a, b = math.radians(yaw), math.radians(pitch)
+    toward = np.array([math.sin(a) * math.cos(b), math.sin(b), math.cos(a) * math.cos(b)])
+    right = np.cross([0.0, 1.0, 0.0], toward)
+    right /= np.linalg.norm(right)
+    return np.stack([right, np.cross(toward, right), toward])
+
+
+class OrthoView:
+    """Maps scene points to pixels so that the box ``lower..upper`` fills the image."""
+
+    def __init__(self, lower, upper, width: int, height: int, yaw: float = 30.0, pitch: float = 25.0):
+        self.W, self.H = width, height
+        self.R = camera_basis(yaw, pitch)
+        self.center = 0.5 * (np.asarray(lower) + np.asarray(upper))
+        corners = np.array([[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])])
+        uv = (corners - self.center) @ self.R[:2].T
+        span = np.maximum(uv.max(0) - uv.min(0), 1e-9)
+        self.scale = 0.9 * min(width / span[0], height / span[1])  # pixels per metre
+        self.mid = 0.5 * (uv.max(0) + uv.min(0))
+
+    def project(self, x: np.ndarray):
+        c = (np.asarray(x, float) - self.center) @ self.R.T
+        px = (c[:, 0] - self.mid[0]) * self.scale + 0.5 * self.W
+        py = 0.5 * self.H - (c[:, 1] - self.mid[1]) * self.scale
+        return px, py, c[:, 2]
+
+
+def splat(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, x, colors, radius_m: float, shade_spheres: bool = True) -> None:
+    """Draw points as discs of ``radius_m`` metres (lit like spheres), nearest on top."""
+    px, py, depth = view.project(x)
+    r = max(radius_m * view.scale, 0.7)
+    ri = int(math.ceil(r))
+    dy, dx = np.mgrid[-ri : ri + 1, -ri : ri + 1]
+    keep = dx**2 + dy**2 <= r * r + 0.25
+    dx, dy = dx[keep], dy[keep]
+    nz = np.sqrt(np.maximum(1.0 - (dx**2 + dy**2) / (r * r + 0.25), 0.0))
+    light = 0.55 + 0.45 * (dx * LIGHT[0] / (r + 0.5) - dy * LIGHT[1] / (r + 0.5) + nz * LIGHT[2]) if shade_spheres else np.ones(len(dx))
+    X = (np.rint(px)[:, None] + dx[None, :]).astype(np.int64).ravel()
+    Y = (np.rint(py)[:, None] + dy[None, :]).astype(np.int64).ravel()
+    D = (depth[:, None] + nz[None, :] * radius_m).ravel()
+    C = (colors[:, None, :] * np.clip(light, 0, 1)[None, :, None]).reshape(-1, 3)
+    inside = (X >= 0) & (X < view.W) & (Y >= 0) & (Y < view.H)
+    flat, D, C = (Y * view.W + X)[inside], D[inside], C[inside]
+    order = np.lexsort((-D, flat))  # by pixel, nearest first
+    flat, D, C = flat[order], D[order], C[order]
+    first = np.ones(len(flat), bool)
+    first[1:] = flat[1:] != flat[:-1]
+    flat, D, C = flat[first], D[first], C[first]
+    zb = depth_buffer.reshape(-1)
+    nearer = D > zb[flat]
+    zb[flat[nearer]] = D[nearer]
+    image.reshape(-1, 3)[flat[nearer]] = C[nearer]
+
+
+def box_edges(lower, upper, step: float) -> np.ndarray:
+    lo, hi = np.asarray(lower, float), np.asarray(upper, float)
+    pts = []
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        for u in (lo[others[0]], hi[others[0]]):
+            for v in (lo[others[1]], hi[others[1]]):
+                n = max(int((hi[axis] - lo[axis]) / step), 2)
+                p = np.zeros((n, 3))
+                p[:, axis] = np.linspace(lo[axis], hi[axis], n)
+                p[:, others[0]], p[:, others[1]] = u, v
+                pts.append(p)
+    return np.concatenate(pts)
+
+
+def splat_surface(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, mesh, color=STONE, max_points: int = 500_000) -> None:
+    """Draw a triangle mesh as random surface samples, about two per pixel of its area, each a
+    3x3-pixel square (no gaps) lit by its triangle's normal; the z-buffer hides its far side."""
+    import trimesh
+
+    count = int(np.clip(2.0 * mesh.area * view.scale**2, 1000, max_points))
+    points, face = trimesh.sample.sample_surface(mesh, count, seed=0)
+    lam = np.clip(mesh.face_normals[face] @ LIGHT, 0.0, 1.0)[:, None]
+    splat(image, depth_buffer, view, points, color * (0.35 + 0.65 * lam), 1.5 / view.scale, shade_spheres=False)
+
+
+def background(width: int, height: int) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, height)[:, None, None]
+    top, bottom = np.array([0.93, 0.95, 0.98]), np.array([0.78, 0.80, 0.84])
+    return np.broadcast_to(top * (1 - t) + bottom * t, (height, width, 3)).copy()
+
+
+def preview_run(run_dir, out=None, source: str | None = None, resolution: str = "640x360", frames: str | None = None,
+                fps: float | None = None, gif: bool = False, yaw: float = 30.0, pitch: float = 25.0, progress: bool = True) -> dict:
+    """Write ``preview.mp4`` (or ``.gif``) of a run; returns the path, frame count and seconds per frame."""
+    import time
+
+    from PIL import Image, ImageDraw
+
+    from ..run.formats import read_particles
+
+    run = RunFolder.existing(run_dir)
+    record = run.record()
+    width, height = parse_resolution(resolution)
+    if source is None:
+        source = PARTICLES if any((run.path / PARTICLES).glob("frame_*.ply")) else MESHES
+    if source not in (PARTICLES, MESHES):
+        raise RunError(f"--source {source!r}: must be particles or mesh")
+    files = select_frames(run.frames(source), frames)
+    fps = float(fps or run.fps(record))
+    if not fps > 0:
+        raise RunError(f"--fps {fps}: must be > 0")
+    h = float(record.get("scene", {}).get("spacing") or 0.0)
+    load = read_particles if source == PARTICLES else _read_mesh_points
+    first = load(files[0])
+    if h <= 0:  # no record: estimate the spacing from the particle volume
+        ext = np.ptp(first["x"], axis=0)
+        h = float(np.cbrt(np.prod(np.maximum(ext, 1e-6)) / max(len(first["x"]), 1)))
+    obstacles = run.obstacle_mesh()
+    bounds = tank_bounds(record)
+    if bounds is None:
+        lo, hi = first["x"].min(0) - h, first["x"].max(0) + h
+        last = load(files[-1])["x"]
+        bounds = (np.minimum(lo, last.min(0) - h), np.maximum(hi, last.max(0) + h))
+        if obstacles is not None:
+            bounds = (np.minimum(bounds[0], obstacles.bounds[0]), np.maximum(bounds[1], obstacles.bounds[1]))
+    view = OrthoView(*bounds, width, height, yaw, pitch)
+    edges = box_edges(*bounds, step=0.5 / view.scale)
+    # what does not move is drawn once: the tank's edges and the obstacles
+    still, still_depth = background(width, height), np.full((height, width), -np.inf)
+    splat(still, still_depth, view, edges, np.full((len(edges), 3), 0.45), 0.5 / view.scale, shade_spheres=False)
+    if obstacles is not None:
+        splat_surface(still, still_depth, view, obstacles)
+    g = 9.81
+    v_ref = math.sqrt(2 * g * max(float(bounds[1][1] - bounds[0][1]), h))
+    out = Path(out) if out else run.path / ("preview.gif" if gif else "preview.mp4")
+    timing = []
+
+    def images():
+        bar = frame_bar(len(files), progress, "preview")
+        try:
+            for k, path in enumerate(files):
+                t0 = time.perf_counter()
+                data = first if k == 0 else load(path)
+                img, zb = still.copy(), still_depth.copy()
+                if source == PARTICLES:
+                    colors = ramp(np.linalg.norm(data["v"], axis=1) / v_ref)
+                    splat(img, zb, view, data["x"], colors, 0.5 * h)
+                else:
+                    lam = np.clip(data["n"] @ LIGHT, 0.0, 1.0)[:, None]
+                    splat(img, zb, view, data["x"], WATER * (0.35 + 0.65 * lam), 0.3 * h, shade_spheres=False)
+                pil = Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8))
+                label = f"frame {frame_index(path)}   t = {frame_index(path) / fps:.3f} s   {len(data['x']):,} {'particles' if source == PARTICLES else 'vertices'}"
+                ImageDraw.Draw(pil).text((8, 6), label, fill=(30, 30, 30))
+                timing.append(time.perf_counter() - t0)
+                bar.update(1)
+                yield np.asarray(pil)
+        finally:
+            bar.close()
+
+    write_video(images(), out, fps, gif=gif)
+    return {"path": out, "frames": len(files), "source": source, "seconds_per_frame": float(np.median(timing))}
+
+
+def _read_mesh_points(path: Path) -> dict:
+    import trimesh
+
+    mesh = trimesh.load(path, process=False, force="mesh")
+    x = np.asarray(mesh.vertices, float).reshape(-1, 3)
+    n = np.asarray(mesh.vertex_normals, float).reshape(-1, 3) if len(x) else np.zeros((0, 3))
+    return {"x": x, "n": n}

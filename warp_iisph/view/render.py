@@ -1,0 +1,289 @@
+"""Physically based frames of a run's meshes with Mitsuba 3 (the ``render`` extra): the liquid is
+a smooth dielectric (IOR 1.33) filled with an absorbing medium (its colour), under a procedural
+sky, over a checkered floor, with the run's obstacles (diffuse) and optionally the tank's far walls; a box-filtered path tracer at
+few samples, then OpenImageDenoise with albedo and normal guides. Frames go to
+``frames/frame_NNNNN.png`` and, together, into ``video.mp4``."""
+
+from __future__ import annotations
+
+import glob
+import math
+import os
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..run.folder import MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.progress import frame_bar
+from .materials import IOR, THICKNESS, material_color
+from .video import parse_resolution, write_video
+
+EXTRA = "pip install 'warp_iisph[render]'  (Mitsuba 3, pyoidn, imageio)"
+class RenderUnavailable(RuntimeError):
+    """The render extra (or a library it needs) is missing; the message says what to install."""
+
+
+def llvm_libraries() -> list[tuple[int, str]]:
+    """(major version, path) of the libLLVM shared libraries Dr.Jit could load."""
+    if os.environ.get("DRJIT_LIBLLVM_PATH"):
+        path = os.environ["DRJIT_LIBLLVM_PATH"]
+        m = re.search(r"LLVM[-.]?(\d+)", os.path.basename(path))
+        return [(int(m.group(1)) if m else 99, path)]
+    found = {}
+    for d in ("/usr/lib", "/usr/lib64", "/usr/local/lib", "/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/opt/homebrew/opt/llvm/lib"):
+        for path in glob.glob(os.path.join(d, "libLLVM*.so*")) + glob.glob(os.path.join(d, "llvm-*", "lib", "libLLVM*.so*")) + glob.glob(os.path.join(d, "libLLVM*.dylib")):
+            m = re.search(r"libLLVM[-.](?:so\.)?(\d+)", os.path.basename(path))
+            if m:
+                found.setdefault(int(m.group(1)), path)
+    return sorted(found.items())
+
+
+def choose_variant(device_hint: str | None = None, forced: str | None = None) -> tuple[str, str]:
+    """The fastest Mitsuba variant that works here, and a line saying why."""
+    try:
+        import mitsuba as mi
+    except ImportError:
+        raise RenderUnavailable(f"the render extra is not installed: {EXTRA}") from None
+    if forced:
+        if forced not in mi.variants():
+            raise RunError(f"--variant {forced!r}: must be one of {', '.join(mi.variants())}")
+        mi.set_variant(forced)
+        return forced, f"{forced} (asked for)"
+    notes = []
+    if device_hint != "cpu" and "cuda_ad_rgb" in mi.variants() and _cuda_present():
+        try:
+            mi.set_variant("cuda_ad_rgb")
+            return "cuda_ad_rgb", "cuda_ad_rgb (GPU)"
+        except Exception as e:  # noqa: BLE001 - any failure falls back to the CPU
+            notes.append(f"cuda_ad_rgb failed ({str(e).splitlines()[0]})")
+    libs = llvm_libraries()
+    good = [(v, p) for v, p in libs if v >= 16]
+    if "llvm_ad_rgb" in mi.variants() and good:
+        os.environ.setdefault("DRJIT_LIBLLVM_PATH", good[-1][1])
+        try:
+            mi.set_variant("llvm_ad_rgb")
+            return "llvm_ad_rgb", f"llvm_ad_rgb (libLLVM {good[-1][0]}, vectorised on the CPU)"
+        except Exception as e:  # noqa: BLE001
+            notes.append(f"llvm_ad_rgb failed ({str(e).splitlines()[0]})")
+    elif libs:
+        notes.append(f"llvm_ad_rgb needs libLLVM >= 16 and this machine has only libLLVM {', '.join(str(v) for v, _ in libs)} "
+                     "(Debian's libllvm15 crashes it); install libllvm16 or newer (e.g. apt install libllvm17) or point "
+                     "DRJIT_LIBLLVM_PATH at one")
+    else:
+        notes.append("llvm_ad_rgb needs libLLVM >= 16, none found (e.g. apt install libllvm17)")
+    mi.set_variant("scalar_rgb")
+    return "scalar_rgb", "scalar_rgb (slowest)" + ("; " + "; ".join(notes) if notes else "")
+
+
+def _cuda_present() -> bool:
+    try:
+        import ctypes
+
+        ctypes.CDLL("libcuda.so.1")
+        return True
+    except OSError:
+        return False
+
+
+def sky_bitmap(height: int = 128) -> np.ndarray:
+    """Equirectangular sky (y up): blue zenith, pale horizon, grey ground, and a small sun."""
+    width = 2 * height
+    theta = (np.arange(height) + 0.5) / height * math.pi  # 0 at the zenith
+    phi = (np.arange(width) + 0.5) / width * 2 * math.pi
+    elev = 0.5 * math.pi - theta[:, None]
+    t = np.clip(np.sin(elev), 0.0, 1.0)[..., None]
+    zenith, horizon, ground = np.array([0.25, 0.45, 0.85]), np.array([0.85, 0.9, 0.95]), np.array([0.35, 0.33, 0.3])
+    img = np.where(elev[..., None] >= 0, horizon * (1 - t**0.5) + zenith * t**0.5, ground) * np.ones((height, width, 3))
+    d = np.stack(np.broadcast_arrays(np.sin(theta)[:, None] * np.cos(phi)[None], np.cos(theta)[:, None] + 0 * phi[None],
+                                     np.sin(theta)[:, None] * np.sin(phi)[None]), -1)
+    sun = np.array([0.4, 0.75, 0.5]) / np.linalg.norm([0.4, 0.75, 0.5])
+    img += 400.0 * (d @ sun > math.cos(math.radians(2.0)))[..., None]
+    return img.astype(np.float32)
+
+
+def auto_camera(lower, upper, fov: float, aspect: float) -> tuple[np.ndarray, np.ndarray]:
+    """Look at the box's centre from the front, right and above, far enough to see all of it."""
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    target = 0.5 * (lower + upper)
+    radius = 0.5 * float(np.linalg.norm(upper - lower))
+    direction = np.array([0.45, 0.5, 1.0]) / np.linalg.norm([0.45, 0.5, 1.0])
+    half = math.radians(0.5 * fov)
+    half = min(half, math.atan(math.tan(half) / aspect))  # the narrower of the two
+    return target + direction * radius / math.sin(half) * 1.05, target
+
+
+def mesh_bounds(paths: list[Path]) -> tuple[np.ndarray, np.ndarray] | None:
+    import trimesh
+
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for p in paths:
+        v = np.asarray(trimesh.load(p, process=False, force="mesh").vertices).reshape(-1, 3)
+        if len(v):
+            lo, hi = np.minimum(lo, v.min(0)), np.maximum(hi, v.max(0))
+    return (lo, hi) if np.all(np.isfinite(lo)) else None
+
+
+def scene_dict(mesh_path: Path | None, camera, floor_y: float, extent: float, color, spp: int, width: int, height: int,
+               fov: float, walls: list | None = None, obstacles: Path | None = None) -> dict:
+    import mitsuba as mi
+
+    T = mi.ScalarTransform4f
+    origin, target = camera
+    sigma = -np.log(np.asarray(color)) / THICKNESS  # 1/m
+    scale = float(max(sigma.max(), 1e-6))
+    d = {
+        "type": "scene",
+        "integrator": {"type": "aov", "aovs": "albedo:albedo,nn:sh_normal", "img": {"type": "volpath", "max_depth": 24, "rr_depth": 12}},
+        "sensor": {
+            "type": "perspective", "fov": float(fov), "fov_axis": "x",
+            "to_world": T().look_at(origin=[float(c) for c in origin], target=[float(c) for c in target], up=[0.0, 1.0, 0.0]),
+            "sampler": {"type": "independent", "sample_count": int(spp)},
+            "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+        },
+        "sky": {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap())},
+        "floor": {
+            "type": "rectangle",
+            "to_world": T().translate([float(target[0]), float(floor_y), float(target[2])]).rotate([1, 0, 0], -90).scale(extent),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "checkerboard", "color0": 0.25, "color1": 0.55,
+                                                        "to_uv": T().scale([extent * 4, extent * 4, 1])}},
+        },
+    }
+    if mesh_path is not None:
+        d["liquid"] = {
+            "type": "obj", "filename": str(mesh_path), "face_normals": False,
+            "bsdf": {"type": "dielectric", "int_ior": IOR, "ext_ior": 1.0},
+            "interior": {"type": "homogeneous", "albedo": 0.0, "scale": scale,
+                         "sigma_t": {"type": "rgb", "value": [float(s / scale) for s in sigma]}},
+        }
+    if obstacles is not None:  # flat-shaded: boxes keep their edges
+        d["obstacles"] = {"type": "obj", "filename": str(obstacles), "face_normals": True,
+                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}}}
+    for k, (center, normal, size) in enumerate(walls or []):
+        d[f"wall_{k}"] = {"type": "rectangle", "to_world": _rectangle(T, center, normal, size),
+                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.72, 0.75]}}}
+    return d
+
+
+def _rectangle(T, center, normal, size):
+    """Mitsuba's rectangle ([-1, 1]^2 in z = 0) moved to ``center`` facing ``normal``, ``size`` = half extents."""
+    n = np.asarray(normal, float)
+    up = np.array([0.0, 1.0, 0.0]) if abs(n[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    return T().look_at(origin=[float(c) for c in center], target=[float(c) for c in np.asarray(center) + n], up=up.tolist()) \
+        .scale([float(size[0]), float(size[1]), 1.0])
+
+
+def far_walls(lower, upper, eye) -> list:
+    """The vertical tank faces on the far side of the liquid from the camera, facing inward."""
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    c = 0.5 * (lower + upper)
+    half = 0.5 * (upper - lower)
+    walls = []
+    for axis in (0, 2):
+        for sign in (-1.0, 1.0):
+            face = c.copy()
+            face[axis] += sign * half[axis]
+            if (np.asarray(eye)[axis] - c[axis]) * sign < 0:  # the camera is on the other side
+                normal = np.zeros(3)
+                normal[axis] = -sign
+                other = 2 if axis == 0 else 0
+                walls.append((face, normal, (half[other], half[1])))
+    return walls
+
+
+def denoise(color: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    try:
+        import pyoidn
+    except ImportError:
+        raise RenderUnavailable(f"OpenImageDenoise (pyoidn) is not installed: {EXTRA}; or pass --no-denoise") from None
+    return pyoidn.denoise(np.ascontiguousarray(color, np.float32), np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32),
+                          np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True)
+
+
+def to_srgb8(linear: np.ndarray) -> np.ndarray:
+    x = np.clip(linear, 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return (s * 255.0 + 0.5).astype(np.uint8)
+
+
+def render_image(scene: dict, use_denoiser: bool = True, seed: int = 0) -> np.ndarray:
+    """Render a scene dict; returns the sRGB uint8 image."""
+    import mitsuba as mi
+
+    sc = mi.load_dict(scene)
+    mi.render(sc, seed=seed)
+    channels = dict(sc.sensors()[0].film().bitmap().split())
+    color = np.array(channels["<root>"])[..., :3]
+    if use_denoiser:
+        color = denoise(color, np.array(channels["albedo"])[..., :3], np.array(channels["nn"])[..., :3])
+    return to_srgb8(color)
+
+
+def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: str = "water", frames: str | None = None,
+               walls: bool = False, use_denoiser: bool = True, gif: bool = False, overwrite: bool = False,
+               variant: str | None = None, progress: bool = True) -> dict:
+    """Render every (selected) mesh frame of a run into ``frames/`` and ``video.mp4``; frames
+    already rendered are kept unless ``overwrite``."""
+    import time
+
+    import imageio.v2 as imageio
+
+    run = RunFolder.existing(run_dir)
+    record = run.record()
+    width, height = parse_resolution(resolution)
+    if not 1 <= spp <= 65536:
+        raise RunError(f"--spp {spp}: must be in [1, 65536]")
+    color = material_color(material)
+    files = select_frames(run.frames(MESHES), frames)
+    chosen_variant, why = choose_variant(record.get("device", "cpu").split(":")[0], variant)
+    cam = record.get("scene", {}).get("camera", {}) or {}
+    fov = float(cam.get("fov") or 40.0)
+    tank = tank_bounds(record)
+    liquid = mesh_bounds([files[0], files[len(files) // 2], files[-1]])
+    if liquid is None and tank is None:
+        raise RunError(f"{run.path / MESHES}: the meshes are empty and the run has no box tank to frame")
+    box = liquid if liquid is not None else tank
+    solid = run.obstacle_mesh()
+    if solid is not None:  # frame the obstacles with the liquid
+        box = (np.minimum(box[0], solid.bounds[0]), np.maximum(box[1], solid.bounds[1]))
+    if cam.get("position"):
+        eye = np.asarray(cam["position"], float)
+        target = np.asarray(cam["target"], float) if cam.get("target") else 0.5 * (box[0] + box[1])
+    else:
+        eye, target = auto_camera(*box, fov, width / height)
+    floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
+    extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
+    wall_list = far_walls(*tank, eye) if walls and tank is not None else []
+    out = run.path / "frames"
+    out.mkdir(exist_ok=True)
+    if progress:
+        print(f"rendering with Mitsuba {chosen_variant}: {why}", file=sys.stderr)
+    bar = frame_bar(len(files), progress, "render")
+    rendered, skipped, seconds = 0, 0, []
+    pngs = []
+    try:
+        for path in files:
+            png = out / f"frame_{frame_index(path):05d}.png"
+            pngs.append(png)
+            if png.exists() and not overwrite:
+                skipped += 1
+            else:
+                t0 = time.perf_counter()
+                empty = os.path.getsize(path) == 0 or b"\nf " not in path.read_bytes()
+                sd = scene_dict(None if empty else path, (eye, target), floor_y, extent, color, spp, width, height, fov, wall_list,
+                                obstacles=run.obstacles if solid is not None else None)
+                image = render_image(sd, use_denoiser, seed=frame_index(path))
+                tmp = png.with_name(png.stem + ".part.png")
+                imageio.imwrite(tmp, image)
+                tmp.replace(png)
+                rendered += 1
+                seconds.append(time.perf_counter() - t0)
+            bar.update(1)
+    finally:
+        bar.close()
+    fps = run.fps(record)
+    video = run.path / ("video.gif" if gif else "video.mp4")
+    write_video((imageio.imread(p) for p in pngs), video, fps, gif=gif)
+    return {"variant": chosen_variant, "why": why, "rendered": rendered, "skipped": skipped, "frames": len(pngs),
+            "video": video, "seconds_per_frame": float(np.median(seconds)) if seconds else 0.0}

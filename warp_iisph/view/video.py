@@ -1,0 +1,37 @@
+"""Images out: a ``WIDTHxHEIGHT`` option, and image sequences written as an MP4 or a GIF."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..run.folder import RunError
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise RunError(f"--resolution {text!r}: must be WIDTHxHEIGHT, e.g. 640x360") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192) or w % 2 or h % 2:
+        raise RunError(f"--resolution {text}: width and height must be even numbers in [16, 8192]")
+    return w, h
+
+
+def write_video(images, path, fps: float, gif: bool = False) -> None:
+    """Write RGB uint8 frames (an iterable of (H, W, 3) arrays) as an MP4 (H.264) or a GIF."""
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".part" + path.suffix)
+    if gif:
+        writer = imageio.get_writer(tmp, mode="I", duration=1000.0 / fps, loop=0)
+    else:
+        writer = imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=2, pixelformat="yuv420p")
+    try:
+        for im in images:
+            writer.append_data(np.asarray(im))
+    finally:
+        writer.close()
+    tmp.replace(path)  # a video that is there is complete
