@@ -8,7 +8,7 @@ from pathlib import Path
 from ..engine.timing import StageTimes
 from ..scene import SurfaceSettings
 from ..surface import SurfaceMesh, SurfaceReconstructor
-from .folder import MESHES, PARTICLES, RunError, RunFolder, frame_index
+from .folder import PARTICLES, RunError, RunFolder, frame_index
 from .formats import read_particles, write_obj
 from .progress import frame_bar
 

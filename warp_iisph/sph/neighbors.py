@@ -11,7 +11,6 @@ Fluid particles are periodically reordered by grid cell so that neighbours are c
 
 from __future__ import annotations
 
-import numpy as np
 import warp as wp
 
 from ..engine.launch import launch_particles

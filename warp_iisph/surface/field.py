@@ -310,22 +310,6 @@ class SparseField:
         return out
 
 
-def _tables(device) -> dict:
-    """Warp's public marching-cubes tables, plus each cube edge as (lowest corner, axis)."""
-    mc = warp.geometry.IsoSurfaceMarchingCubes
-    corners = np.array(mc.CUBE_CORNER_OFFSETS, dtype=np.int32)
-    origin = []
-    for a, b in mc.EDGE_TO_CORNERS:
-        lo = np.minimum(corners[a], corners[b])
-        origin.append((*lo.tolist(), int(np.argmax(corners[a] != corners[b]))))
-    return {
-        "corners": wp.array(corners, dtype=wp.vec3i, device=device),
-        "tri_range": wp.array(np.array(mc.CASE_TO_TRI_RANGE, dtype=np.int32), device=device),
-        "tri_edges": wp.array(np.array(mc.TRI_LOCAL_INDICES, dtype=np.int32), device=device),
-        "edge_origin": wp.array(np.array(origin, dtype=np.int32), dtype=wp.vec4i, device=device),
-    }
-
-
 @wp.kernel
 def particle_bounds(x: wp.array(dtype=wp.vec3), bounds: wp.array(dtype=wp.vec3), bad: wp.array(dtype=wp.int32)):
     """The finite particles' bounding box (``bounds`` starts at +-inf) and the non-finite count:
