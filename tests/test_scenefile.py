@@ -64,7 +64,8 @@ BAD = {
     "bad shape": (GOOD + '[[obstacles]]\nshape = "cone"\n', "obstacles[0].shape = 'cone': must be one of box, sphere, mesh"),
     "missing key": (GOOD + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.7, 0.7]\n', "obstacles[0].radius: required"),
     "bad toml": ("spacing = = 1\n", "not valid TOML"),
-    "too many particles": (GOOD.replace("spacing = 0.05", "spacing = 0.0002"), "spacing: "),
+    "too many particles": (GOOD.replace("spacing = 0.05", "spacing = 0.0002"), "spacing = 0.0002: the scene would need about"),
+    "more than memory holds": (GOOD.replace("spacing = 0.05", "spacing = 0.0005"), "GiB but"),
 }
 
 
@@ -73,7 +74,7 @@ def test_bad_scene_file_is_one_line_exit_2(case, tmp_path, capsys):
     text, expected = BAD[case]
     (tmp_path / "junk.obj").write_text("v 0 0\nf 1 2 3 4\nthis is not a mesh\n")
     path = _write(tmp_path, text)
-    code = main(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress", "--duration", "0.01"])
+    code = main(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress", "--duration", "0.05"])
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1 and "Traceback" not in err

@@ -130,7 +130,7 @@ def test_run_with_mesh_and_mesh_command(tmp_path, capsys):
     assert "no such run folder" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
     assert main(["mesh", str(tmp_path / "empty"), "--no-progress"]) == 2
-    assert "empty/particles: no frame_*.ply files" in capsys.readouterr().err
+    assert "empty: not a warp-iisph run (no run.json); pass --spacing" in capsys.readouterr().err
 
 
 def test_cuda_mesh_matches_cpu(ball):

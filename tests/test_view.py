@@ -110,8 +110,11 @@ def test_render_run_writes_frames_and_video_and_skips_done_frames(tiny_run, caps
     assert [p.name for p in pngs] == [f"frame_{k:05d}.png" for k in range(4)]
     assert imageio.imread(pngs[0]).shape == (36, 64, 3)
     assert len(video_frames(tiny_run / "video.mp4")) == 4
-    assert main(args) == 0
+    assert main(args + ["--walls"]) == 0
     assert "rendered 0 frames (4 already there)" in capsys.readouterr().out
+    # frames rendered with other settings are stale: they are made again, not reused
+    assert main(args) == 0
+    assert "rendered 4 frames (0 already there)" in capsys.readouterr().out
 
 
 def test_missing_extra_is_a_clear_message(tiny_run, monkeypatch, capsys):
@@ -203,17 +206,11 @@ def obstacle_run(tmp_path_factory):
     return out
 
 
-def test_run_writes_its_obstacles_once(obstacle_run, tiny_run, tmp_path):
-    from warp_iisph.run.runner import prepare_output
-
+def test_run_writes_its_obstacles_once(obstacle_run, tiny_run):
     mesh = trimesh.load(obstacle_run / "obstacles.obj", force="mesh")
     assert mesh.is_watertight and np.allclose(mesh.bounds, PILLAR, atol=1e-6)
     assert np.isclose(mesh.volume, 0.12 * 0.3 * 0.12)  # wound outward
     assert RunFolder(tiny_run).obstacle_mesh() is None and not (tiny_run / "obstacles.obj").exists()
-    # --overwrite clears a previous run's obstacles with its frames
-    (tmp_path / "obstacles.obj").write_text("v 0 0 0\n")
-    prepare_output(tmp_path, overwrite=True)
-    assert not (tmp_path / "obstacles.obj").exists()
 
 
 def _warm_pixels(image) -> int:

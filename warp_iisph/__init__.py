@@ -10,7 +10,16 @@ __version__ = "0.1.0"
 
 from .scene import Box, Camera, MeshShape, Output, Physics, Scene, Sphere, load_scene
 from .scene import cases as scenes
-from .stepping import DivergenceError, Simulation
+
+
+def __getattr__(name: str):
+    # the simulation imports Warp: only when asked for, so that `warp-iisph` starts (and can be
+    # interrupted, or report bad input) before Warp loads
+    if name in ("Simulation", "DivergenceError"):
+        from . import stepping
+
+        return getattr(stepping, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "Box", "Camera", "MeshShape", "Output", "Physics", "Scene", "Sphere", "Simulation", "DivergenceError",

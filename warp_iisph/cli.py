@@ -1,14 +1,30 @@
-"""Command line: ``warp-iisph run | scenes | mesh | preview | render | blender-script``."""
+"""Command line: ``warp-iisph run | scenes | mesh | preview | render | blender-script``.
+
+Every error is one line on stderr: exit status 2 for bad input (a file, key or argument and its
+allowed range), 1 for a failure at run time, 130 for Ctrl-C and 143 for SIGTERM; ``--debug``
+shows the traceback instead.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+
+EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 2, 1, 130, 143
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, with its usage errors in one line."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, f"warp-iisph: error: {message} (see {self.prog} --help)\n")
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="warp-iisph", description="IISPH liquids on NVIDIA Warp")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = OneLineParser(prog="warp-iisph", description="IISPH liquids on NVIDIA Warp")
+    p.add_argument("--debug", action="store_true", help="show the Python traceback of an error instead of one line")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     run = sub.add_parser("run", help="simulate a scene file (or a bundled scene) into an output folder")
     run.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene (see `warp-iisph scenes`)")
     run.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's output.duration)")
@@ -27,8 +43,13 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
-    mesh = sub.add_parser("mesh", help="mesh the particle frames of a run into mesh/frame_NNNNN.obj")
-    mesh.add_argument("run_dir", help="an output folder of `warp-iisph run`")
+    mesh = sub.add_parser("mesh", help="mesh a run's particle frames (or any particle files) into OBJ surfaces")
+    mesh.add_argument("run_dir", metavar="PATH",
+                      help="an output folder of `warp-iisph run` (meshes go to PATH/mesh/), or a particle file or a folder of "
+                           "them in any format meshio reads (PLY, VTK, VTU; needs --spacing)")
+    mesh.add_argument("--spacing", type=float, default=None, help="particle spacing h in metres (default: the run's)")
+    mesh.add_argument("--out", default=None, help="output folder for particle files that are not a run (default: beside them, "
+                                                  "in mesh/ for a folder)")
     mesh.add_argument("--cell", type=float, default=None, help="grid cell, in particle spacings (default 0.5)")
     mesh.add_argument("--r0", type=float, default=None, help="particle radius of the distance field, in spacings (default 0.5)")
     mesh.add_argument("--radius", type=float, default=None, help="kernel radius R, in spacings (default 2)")
@@ -36,7 +57,7 @@ def _parser() -> argparse.ArgumentParser:
     mesh.add_argument("--passes", type=int, default=None, help="smoothing passes (default 3)")
     mesh.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     mesh.add_argument("--threads", default=None, help="CPU threads (default: all available cores)")
-    mesh.add_argument("--overwrite", action="store_true", help="re-mesh frames that already have a mesh")
+    mesh.add_argument("--overwrite", action="store_true", help="re-mesh frames that already have a mesh, also with other settings")
     mesh.add_argument("--no-progress", action="store_true", help="no progress bar")
     render = sub.add_parser("render", help="path-trace a run's meshes into frames/ and video.mp4 (needs the render extra)")
     render.add_argument("run_dir", help="an output folder of `warp-iisph run --mesh` (or of `warp-iisph mesh`)")
@@ -69,122 +90,156 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _view_command(args) -> int:
-    """preview, render and blender-script: they read a run folder and write images or a script."""
-    from .run.folder import RunError
+def _preview(args) -> int:
+    from .view.preview import preview_run
 
-    try:
-        if args.command == "preview":
-            from .view.preview import preview_run
-
-            r = preview_run(args.run_dir, args.out, args.source, args.resolution, args.frames, args.fps, args.gif, args.yaw,
-                            args.pitch, progress=not args.no_progress)
-            print(f"preview of {r['frames']} frames ({r['source']}, {1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}")
-        elif args.command == "render":
-            from .view.render import RenderUnavailable, render_run
-
-            try:
-                r = render_run(args.run_dir, args.spp, args.resolution, args.material, args.frames, args.walls, not args.no_denoise,
-                               args.gif, args.overwrite, args.variant, progress=not args.no_progress)
-            except RenderUnavailable as e:
-                print(f"warp-iisph: error: render: {e}", file=sys.stderr)
-                return 2
-            print(f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
-                  f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}")
-        else:
-            from .view.blender import blender_script
-
-            path = blender_script(args.run_dir, args.out, args.material, args.frames)
-            print(f"wrote {path}; run: blender -b -P {path} -- --render")
-    except RunError as e:
-        print(f"warp-iisph: error: {e}", file=sys.stderr)
-        return 2
+    r = preview_run(args.run_dir, args.out, args.source, args.resolution, args.frames, args.fps, args.gif, args.yaw,
+                    args.pitch, progress=not args.no_progress)
+    print(f"preview of {r['frames']} frames ({r['source']}, {1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}")
     return 0
 
 
-def _mesh_command(args) -> int:
-    from pathlib import Path
-
-    from .engine.devices import checked_device
-    from .run.meshing import mesh_run
+def _render(args) -> int:
+    from .view.render import RenderUnavailable, render_run
 
     try:
-        overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes") if getattr(args, k) is not None}
-        device = checked_device(args.device)
-        result = mesh_run(args.run_dir, overrides, device, overwrite=args.overwrite, progress=not args.no_progress)
-    except ValueError as e:
-        print(f"warp-iisph: error: {e}", file=sys.stderr)
-        return 2
-    secs = ", ".join(f"{k} {v:.2f} s" for k, v in result["stage_seconds"].items())
-    print(f"meshed {result['written']} frames ({result['skipped']} already there) -> {Path(args.run_dir) / 'mesh'}; {secs}")
+        r = render_run(args.run_dir, args.spp, args.resolution, args.material, args.frames, args.walls, not args.no_denoise,
+                       args.gif, args.overwrite, args.variant, progress=not args.no_progress)
+    except RenderUnavailable as e:
+        raise ValueError(f"render: {e}") from None
+    print(f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
+          f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}")
     return 0
 
 
-def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    from .scene import SceneFileError, bundled_scenes, load_scene, resolve_scene
+def _blender_script(args) -> int:
+    from .view.blender import blender_script
+
+    path = blender_script(args.run_dir, args.out, args.material, args.frames)
+    print(f"wrote {path}; run: blender -b -P {path} -- --render")
+    return 0
+
+
+def _scenes(args) -> int:
+    from .scene import bundled_scenes
     from .scene.library import describe
 
-    if args.command in ("preview", "render", "blender-script"):
-        return _view_command(args)
-    if args.command == "scenes":
-        for name, path in bundled_scenes().items():
-            print(f"{name:16s} {describe(path)}")
-        return 0
+    for name, path in bundled_scenes().items():
+        print(f"{name:16s} {describe(path)}")
+    return 0
+
+
+def _start_warp(threads) -> None:
+    """Warp, started quietly; ``--threads`` applied."""
     import warp as wp
 
-    wp.config.log_level = wp.LOG_WARNING
-    from .engine.devices import checked_device
-    from .run.runner import OutputExistsError, run_scene
+    from .engine.devices import init_warp
 
-    if args.threads is not None:
+    wp.config.log_level = wp.LOG_WARNING
+    init_warp()
+    if threads is not None:
         from .engine.launch import set_threads
 
-        try:
-            set_threads(args.threads)
-        except ValueError as e:
-            print(f"warp-iisph: error: --{e}", file=sys.stderr)
-            return 2
-    if args.command == "mesh":
-        return _mesh_command(args)
-    source, out = args.scene, args.out
+        set_threads(threads, "--threads")
+
+
+def _mesh(args) -> int:
+    from .engine.devices import checked_device
+    from .run.meshing import mesh_path
+
+    _start_warp(args.threads)
+    overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes") if getattr(args, k) is not None}
+    result = mesh_path(args.run_dir, overrides, checked_device(args.device), overwrite=args.overwrite,
+                       progress=not args.no_progress, spacing=args.spacing, out=args.out)
+    secs = ", ".join(f"{k} {v:.2f} s" for k, v in result["stage_seconds"].items())
+    print(f"meshed {result['written']} frames ({result['skipped']} already there) -> {result['out']}; {secs}")
+    return 0
+
+
+def _run(args) -> int:
+    from .engine.devices import checked_device
+    from .scene import load_scene, resolve_scene
+
+    overrides = list(args.overrides)
+    if args.spacing is not None:
+        overrides.append(f"spacing={args.spacing!r}")
+    if args.method:
+        overrides.append(f'physics.method="{args.method}"')
+    if args.mesh:
+        overrides.append("output.mesh=true")
+    scene = load_scene(args.scene, overrides)
+    _start_warp(args.threads)
+    device = checked_device(args.device)
+    out = args.out or f"runs/{scene.name}"
+    from .run.runner import run_scene
+
     try:
-        overrides = list(args.overrides)
-        if args.spacing is not None:
-            overrides.append(f"spacing={args.spacing!r}")
-        if args.method:
-            overrides.append(f'physics.method="{args.method}"')
-        if args.mesh:
-            overrides.append("output.mesh=true")
-        scene = load_scene(args.scene, overrides)
-        source = str(resolve_scene(args.scene))
-        duration = scene.output.duration if args.duration is None else args.duration
-        fps = scene.output.fps if args.fps is None else args.fps
-        try:
-            device = checked_device(args.device)
-        except ValueError as e:
-            raise SceneFileError(str(e)) from None
-        out = args.out or f"runs/{scene.name}"
-        record = run_scene(scene, out, duration, fps, device, overwrite=args.overwrite, progress=not args.no_progress, graph=args.graph)
-    except (SceneFileError, OutputExistsError) as e:
-        print(f"warp-iisph: error: {e}", file=sys.stderr)
-        return 2
-    except ValueError as e:  # found while building the particles (memory, nothing fits)
-        print(f"warp-iisph: error: {source}: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:  # a frame could not be written (disk full, permissions); earlier frames are kept
-        print(f"warp-iisph: error: writing the run to {out}: {e}", file=sys.stderr)
-        return 1
+        record = run_scene(scene, out, args.duration, args.fps, device, overwrite=args.overwrite, progress=not args.no_progress,
+                           graph=args.graph)
+    except ValueError as e:
+        if str(e).startswith("--"):  # an argument of the command
+            raise
+        raise ValueError(f"{resolve_scene(args.scene)}: {e}") from None  # found while building the scene's particles
     t = record["totals"]
+    o = record["output"]
+    wrote = " and ".join(k for k in ("particles", "mesh") if o[k]) or "no frame files (output.particles and output.mesh are false)"
+    cut = ""
+    if record["requested_duration"] != record["duration"]:
+        cut = f" (the {record['requested_duration']:g} s asked for, cut to whole frames)"
     summary = (
-        f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated in {t['wall_seconds']:.1f} s wall, "
-        f"{t['frames']} frames, {record['particles']['fluid']} particles, mean {t['mean_iterations']:.1f} iterations -> {out}"
+        f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated{cut} in {t['wall_seconds']:.1f} s wall, "
+        f"{t['frames']} frames of {wrote}, {record['particles']['fluid']} particles, mean {t['mean_iterations']:.1f} iterations, "
+        f"mean compression {100 * t['mean_compression']:.3f} % -> {out}"
     )
+    if t["unconverged_steps"]:
+        ph = scene.physics
+        print(f"warp-iisph: warning: {t['unconverged_steps']} of {t['steps']} steps stopped at max_iterations = {ph.max_iterations} "
+              f"above eta = {100 * ph.eta:g} % (worst {100 * t['worst_unconverged_error']:.3f} %)", file=sys.stderr)
     if record["ended"] == "completed":
         print(summary)
         return 0
     print(f"warp-iisph: {record['message']}; {summary}", file=sys.stderr)
-    return 130 if record["ended"] == "interrupted" else 1
+    return {"interrupted": EXIT_INTERRUPTED, "terminated": EXIT_TERMINATED}.get(record["ended"], EXIT_FAILED)
+
+
+COMMANDS = {"run": _run, "scenes": _scenes, "mesh": _mesh, "preview": _preview, "render": _render, "blender-script": _blender_script}
+
+
+def _on_sigterm(signum, frame):
+    from .run.runner import Terminated
+
+    raise Terminated()
+
+
+def main(argv=None) -> int:
+    debug = "--debug" in (sys.argv[1:] if argv is None else argv)
+    try:
+        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            signal.signal(signal.SIGTERM, _on_sigterm)
+        args = _parser().parse_args(argv)
+        return COMMANDS[args.command](args)
+    except KeyboardInterrupt as e:
+        terminated = type(e).__name__ == "Terminated"
+        print(f"warp-iisph: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+    except Exception as e:
+        if debug:
+            raise
+        code, text = _one_line(e)
+        print(f"warp-iisph: error: {text}", file=sys.stderr)
+        return code
+
+
+def _one_line(e: Exception) -> tuple[int, str]:
+    """Exit status and message of an error: bad input (ValueError: a file, key or argument out of
+    range) is 2, anything else 1."""
+    text = " ".join(str(e).split()) or type(e).__name__
+    if isinstance(e, ValueError):
+        return EXIT_BAD_INPUT, text
+    if isinstance(e, OSError):
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        return EXIT_FAILED, f"{where}{e.strerror or text}"
+    return EXIT_FAILED, f"{type(e).__name__}: {text} (an internal error: run with --debug for the traceback)"
 
 
 if __name__ == "__main__":

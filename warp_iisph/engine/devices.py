@@ -1,6 +1,10 @@
-"""Device names: what a user types (``cpu``, ``cuda``, ``cuda:1``) as the Warp device it means."""
+"""Devices: what a user types (``cpu``, ``cuda``, ``cuda:1``) as the Warp device it means, and Warp's start-up."""
 
 from __future__ import annotations
+
+import os
+import sys
+import tempfile
 
 
 def device_name(name: str) -> str:
@@ -22,3 +26,32 @@ def checked_device(name: str) -> str:
         known = ", ".join(["cpu", "cuda"] + [d.alias for d in wp.get_cuda_devices()])
         raise ValueError(f"--device {name}: unknown device; choose one of {known}") from None
     return device
+
+
+# What Warp's native library prints at start-up on a machine without an NVIDIA driver: on such a
+# machine the CPU is the device, and a command that asks for CUDA says so itself.
+NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+
+
+def init_warp() -> None:
+    """``wp.init()`` without Warp's native no-driver warning on stderr (anything else it prints
+    there is passed on)."""
+    import warp as wp
+    from warp._src import context
+
+    if context.runtime is not None:
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        capture.seek(0)
+        text = capture.read().decode(errors="replace")
+    for line in text.splitlines(keepends=True):
+        if NO_DRIVER not in line:
+            sys.stderr.write(line)

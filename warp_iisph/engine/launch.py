@@ -17,6 +17,7 @@ The thread count defaults to the cores this process may use; :func:`set_threads`
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
@@ -28,6 +29,7 @@ MIN_CHUNK = 2048
 _threads: int | None = None
 _pool: ThreadPoolExecutor | None = None
 _loaded: set = set()
+_pool_lock = threading.Lock()
 
 
 def available_cores() -> int:
@@ -56,23 +58,29 @@ def _parse_threads(value, name: str) -> int:
     return n
 
 
-def set_threads(n: int) -> None:
-    """Use ``n`` threads for CPU launches (1 = single launches, as Warp does by itself)."""
+def set_threads(n: int, name: str = "threads") -> None:
+    """Use ``n`` threads for CPU launches (1 = single launches, as Warp does by itself); ``name``
+    is what an error calls the value (``--threads``)."""
     global _threads, _pool
-    n = _parse_threads(n, "threads")
-    if n != _threads and _pool is not None:
-        _pool.shutdown(wait=True)
-        _pool = None
-    _threads = n
-
-
-def _get_pool(n: int) -> ThreadPoolExecutor:
-    global _pool
-    if _pool is None or _pool._max_workers < n - 1:
-        if _pool is not None:
+    n = _parse_threads(n, name)
+    with _pool_lock:
+        if n != _threads and _pool is not None:
             _pool.shutdown(wait=True)
-        _pool = ThreadPoolExecutor(max_workers=max(1, n - 1), thread_name_prefix="warp_iisph")
-    return _pool
+            _pool = None
+        _threads = n
+
+
+def _submit(n: int, calls: list) -> list:
+    """Submit ``calls`` (function, args) to a pool of at least ``n - 1`` workers. The frame
+    writer's thread launches kernels too (OBJ text), so the pool is replaced and used under one
+    lock: never shut down between a thread's look-up and its submits."""
+    global _pool
+    with _pool_lock:
+        if _pool is None or _pool._max_workers < n - 1:
+            if _pool is not None:
+                _pool.shutdown(wait=True)
+            _pool = ThreadPoolExecutor(max_workers=max(1, n - 1), thread_name_prefix="warp_iisph")
+        return [_pool.submit(fn, *args) for fn, args in calls]
 
 
 def chunks(n: int, parts: int) -> list[tuple[int, int]]:
@@ -102,6 +110,10 @@ def recording():
         _recording -= 1
 
 
+def _launch_chunk(kernel, start: int, count: int, inputs: list, device) -> None:
+    wp.launch(kernel, dim=count, inputs=[start, *inputs], device=device)
+
+
 def launch_particles(kernel, n: int, inputs: list, device) -> None:
     """Launch ``kernel`` over elements ``0 .. n-1`` (``offset`` prepended to ``inputs``), split
     into one chunk per thread on the CPU."""
@@ -116,8 +128,7 @@ def launch_particles(kernel, n: int, inputs: list, device) -> None:
         _loaded.add(key)
         return
     ranges = chunks(n, parts)
-    pool = _get_pool(parts)
-    futures = [pool.submit(wp.launch, kernel, dim=c, inputs=[s, *inputs], device=device) for s, c in ranges[1:]]
+    futures = _submit(parts, [(_launch_chunk, (kernel, s, c, inputs, device)) for s, c in ranges[1:]])
     s, c = ranges[0]
     wp.launch(kernel, dim=c, inputs=[s, *inputs], device=device)
     for f in futures:

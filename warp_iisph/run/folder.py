@@ -10,22 +10,31 @@ RUN/obstacles.obj               static obstacles         RUN/preview.mp4, frames
 from __future__ import annotations
 
 import json
-import shutil
+import uuid
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import write_json
+
 PARTICLES = "particles"
 MESHES = "mesh"
+FRAMES = "frames"  # rendered images (warp-iisph render)
 STATS = "stats.jsonl"
 RECORD = "run.json"
 OBSTACLES = "obstacles.obj"
+SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 DEFAULT_FPS = 30.0
 _FRAME_EXT = {PARTICLES: "ply", MESHES: "obj"}
 
 
 class RunError(ValueError):
     """A run folder that cannot be used as asked (missing, no frames, bad selection, bad record)."""
+
+
+def new_run_id() -> str:
+    """A name for one run, which every file derived from it records."""
+    return uuid.uuid4().hex
 
 
 def frame_index(path: Path) -> int:
@@ -93,6 +102,22 @@ class RunFolder:
         except json.JSONDecodeError as e:
             raise RunError(f"{self.record_path}: not valid JSON ({e.msg}, line {e.lineno})") from None
 
+    def write_record(self, record: dict) -> None:
+        """Replace ``run.json`` atomically."""
+        write_json(self.record_path, record)
+
+    def provenance(self, folder: str) -> dict | None:
+        """What the files in ``folder`` (``mesh``, ``frames``) were made from, or ``None``."""
+        path = self.path / folder / SOURCE
+        try:
+            return json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError):
+            return None
+
+    def write_provenance(self, folder: str, run_id: str | None, settings: dict) -> None:
+        """Record that the files in ``folder`` come from run ``run_id`` made with ``settings``."""
+        write_json(self.path / folder / SOURCE, {"run_id": run_id, "settings": settings})
+
     def fps(self, record: dict | None = None) -> float:
         """Frames per simulated second the run was written at."""
         record = self.record() if record is None else record
@@ -102,22 +127,10 @@ class RunFolder:
         """The run's obstacles as one ``trimesh.Trimesh``, or ``None`` when it has none."""
         if not self.obstacles.is_file():
             return None
-        import trimesh
+        from .formats import read_mesh
 
-        try:
-            mesh = trimesh.load(self.obstacles, process=False, force="mesh")
-        except Exception as e:  # trimesh raises many kinds for a bad file
-            raise RunError(f"{self.obstacles}: cannot read the obstacles ({type(e).__name__}: {e})") from None
+        mesh = read_mesh(self.obstacles)
         return mesh if len(getattr(mesh, "faces", ())) else None
-
-    def clear(self) -> None:
-        """Remove what a run wrote here (before a run replaces it)."""
-        for name in (PARTICLES, MESHES, STATS, RECORD, OBSTACLES):
-            p = self.path / name
-            if p.is_dir():
-                shutil.rmtree(p)
-            elif p.exists():
-                p.unlink()
 
 
 def select_frames(files: list[Path], spec: str | None) -> list[Path]:

@@ -7,27 +7,17 @@ that exists is complete even if the run is interrupted.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import meshio
 import numpy as np
 
+from .atomic import atomic_write, jsonable
 from .obj_text import obj_bytes
 
 
-def _atomic_target(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+class FileFormatError(ValueError):
+    """A file that cannot be read as what it should be; the message names the file."""
 
 
 def write_particles(path, positions, velocities, densities, pressures, ids=None) -> None:
@@ -44,45 +34,67 @@ def write_particles(path, positions, velocities, densities, pressures, ids=None)
         "id": np.arange(n, dtype=np.int32) if ids is None else np.asarray(ids, dtype=np.int32),
     }
     mesh = meshio.Mesh(np.asarray(positions, dtype=np.float32), [], point_data=data)
-    _atomic_target(path, lambda tmp: meshio.write(tmp, mesh, file_format="ply", binary=True))
+    atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format="ply", binary=True))
+
+
+def read_points(path) -> "meshio.Mesh":
+    """Any point file meshio reads (PLY, VTK, VTU, ...); ``FileFormatError`` naming the file and
+    what is wrong, never meshio's own exit."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError(f"{path}: no such file")
+    try:
+        mesh = meshio.read(path)
+    except SystemExit:  # meshio exits on some malformed headers
+        raise FileFormatError(f"{path}: not a readable point file (malformed header)") from None
+    except Exception as e:  # meshio and NumPy raise many kinds for a bad file
+        raise FileFormatError(f"{path}: not a readable point file ({type(e).__name__}: {e})") from None
+    points = np.asarray(mesh.points, dtype=np.float32)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise FileFormatError(f"{path}: holds no 3D points")
+    return mesh
+
+
+def read_mesh(path):
+    """A triangle mesh file as a ``trimesh.Trimesh`` (``FileFormatError`` naming the file when it
+    cannot be read, e.g. cut off mid-write by another program)."""
+    import trimesh
+
+    path = Path(path)
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+        faces = np.asarray(mesh.faces)
+        vertices = np.asarray(mesh.vertices)
+    except Exception as e:  # trimesh raises many kinds for a bad file
+        raise FileFormatError(f"{path}: not a readable mesh ({type(e).__name__}: {e})") from None
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise FileFormatError(f"{path}: faces refer to missing vertices (cut off?)")
+    return mesh
 
 
 def read_particles(path) -> dict[str, np.ndarray]:
-    """Inverse of :func:`write_particles`: ``{"x": (N, 3), "v": (N, 3), "density", "pressure", "id"}``."""
-    mesh = meshio.read(path, file_format="ply")
+    """A particle frame: ``{"x": (N, 3), "v": (N, 3) or None, "density", "pressure", "id"}``; the
+    fields a frame of another tool lacks are ``None`` (positions are enough to mesh it)."""
+    mesh = read_points(path)
     pd = mesh.point_data
-    return {
-        "x": np.asarray(mesh.points, dtype=np.float32),
-        "v": np.stack([pd["vx"], pd["vy"], pd["vz"]], axis=1),
-        "density": np.asarray(pd["density"]),
-        "pressure": np.asarray(pd["pressure"]),
-        "id": np.asarray(pd["id"]),
-    }
+    x = np.asarray(mesh.points, dtype=np.float32)
 
+    def field(name):
+        v = pd.get(name)
+        return None if v is None else np.asarray(v).reshape(len(x), -1).squeeze(-1)
 
-def write_json(path, obj) -> None:
-    path = Path(path)
-
-    def write(tmp):
-        with open(tmp, "w") as f:
-            json.dump(obj, f, indent=2, default=_jsonable)
-            f.write("\n")
-
-    _atomic_target(path, write)
-
-
-def _jsonable(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+    if all(k in pd for k in ("vx", "vy", "vz")):
+        v = np.stack([field("vx"), field("vy"), field("vz")], axis=1)
+    else:
+        vel = pd.get("velocity", pd.get("v"))
+        v = None if vel is None or np.asarray(vel).shape != x.shape else np.asarray(vel)
+    return {"x": x, "v": v, "density": field("density"), "pressure": field("pressure"), "id": field("id")}
 
 
 class StatsWriter:
-    """Appends one JSON object per step to ``stats.jsonl``; flushed at every frame."""
+    """Appends one JSON object per step to ``stats.jsonl``; flushed at every frame. A run cut off
+    mid-line (killed, disk full) leaves at most its last line incomplete: :func:`read_stats`
+    skips it."""
 
     def __init__(self, path):
         self.path = Path(path)
@@ -90,7 +102,7 @@ class StatsWriter:
         self._f = open(self.path, "w")
 
     def write(self, record: dict) -> None:
-        self._f.write(json.dumps(record, default=_jsonable) + "\n")
+        self._f.write(json.dumps(record, default=jsonable) + "\n")
 
     def flush(self) -> None:
         self._f.flush()
@@ -100,8 +112,22 @@ class StatsWriter:
 
 
 def read_stats(path) -> list[dict]:
+    """The records of a ``stats.jsonl``; an incomplete last line (a run cut off while writing
+    it) is left out, any other bad line is a ``FileFormatError``."""
+    path = Path(path)
     with open(path) as f:
-        return [json.loads(line) for line in f if line.strip()]
+        lines = f.read().split("\n")
+    records = []
+    for k, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            if k == len(lines) - 1:  # no newline after it: cut off mid-write
+                break
+            raise FileFormatError(f"{path}, line {k + 1}: not a JSON record ({e.msg})") from None
+    return records
 
 
 def write_obj(path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> None:
@@ -113,4 +139,4 @@ def write_obj(path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray
         with open(tmp, "wb") as fh:
             fh.write(data)
 
-    _atomic_target(Path(path), write)
+    atomic_write(Path(path), write)

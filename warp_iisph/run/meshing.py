@@ -1,4 +1,4 @@
-"""Surface meshes for a run's frames: one OBJ per particle frame (``mesh/frame_00000.obj`` ...)."""
+"""Surface meshes of particle frames: a run's (``mesh/frame_00000.obj`` ...), or any particle files."""
 
 from __future__ import annotations
 
@@ -7,12 +7,15 @@ from pathlib import Path
 
 from ..engine.timing import StageTimes
 from ..scene import SurfaceSettings
+from ..scene.checks import positive
 from ..surface import SurfaceMesh, SurfaceReconstructor
-from .folder import PARTICLES, RunError, RunFolder, frame_index
+from .folder import MESHES, PARTICLES, RECORD, RunError, RunFolder, frame_index
 from .formats import read_particles, write_obj
 from .progress import frame_bar
 
 MESH_STAGES = ("distance_field", "marching_cubes", "smoothing", "export")
+# what meshio reads as points, for a folder of another tool's particle files
+POINT_SUFFIXES = (".ply", ".vtk", ".vtu", ".vtp")
 
 
 class FrameMesher:
@@ -40,39 +43,92 @@ class FrameMesher:
         return mesh
 
 
-def mesh_run(run_dir, overrides: dict | None = None, device="cpu", overwrite: bool = False, progress: bool = True) -> dict:
-    """Mesh every ``particles/frame_*.ply`` of a run folder into ``mesh/frame_*.obj`` with the
-    run's ``surface`` settings, changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``).
-    Frames already meshed are kept unless ``overwrite``. Returns counts and seconds per stage."""
-    run = RunFolder.existing(run_dir)
-    frames = run.frames(PARTICLES)
-    record = run.record()
-    try:
-        h = float(record["scene"]["spacing"])
-        stored = record["scene"].get("surface", {})
-    except (ValueError, KeyError, TypeError) as e:
-        raise RunError(f"{run.record_path}: cannot read the particle spacing ({e})") from None
+def mesh_settings(params: SurfaceSettings, spacing: float) -> dict:
+    """What a set of meshes was made with, as recorded beside them."""
+    return {**dataclasses.asdict(params), "spacing": float(spacing)}
+
+
+def _settings(stored: dict, overrides: dict | None) -> SurfaceSettings:
     known = {f.name for f in dataclasses.fields(SurfaceSettings)}
     params = SurfaceSettings(**{k: v for k, v in {**stored, **(overrides or {})}.items() if k in known})
-    params.validate()
-    mesher = FrameMesher(h, params, device)
-    bar = frame_bar(len(frames), progress)
+    return params.validate()
+
+
+def _jobs_of_run(run: RunFolder, overrides, spacing, overwrite: bool):
+    """A run folder's frames: (particle file, mesh file) pairs, the spacing and the settings, after
+    checking that the meshes already there were made from this run with these settings."""
+    record = run.record()
+    frames = run.frames(PARTICLES)
+    scene = record.get("scene") or {}
+    if spacing is None:
+        try:
+            spacing = float(scene["spacing"])
+        except (KeyError, TypeError, ValueError):
+            raise RunError(f"{run.record_path}: has no particle spacing; pass --spacing") from None
+    params = _settings(scene.get("surface") or {}, overrides)
+    settings = mesh_settings(params, spacing)
+    made = run.provenance(MESHES)
+    mine = {"run_id": record.get("run_id"), "settings": settings}
+    existing = any((run.path / MESHES).glob("frame_*.obj"))
+    if existing and not overwrite and made != mine:
+        what = "another run" if made and made.get("run_id") != mine["run_id"] else "other settings"
+        raise RunError(f"{run.path / MESHES}: holds meshes made from {what}; pass --overwrite to replace them")
+    if overwrite:
+        for old in (run.path / MESHES).glob("frame_*.obj"):
+            old.unlink()
+    run.write_provenance(MESHES, record.get("run_id"), settings)
+    return [(f, run.mesh_frame(frame_index(f))) for f in frames], spacing, params, run.path / MESHES
+
+
+def _jobs_of_files(path: Path, overrides, spacing, out):
+    """Another tool's particle file, or a folder of them: meshes beside them (or in ``out``)."""
+    if spacing is None:
+        raise RunError(f"{path}: not a warp-iisph run (no {RECORD}); pass --spacing, the particle spacing in metres")
+    spacing = positive(spacing, "--spacing", "metres")
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in POINT_SUFFIXES and p.is_file())
+        if not files:
+            raise RunError(f"{path}: no particle files ({', '.join(POINT_SUFFIXES)})")
+        target = Path(out) if out else path / MESHES
+    else:
+        files = [path]
+        target = Path(out) if out else path.parent
+    if target.exists() and not target.is_dir():
+        raise RunError(f"--out {target}: is a file, not a folder")
+    return [(f, target / f"{f.stem}.obj") for f in files], spacing, _settings({}, overrides), target
+
+
+def mesh_path(path, overrides: dict | None = None, device="cpu", overwrite: bool = False, progress: bool = True,
+              spacing: float | None = None, out=None) -> dict:
+    """Mesh a run folder's ``particles/frame_*.ply`` into ``mesh/frame_*.obj`` with the run's
+    ``surface`` settings changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``), or any
+    particle file (or folder of them) meshio reads, with ``spacing``. Meshes already there are kept
+    unless ``overwrite``; a run's meshes made from other settings are refused. Returns counts,
+    seconds per stage and where the meshes went."""
+    path = Path(path)
+    if not path.exists():
+        raise RunError(f"{path}: no such run folder or particle file")
+    if path.is_dir() and ((path / RECORD).is_file() or (path / PARTICLES).is_dir()):
+        jobs, spacing, params, target = _jobs_of_run(RunFolder(path), overrides, spacing, overwrite)
+    else:
+        jobs, spacing, params, target = _jobs_of_files(path, overrides, spacing, out)
+    mesher = FrameMesher(spacing, params, device)
+    bar = frame_bar(len(jobs), progress)
     written = skipped = 0
     try:
-        for f in frames:
-            target = run.mesh_frame(frame_index(f))
-            if target.exists() and not overwrite:
+        for source, mesh_file in jobs:
+            if mesh_file.exists() and not overwrite:
                 skipped += 1
             else:
-                x = read_particles(f)["x"]
+                x = read_particles(source)["x"]
                 try:
-                    mesh = mesher.write(x, target)
+                    mesh = mesher.write(x, mesh_file)
                 except ValueError as e:
-                    raise RunError(f"{f}: {e}") from None
+                    raise RunError(f"{source}: {e}") from None
                 written += 1
                 bar.set_postfix_str(f"{len(x)} particles, {len(mesh.faces)} triangles")
             bar.update(1)
     finally:
         bar.close()
-    return {"frames": len(frames), "written": written, "skipped": skipped, "stage_seconds": mesher.times.seconds,
-            "surface": dataclasses.asdict(params)}
+    return {"frames": len(jobs), "written": written, "skipped": skipped, "stage_seconds": mesher.times.seconds,
+            "surface": dataclasses.asdict(params), "out": target}

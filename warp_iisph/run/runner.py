@@ -1,24 +1,36 @@
-"""Run a scene to an output folder: particle frames, per-step statistics and a run record."""
+"""Run a scene to an output folder: particle frames, per-step statistics and a run record.
+
+Nothing on disk changes until the run is built (scene validated, particles sampled, memory
+checked). A run that replaces an older one in the same folder is written into a fresh folder
+beside it, which takes the old one's place once its first frame is on disk; so a refused or
+failed start leaves the old run as it was, and nothing of the old run (frames, videos, scripts)
+outlives the replacement. ``run.json`` exists from the first frame on, says ``running`` while the
+run goes on (with totals updated every frame) and is rewritten atomically however the run ends:
+``completed``, ``diverged``, ``interrupted``, ``terminated`` or ``failed`` (a file could not be
+written).
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
 import platform
+import shutil
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-import warp as wp
 
 from .. import __version__
 from ..engine.timing import StageTimes
 from ..scene import Scene, obstacles_mesh
-from ..stepping import DivergenceError, Simulation
-from .folder import OBSTACLES, RunFolder
-from .formats import StatsWriter, write_json, write_obj, write_particles
+from ..scene.checks import in_range
+from .folder import MESHES, OBSTACLES, RunFolder, new_run_id
+from .formats import StatsWriter, write_obj, write_particles
 from .frame_queue import FrameQueue
-from .meshing import FrameMesher
+from .meshing import FrameMesher, mesh_settings
 from .progress import frame_bar
 
 
@@ -26,60 +38,85 @@ class OutputExistsError(ValueError):
     pass
 
 
-def prepare_output(out: Path, overwrite: bool) -> None:
-    if out.exists() and any(out.iterdir()):
-        if not overwrite:
-            raise OutputExistsError(f"--out {out}: folder exists and is not empty; pass --overwrite to replace it")
-        RunFolder(out).clear()
-    out.mkdir(parents=True, exist_ok=True)
+class Terminated(KeyboardInterrupt):
+    """The process was asked to stop (SIGTERM); raised in the main thread like Ctrl-C."""
 
 
 def versions() -> dict:
+    import warp as wp
+
     return {"warp_iisph": __version__, "warp": wp.__version__, "numpy": np.__version__, "python": platform.python_version()}
+
+
+@dataclasses.dataclass
+class FramePlan:
+    """Frames at ``k / fps`` for ``k = 0 .. frames - 1``: ``duration`` is the last frame's time (the
+    asked duration cut to whole frames, which ``requested`` keeps)."""
+
+    fps: float
+    frames: int
+    duration: float
+    requested: float
+
+
+def plan_frames(scene: Scene, duration=None, fps=None) -> FramePlan:
+    """The frames a run writes; ``ValueError`` naming ``--duration``/``--fps`` (or the scene's
+    ``output`` keys) when they are out of range or give less than one frame interval."""
+    d_name, f_name = ("output.duration" if duration is None else "--duration"), ("output.fps" if fps is None else "--fps")
+    duration = in_range(scene.output.duration if duration is None else duration, d_name, 0.0, 1.0e6, "simulated seconds", lo_open=True)
+    fps = in_range(scene.output.fps if fps is None else fps, f_name, 0.0, 10_000.0, "frames per simulated second", lo_open=True)
+    intervals = int(math.floor(duration * fps + 1e-9))
+    if intervals < 1:
+        raise ValueError(f"{d_name} = {duration:g}: shorter than one frame interval at {fps:g} frames/s ({1 / fps:.4g} s)")
+    return FramePlan(fps, intervals + 1, intervals / fps, duration)
+
+
+def _check_target(out: Path, overwrite: bool) -> bool:
+    """Whether ``out`` holds something a new run would replace (``OutputExistsError`` when it may not)."""
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"--out {out}: is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise OutputExistsError(f"--out {out}: folder exists and is not empty; pass --overwrite to replace it")
+        return True
+    return False
 
 
 def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True,
               graph: bool = False, background_output: bool = True) -> dict:
-    """Simulate ``duration`` seconds, writing ``particles/frame_%05d.ply`` every ``1/fps`` s,
-    ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene with obstacles,
-    ``obstacles.obj``. Returns the run record; its
-    ``ended`` is ``completed``, ``diverged`` or ``interrupted``. Frame files are written on a
-    background thread while the next frame simulates (``background_output=False``: inline)."""
-    duration = scene.output.duration if duration is None else duration
-    fps = scene.output.fps if fps is None else fps
-    if not duration > 0:
-        raise ValueError(f"duration = {duration}: must be > 0 seconds")
-    if not fps > 0:
-        raise ValueError(f"fps = {fps}: must be > 0 frames per second")
+    """Simulate the scene, writing ``particles/frame_%05d.ply`` every ``1/fps`` s, ``stats.jsonl``
+    (one record per step), ``run.json`` and, for a scene with obstacles, ``obstacles.obj``.
+    Returns the run record (``ended`` says how it ended). Frame files are written on a background
+    thread while the next frame simulates (``background_output=False``: inline)."""
+    from ..stepping import DivergenceError, Simulation
+
+    plan = plan_frames(scene, duration, fps)
     out = Path(out)
-    prepare_output(out, overwrite)
-    run = RunFolder(out)
+    replacing = _check_target(out, overwrite)
     t_start = time.perf_counter()
-    sim = Simulation(scene, device=device, graph=graph)
-    stats = StatsWriter(run.stats)
-    n_frames = int(np.floor(duration * fps + 1e-9)) + 1
+    sim = Simulation(scene, device=device, graph=graph)  # everything is built before the disk changes
+    run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out)
     record = {
+        "run_id": new_run_id(),
+        "ended": "running",
+        "message": "",
         "scene": dataclasses.asdict(scene),
         "device": str(sim.device),
         "graph": graph,
         "versions": versions(),
         "command": " ".join(sys.argv),
         "particles": {"fluid": sim.n_particles, "boundary": sim.model.n_boundary},
-        "duration": duration,
-        "fps": fps,
+        "duration": plan.duration,
+        "requested_duration": plan.requested,
+        "fps": plan.fps,
+        "output": {"particles": scene.output.particles, "mesh": scene.output.mesh, "background": background_output},
     }
-    if scene.obstacles:  # static: one file for the viewers and Blender, not one per frame
-        mesh = obstacles_mesh(scene.obstacles)
-        write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
-        record["obstacles"] = OBSTACLES
     # seconds per stage on the main thread; ``export`` is what output cost it: the host copies
     # plus the waits for the writer thread (whose own work overlaps the simulation)
     times = StageTimes()
-    frames_written = 0
-    ended, message = "completed", ""
-
     mesher = FrameMesher(scene.spacing, scene.surface, sim.device) if scene.output.mesh else None
     queue = FrameQueue(background=background_output)
+    written = [0]  # frames whose files are all on disk
 
     def write_frame(k: int) -> None:
         jobs = []
@@ -91,60 +128,116 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         if mesher is not None:
             mesh, obj = mesher.mesh(sim.state.x), run.mesh_frame(k)
             jobs.append(lambda: mesher.export(mesh, obj))
-        queue.submit(lambda: [job() for job in jobs])
 
-    def on_step(rec: dict) -> None:
-        stats.write(rec)
-        times.merge({k: v / 1e3 for k, v in rec["ms"].items()})
+        def job():
+            for j in jobs:
+                j()
+            written[0] = k + 1
 
-    bar = frame_bar(n_frames, progress)
+        queue.submit(job)
+
+    def update_record(ended: str | None = None, message: str = "") -> None:
+        if ended is not None:
+            record.update(ended=ended, message=message)
+        record.update(totals=_totals(sim, written[0], time.perf_counter() - t_start),
+                      stage_seconds=_stage_seconds(times, mesher, queue))
+        record["output"].update(writer_seconds=queue.busy, waited_seconds=queue.blocked)
+        run.write_record(record)
+
+    stats = None
+    bar = frame_bar(plan.frames, progress)
+    ended, message = "completed", ""
     try:
+        run.path.mkdir(parents=True, exist_ok=True)
+        stats = StatsWriter(run.stats)
+
+        def on_step(rec: dict) -> None:
+            stats.write(rec)
+            times.merge({k: v / 1e3 for k, v in rec["ms"].items()})
+
+        if scene.obstacles:  # static: one file for the viewers and Blender, not one per frame
+            mesh = obstacles_mesh(scene.obstacles)
+            write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
+            record["obstacles"] = OBSTACLES
+        if mesher is not None:
+            run.write_provenance(MESHES, record["run_id"], mesh_settings(scene.surface, scene.spacing))
         write_frame(0)
-        frames_written = 1
+        queue.wait()
+        update_record()
+        if replacing:  # the new run is on disk: it takes the old one's place
+            _swap_in(run, out)
         bar.update(1)
-        for k in range(1, n_frames):
+        for k in range(1, plan.frames):
             steps_before, wall_before = sim.step_count, time.perf_counter()
-            sim.advance(k / fps - sim.time, callback=on_step)
+            sim.advance(k / plan.fps - sim.time, callback=on_step)
             write_frame(k)
             stats.flush()
-            frames_written = k + 1
+            update_record()
             rate = (sim.step_count - steps_before) / max(time.perf_counter() - wall_before, 1e-9)
             last = sim.stats[-1] if sim.stats else {}
             bar.set_postfix_str(f"t={sim.time:.3f}s {rate:.1f} steps/s err={100 * last.get('density_error', 0):.3f}%")
             bar.update(1)
+        queue.wait()
     except DivergenceError as e:
         ended, message = "diverged", str(e)
+    except Terminated:
+        ended, message = "terminated", f"terminated at step {sim.step_count}, t = {sim.time:.5f} s"
     except KeyboardInterrupt:
         ended, message = "interrupted", f"interrupted at step {sim.step_count}, t = {sim.time:.5f} s"
+    except OSError as e:
+        ended, message = "failed", f"writing the run to {out}: {e}"
     finally:
+        bar.close()
         try:
-            queue.close()  # every frame handed over is on disk before the record says so
-        finally:
-            bar.close()
-            stats.close()
-    wall = time.perf_counter() - t_start
-    its = [s["iterations"] for s in sim.stats]
-    errs = [s["density_error"] for s in sim.stats]
-    record.update(
-        {
-            "ended": ended,
-            "message": message,
-            "totals": {
-                "steps": sim.step_count,
-                "simulated_time": sim.time,
-                "frames": frames_written,
-                "wall_seconds": wall,
-                "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
-                "mean_iterations": float(np.mean(its)) if its else 0.0,
-                "mean_density_error": float(np.mean(errs)) if errs else 0.0,
-                "mean_compression": float(np.mean([s["compression"] for s in sim.stats])) if sim.stats else 0.0,
-            },
-            "stage_seconds": _stage_seconds(times, mesher, queue),
-            "output": {"background": background_output, "writer_seconds": queue.busy, "waited_seconds": queue.blocked},
-        }
-    )
-    write_json(run.record_path, record)
+            queue.close()  # every frame handed over is on disk (or failed) before the record says so
+        except OSError as e:
+            if ended == "completed":
+                ended, message = "failed", f"writing the run to {out}: {e}"
+        if stats is not None:
+            try:
+                stats.close()
+            except OSError:
+                pass
+    if not run.path.exists() or (replacing and run.path != out):
+        # the new run never got its first frame onto the disk: the old run stays as it was
+        shutil.rmtree(run.path, ignore_errors=True)
+        record.update(ended=ended if ended != "completed" else "failed", message=message or "no frame was written")
+        record["totals"] = _totals(sim, 0, time.perf_counter() - t_start)
+        return record
+    try:
+        update_record(ended, message)
+    except OSError as e:  # the disk is full: the record written at the last frame stays
+        record.update(ended=ended if ended != "completed" else "failed",
+                      message=f"{message}; run.json could not be updated ({e})" if message else f"run.json could not be updated ({e})")
     return record
+
+
+def _swap_in(run: RunFolder, out: Path) -> None:
+    """Put the new run folder in place of the old one at ``out`` (two renames; the old folder is
+    then deleted)."""
+    old = out.parent / f".{out.name}.old-{os.getpid()}"
+    os.replace(out, old)
+    os.replace(run.path, out)
+    run.path = out
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _totals(sim, frames: int, wall: float) -> dict:
+    stats = sim.stats
+    ph = sim.physics
+    unconverged = [s for s in stats if ph.method == "iisph" and s["iterations"] >= ph.max_iterations and s["density_error"] > ph.eta]
+    return {
+        "steps": sim.step_count,
+        "simulated_time": sim.time,
+        "frames": frames,
+        "wall_seconds": wall,
+        "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
+        "mean_iterations": float(np.mean([s["iterations"] for s in stats])) if stats else 0.0,
+        "mean_density_error": float(np.mean([s["density_error"] for s in stats])) if stats else 0.0,
+        "mean_compression": float(np.mean([s["compression"] for s in stats])) if stats else 0.0,
+        "unconverged_steps": len(unconverged),
+        "worst_unconverged_error": max((s["density_error"] for s in unconverged), default=0.0),
+    }
 
 
 def _stage_seconds(times: StageTimes, mesher, queue: FrameQueue) -> dict:

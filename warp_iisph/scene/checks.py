@@ -7,12 +7,27 @@ import math
 import numpy as np
 
 
+# Largest coordinate a scene may use (metres): float32 positions keep 0.1 mm steps out to 1 km.
+MAX_COORDINATE = 1.0e3
+# Most particles a scene may hold: Warp indexes arrays with 32-bit integers.
+MAX_PARTICLES = 2**31 - 1
+
+
 class SceneFileError(ValueError):
     """A scene file that cannot be used; the message is one line naming the file and the key."""
 
 
+def _number(value) -> float:
+    """``float(value)``, refusing booleans (TOML's true would pass as 1) and strings."""
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise TypeError
+    return float(value)
+
+
 def vec3(value, name: str) -> np.ndarray:
     try:
+        if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, np.bool_, str)) for c in value):
+            raise TypeError
         arr = np.asarray(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         raise ValueError(f"{name} = {value!r}: must be three numbers [x, y, z]") from None
@@ -21,9 +36,17 @@ def vec3(value, name: str) -> np.ndarray:
     return arr
 
 
+def position(value, name: str) -> np.ndarray:
+    """A point in the scene (metres): three finite numbers within ``MAX_COORDINATE`` of the origin."""
+    arr = vec3(value, name)
+    if np.any(np.abs(arr) > MAX_COORDINATE):
+        raise ValueError(f"{name} = {value!r}: coordinates must lie within {MAX_COORDINATE:g} m of the origin")
+    return arr
+
+
 def positive(value, name: str, unit: str) -> float:
     try:
-        v = float(value)
+        v = _number(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} = {value!r}: must be a number > 0 ({unit})") from None
     if not math.isfinite(v) or v <= 0.0:
@@ -33,7 +56,7 @@ def positive(value, name: str, unit: str) -> float:
 
 def in_range(value, name: str, lo: float, hi: float, unit: str, lo_open=False, hi_open=False) -> float:
     try:
-        v = float(value)
+        v = _number(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} = {value!r}: must be a number") from None
     lo_ok = v > lo if lo_open else v >= lo
@@ -44,3 +67,9 @@ def in_range(value, name: str, lo: float, hi: float, unit: str, lo_open=False, h
         raise ValueError(f"{name} = {value!r}: must be in {lb}{lo:g}, {hi:g}{rb} ({unit})")
     return v
 
+
+
+def flag(value, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} = {value!r}: must be true or false")
+    return bool(value)

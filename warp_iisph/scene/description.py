@@ -15,7 +15,7 @@ from typing import Union
 
 import numpy as np
 
-from .checks import positive
+from .checks import MAX_PARTICLES, positive
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere
 
@@ -85,9 +85,19 @@ class Scene:
                 if _overlap(self.fluids[a], self.fluids[b]):
                     raise ValueError(f"fluids[{a}] and fluids[{b}] overlap: fluid blocks must be disjoint")
         for k, o in enumerate(self.obstacles):
+            name = f"obstacles[{k}]"
             if not isinstance(o, (Box, Sphere, MeshShape)):
-                raise ValueError(f"obstacles[{k}] = {o!r}: must be a box, a sphere or a mesh")
-            o.validate(f"obstacles[{k}]")
+                raise ValueError(f"{name} = {o!r}: must be a box, a sphere or a mesh")
+            o.validate(name)
+            lo, hi = o.bounds
+            if np.any(hi <= tlo) or np.any(lo >= thi):
+                raise ValueError(f"{name}: lies entirely outside the tank {tuple(tlo)}..{tuple(thi)}")
+            if isinstance(o, MeshShape) and not o.shell and not o.load().is_watertight:
+                raise ValueError(
+                    f"{name}.path = {o.path!r}: the mesh is not closed ({_open_edges(o.load())} open edges), so its inside is "
+                    f"undefined; close it, or set {name}.shell = true to use it as a thin wall"
+                )
+        self._check_particle_counts()
         self.physics.validate()
         self.output.validate()
         self.surface.validate()
@@ -95,8 +105,42 @@ class Scene:
         self._validated = self._fingerprint()
         return self
 
+    def particle_estimate(self) -> tuple[float, float]:
+        """About how many fluid and boundary particles the scene makes (from volumes and areas,
+        without sampling; ``inf`` when the spacing is absurdly small for the sizes)."""
+        h = self.spacing
+        fluid = 0.0
+        for f in self.fluids:
+            lo, hi = f.bounds
+            fluid += float(np.prod((hi - lo) / h)) if isinstance(f, Box) else 4.0 / 3.0 * np.pi * (f.radius / h) ** 3
+        walls = 0.0
+        for shape in [self.tank, *self.obstacles]:
+            if isinstance(shape, Box):
+                e = (shape.bounds[1] - shape.bounds[0]) / h
+                walls += 2.0 * float(e[0] * e[1] + e[1] * e[2] + e[0] * e[2])
+            elif isinstance(shape, Sphere):
+                walls += 4.0 * np.pi * (shape.radius / h) ** 2
+            else:
+                walls += float(shape.load().area) / h / h
+        return fluid, 2.0 * walls  # walls: two layers
+
+    def _check_particle_counts(self) -> None:
+        fluid, boundary = self.particle_estimate()
+        if not fluid + boundary <= MAX_PARTICLES:
+            raise ValueError(
+                f"spacing = {self.spacing:g}: the scene would need about {fluid:.3g} fluid and {boundary:.3g} boundary particles "
+                f"(at most {MAX_PARTICLES:,}); increase spacing"
+            )
+
     def _fingerprint(self) -> str:
         return repr(dataclasses.asdict(self))
+
+
+def _open_edges(mesh) -> int:
+    """Edges of a triangle mesh used by one face only."""
+    edges = np.sort(np.asarray(mesh.edges), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return int(np.sum(counts == 1))
 
 
 def _overlap(a: Fluid, b: Fluid) -> bool:

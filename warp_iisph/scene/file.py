@@ -26,7 +26,7 @@ TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output
 SHAPE_KEYS = {
     "box": {"lower", "upper"},
     "sphere": {"center", "radius"},
-    "mesh": {"path", "translate", "rotate", "scale"},
+    "mesh": {"path", "translate", "rotate", "scale", "shell"},
 }
 
 

@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import in_range, positive, vec3
+from .checks import flag, in_range, position, positive, vec3
 
 METHODS = ("iisph", "wcsph")
 
@@ -55,9 +55,8 @@ class Output:
     def validate(self) -> None:
         self.fps = in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
         self.duration = in_range(self.duration, "output.duration", 0.0, 1.0e6, "simulated seconds", lo_open=True)
-        for key in ("particles", "mesh"):
-            if not isinstance(getattr(self, key), bool):
-                raise ValueError(f"output.{key} = {getattr(self, key)!r}: must be true or false")
+        self.particles = flag(self.particles, "output.particles")
+        self.mesh = flag(self.mesh, "output.mesh")
 
 
 @dataclass
@@ -71,9 +70,9 @@ class Camera:
 
     def validate(self) -> None:
         if self.position is not None:
-            self.position = tuple(float(c) for c in vec3(self.position, "camera.position"))
+            self.position = tuple(float(c) for c in position(self.position, "camera.position"))
         if self.target is not None:
-            self.target = tuple(float(c) for c in vec3(self.target, "camera.target"))
+            self.target = tuple(float(c) for c in position(self.target, "camera.target"))
         if self.target is not None and self.position is None:
             raise ValueError("camera.target: needs camera.position too")
         if self.position is not None and self.target is not None and np.allclose(self.position, self.target):

@@ -7,7 +7,7 @@ from typing import Union
 
 import numpy as np
 
-from .checks import positive, vec3
+from .checks import MAX_COORDINATE, flag, in_range, position, positive, vec3
 
 
 @dataclass
@@ -18,8 +18,8 @@ class Box:
     upper: tuple
 
     def validate(self, name: str) -> None:
-        lo = vec3(self.lower, f"{name}.lower")
-        hi = vec3(self.upper, f"{name}.upper")
+        lo = position(self.lower, f"{name}.lower")
+        hi = position(self.upper, f"{name}.upper")
         if np.any(hi <= lo):
             raise ValueError(f"{name}: upper {tuple(hi)} must exceed lower {tuple(lo)} on every axis")
         self.lower, self.upper = tuple(lo), tuple(hi)
@@ -37,8 +37,8 @@ class Sphere:
     radius: float
 
     def validate(self, name: str) -> None:
-        self.center = tuple(vec3(self.center, f"{name}.center"))
-        self.radius = positive(self.radius, f"{name}.radius", "metres")
+        self.center = tuple(position(self.center, f"{name}.center"))
+        self.radius = in_range(self.radius, f"{name}.radius", 0.0, MAX_COORDINATE, "metres", lo_open=True)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -50,18 +50,21 @@ class Sphere:
 class MeshShape:
     """A triangle mesh file (OBJ, STL, PLY, ... anything trimesh reads), transformed by ``scale``
     (a number or three), then ``rotate`` (degrees about x, then y, then z), then ``translate``
-    (metres). A relative ``path`` is relative to ``base_dir`` (the scene file's folder)."""
+    (metres). A relative ``path`` is relative to ``base_dir`` (the scene file's folder). An obstacle
+    mesh must be closed, unless ``shell`` says it is a thin wall on purpose (a cup, a tray): fluid
+    is then kept one spacing from its surface, but may start inside what it encloses."""
 
     path: str
     translate: tuple = (0.0, 0.0, 0.0)
     rotate: tuple = (0.0, 0.0, 0.0)
     scale: Union[float, tuple] = 1.0
     base_dir: str = "."
+    shell: bool = False
 
     def validate(self, name: str) -> None:
         if not isinstance(self.path, str) or not self.path:
             raise ValueError(f"{name}.path = {self.path!r}: must be a mesh file path")
-        self.translate = tuple(vec3(self.translate, f"{name}.translate"))
+        self.translate = tuple(position(self.translate, f"{name}.translate"))
         self.rotate = tuple(vec3(self.rotate, f"{name}.rotate"))
         if isinstance(self.scale, (list, tuple, np.ndarray)):
             sc = vec3(self.scale, f"{name}.scale")
@@ -70,7 +73,10 @@ class MeshShape:
             self.scale = tuple(sc)
         else:
             self.scale = positive(self.scale, f"{name}.scale", "a factor, or three")
-        self.load(name)
+        self.shell = flag(self.shell, f"{name}.shell")
+        mesh = self.load(name)
+        if not np.all(np.isfinite(mesh.bounds)) or float(np.max(np.abs(mesh.bounds))) > MAX_COORDINATE:
+            raise ValueError(f"{name}.scale = {self.scale!r}: puts the mesh beyond {MAX_COORDINATE:g} m of the origin")
 
     def load(self, name: str = "mesh"):
         """The transformed ``trimesh.Trimesh``, read once per file and transform."""

@@ -25,7 +25,7 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
     h = scene.spacing
     ph = scene.physics
     meshes = _shape_meshes(scene)
-    _check_memory(*_estimate_counts(scene, meshes), device)  # before sampling allocates anything
+    _check_memory(*(int(c) for c in scene.particle_estimate()), device)  # before sampling allocates anything
     xf, xb = sample_scene(scene, device, meshes)
     if len(xf) == 0:
         raise ValueError(f"fluids: no particle fits at spacing = {h} m; make the blocks larger or the spacing smaller")
@@ -82,7 +82,7 @@ def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.nda
         return xf, walls[0]
     trimeshes = [meshes[id(s)] for s in shapes]
     sampled = [sample_mesh(m.vertices, m.faces, h, device) for m in trimeshes]
-    solids = [(m.vertices, m.faces) for m, o in zip(trimeshes, shapes) if o is not scene.tank and m.is_watertight]
+    solids = [(m.vertices, m.faces) for m, o in zip(trimeshes, shapes) if o is not scene.tank and m.is_watertight and not getattr(o, "shell", False)]
     containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
     xf = clear_fluid(xf, np.concatenate(sampled), solids, h, containers, device)
     return xf, np.concatenate(walls + sampled)
@@ -103,23 +103,6 @@ def _cell_sorted(points: np.ndarray, H: float, device) -> wp.array:
 # Bytes per fluid particle: state, solver scratch and about 40 neighbour entries of 16 bytes.
 BYTES_PER_FLUID_PARTICLE = 900
 BYTES_PER_BOUNDARY_PARTICLE = 40
-
-
-def _estimate_counts(scene: Scene, meshes: dict) -> tuple[int, int]:
-    """Fluid and boundary particle counts from volumes and areas, without sampling."""
-    h = scene.spacing
-    volume = 0.0
-    for f in scene.fluids:
-        lo, hi = f.bounds
-        volume += float(np.prod(hi - lo)) if isinstance(f, Box) else 4.0 / 3.0 * np.pi * f.radius**3
-    area = 0.0
-    for shape in [scene.tank, *scene.obstacles]:
-        if isinstance(shape, Box):
-            e = np.subtract(*shape.bounds[::-1])
-            area += 2.0 * float(e[0] * e[1] + e[1] * e[2] + e[0] * e[2])
-        else:
-            area += float(meshes[id(shape)].area)
-    return int(volume / h**3), int(2.0 * area / h**2)
 
 
 def _check_memory(n_fluid: int, n_boundary: int, device) -> None:

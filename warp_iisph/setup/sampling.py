@@ -37,14 +37,16 @@ def sample_sphere(sphere: Sphere, h: float) -> np.ndarray:
 
 def sample_fluid(fluids, tank, h: float) -> np.ndarray:
     """All fluid particles, without those closer than h/2 to a box tank's face (``tank`` may be
-    None: mesh containers are cleared against their boundary particles instead)."""
+    None: mesh containers are cleared against their boundary particles instead); a block that
+    holds none is an error, not a silent loss."""
     parts = [sample_box(f, h) if isinstance(f, Box) else sample_sphere(f, h) for f in fluids]
-    x = np.concatenate(parts, axis=0) if parts else np.zeros((0, 3))
-    if tank is None:
-        return x
-    lo, hi = tank.bounds
-    inside = np.all((x >= lo + 0.5 * h - 1e-9) & (x <= hi - 0.5 * h + 1e-9), axis=1)
-    return x[inside]
+    if tank is not None:
+        lo, hi = tank.bounds
+        parts = [x[np.all((x >= lo + 0.5 * h - 1e-9) & (x <= hi - 0.5 * h + 1e-9), axis=1)] for x in parts]
+    for k, x in enumerate(parts):
+        if len(x) == 0:
+            raise ValueError(f"fluids[{k}]: no particle fits in it at spacing = {h:g} m; make it larger or the spacing smaller")
+    return np.concatenate(parts, axis=0) if parts else np.zeros((0, 3))
 
 
 def _box_shell(lo: np.ndarray, hi: np.ndarray, h: float, offset: float) -> np.ndarray:

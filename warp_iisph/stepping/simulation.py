@@ -6,8 +6,8 @@ import math
 from typing import Callable, Optional
 
 import numpy as np
-import warp as wp
 
+from ..engine.devices import init_warp
 from ..scene import Scene
 from ..setup import build_model
 from ..sph.solvers import make_solver
@@ -36,7 +36,7 @@ class Simulation:
     """
 
     def __init__(self, scene: Scene, device: str = "cpu", graph: bool = False):
-        wp.init()
+        init_warp()
         self.scene = scene.validate()
         self.physics = scene.physics
         self.model, self.state = build_model(self.scene, device)
@@ -80,7 +80,11 @@ class Simulation:
 
     def step(self, dt: Optional[float] = None) -> dict:
         """Advance one time step; returns its statistics record (also appended to ``stats``)."""
-        dt = self.next_dt() if dt is None else float(dt)
+        if dt is None:
+            dt = self.next_dt()
+        elif isinstance(dt, bool) or not (isinstance(dt, (int, float, np.floating, np.integer)) and 0.0 < float(dt) <= 1.0):
+            raise ValueError(f"dt = {dt!r}: must be a number in (0, 1] seconds")
+        dt = float(dt)
         stepper = self.stepper or self.solver
         record = stepper.step(self.model, self.state, dt)
         self.time += dt
@@ -107,6 +111,9 @@ class Simulation:
     def advance(self, duration: float, callback: Optional[Callable[[dict], None]] = None) -> None:
         """Simulate ``duration`` seconds; the last step is shortened to land on the end time.
         With ``graph=True`` the steps run as replays of a recorded loop (warp_iisph.graph)."""
+        if isinstance(duration, bool) or not (isinstance(duration, (int, float, np.floating, np.integer)) and math.isfinite(duration)
+                                               and duration >= 0.0):
+            raise ValueError(f"duration = {duration!r}: must be a finite number of seconds >= 0")
         end = self.time + float(duration)
         if self.stepper is not None and self.time < end - 1e-9:
             if self.solver.steps == 0:  # a plain first step loads every module the graph uses

@@ -171,7 +171,8 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
                 data = first if k == 0 else load(path)
                 img, zb = still.copy(), still_depth.copy()
                 if source == PARTICLES:
-                    colors = ramp(np.linalg.norm(data["v"], axis=1) / v_ref)
+                    speed = np.linalg.norm(data["v"], axis=1) if data["v"] is not None else np.zeros(len(data["x"]))
+                    colors = ramp(speed / v_ref)
                     splat(img, zb, view, data["x"], colors, 0.5 * h)
                 else:
                     lam = np.clip(data["n"] @ LIGHT, 0.0, 1.0)[:, None]
@@ -190,9 +191,9 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
 
 
 def _read_mesh_points(path: Path) -> dict:
-    import trimesh
+    from ..run.formats import read_mesh
 
-    mesh = trimesh.load(path, process=False, force="mesh")
+    mesh = read_mesh(path)
     x = np.asarray(mesh.vertices, float).reshape(-1, 3)
     n = np.asarray(mesh.vertex_normals, float).reshape(-1, 3) if len(x) else np.zeros((0, 3))
     return {"x": x, "n": n}

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..run.folder import MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.folder import FRAMES, MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.formats import read_mesh
 from ..run.progress import frame_bar
 from .materials import IOR, THICKNESS, material_color
 from .video import parse_resolution, write_video
@@ -115,11 +116,9 @@ def auto_camera(lower, upper, fov: float, aspect: float) -> tuple[np.ndarray, np
 
 
 def mesh_bounds(paths: list[Path]) -> tuple[np.ndarray, np.ndarray] | None:
-    import trimesh
-
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for p in paths:
-        v = np.asarray(trimesh.load(p, process=False, force="mesh").vertices).reshape(-1, 3)
+        v = np.asarray(read_mesh(p).vertices).reshape(-1, 3)
         if len(v):
             lo, hi = np.minimum(lo, v.min(0)), np.maximum(hi, v.max(0))
     return (lo, hi) if np.all(np.isfinite(lo)) else None
@@ -255,8 +254,17 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
     wall_list = far_walls(*tank, eye) if walls and tank is not None else []
-    out = run.path / "frames"
+    out = run.path / FRAMES
     out.mkdir(exist_ok=True)
+    # rendered frames are a cache of this run's meshes seen with these settings: any made from
+    # another run, other meshes or other settings go
+    made = {"run_id": record.get("run_id"), "settings": {
+        "meshes": run.provenance(MESHES), "spp": spp, "resolution": [width, height], "material": list(color), "walls": walls,
+        "denoise": use_denoiser, "variant": chosen_variant, "camera": [eye.tolist(), np.asarray(target).tolist(), fov]}}
+    if run.provenance(FRAMES) != made:
+        for old in out.glob("frame_*.png"):
+            old.unlink()
+        run.write_provenance(FRAMES, made["run_id"], made["settings"])
     if progress:
         print(f"rendering with Mitsuba {chosen_variant}: {why}", file=sys.stderr)
     bar = frame_bar(len(files), progress, "render")
@@ -270,7 +278,7 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
                 skipped += 1
             else:
                 t0 = time.perf_counter()
-                empty = os.path.getsize(path) == 0 or b"\nf " not in path.read_bytes()
+                empty = len(read_mesh(path).faces) == 0  # also: a file cut off mid-write is refused here
                 sd = scene_dict(None if empty else path, (eye, target), floor_y, extent, color, spp, width, height, fov, wall_list,
                                 obstacles=run.obstacles if solid is not None else None)
                 image = render_image(sd, use_denoiser, seed=frame_index(path))

@@ -24,14 +24,25 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
     import imageio.v2 as imageio
 
     path = Path(path)
+    if path.is_dir():
+        raise RunError(f"--out {path}: is a folder; give a file name, e.g. {path / ('video.gif' if gif else 'video.mp4')}")
     tmp = path.with_name(path.stem + ".part" + path.suffix)
-    if gif:
-        writer = imageio.get_writer(tmp, mode="I", duration=1000.0 / fps, loop=0)
-    else:
-        writer = imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=2, pixelformat="yuv420p")
     try:
-        for im in images:
-            writer.append_data(np.asarray(im))
-    finally:
-        writer.close()
-    tmp.replace(path)  # a video that is there is complete
+        if gif:
+            writer = imageio.get_writer(tmp, mode="I", duration=1000.0 / fps, loop=0)
+        else:
+            writer = imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=2, pixelformat="yuv420p")
+        try:
+            for im in images:
+                writer.append_data(np.asarray(im))
+        finally:
+            writer.close()
+        tmp.replace(path)  # a video that is there is complete
+    except (OSError, RuntimeError) as e:  # a full disk reaches us as a broken pipe to ffmpeg
+        tmp.unlink(missing_ok=True)
+        if isinstance(e, OSError) and e.errno is not None and not isinstance(e, BrokenPipeError):
+            raise OSError(e.errno, e.strerror, str(path)) from None
+        raise OSError(None, f"could not write the video ({type(e).__name__}: {' '.join(str(e).split())[:200]})", str(path)) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
