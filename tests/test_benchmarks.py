@@ -105,3 +105,11 @@ def test_neighbor_access_quick_mode(tmp_path):
     # on a CPU, filtering ~6x as many candidates and recomputing grad W costs several list walks
     assert it["query"] > 2 * it["lists"] and r["faster"] == "lists"
     assert r["break_even_walks"] == pytest.approx(r["list_fill_ms"] / ((it["query"] - it["lists"]) / 2))
+
+
+def test_soak_quick_mode(tmp_path):
+    record = _quick("soak.py", tmp_path, "soak_quick")
+    assert record["ended"] == "completed" and record["steps"] >= 600 and record["frames"] == 19
+    # every frame opens and closes its files: beyond the few a frame in flight holds, no handle
+    # accumulates (a leak of one per frame would add 19)
+    assert record["open_files_max"] - record["open_files_min"] <= 3

@@ -6,6 +6,8 @@ that exists is complete even if the run is interrupted.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -44,7 +46,8 @@ def read_points(path) -> "meshio.Mesh":
     if not path.is_file():
         raise FileFormatError(f"{path}: no such file")
     try:
-        mesh = meshio.read(path)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):  # meshio prints its complaints
+            mesh = meshio.read(path)
     except SystemExit:  # meshio exits on some malformed headers
         raise FileFormatError(f"{path}: not a readable point file (malformed header)") from None
     except Exception as e:  # meshio and NumPy raise many kinds for a bad file

@@ -94,7 +94,9 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     out = Path(out)
     replacing = _check_target(out, overwrite)
     t_start = time.perf_counter()
-    sim = Simulation(scene, device=device, graph=graph)  # everything is built before the disk changes
+    # everything is built before the disk changes; step records go to stats.jsonl, not memory
+    sim = Simulation(scene, device=device, graph=graph, history=1)
+    totals = StepTotals(sim.physics)
     run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out)
     record = {
         "run_id": new_run_id(),
@@ -139,7 +141,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     def update_record(ended: str | None = None, message: str = "") -> None:
         if ended is not None:
             record.update(ended=ended, message=message)
-        record.update(totals=_totals(sim, written[0], time.perf_counter() - t_start),
+        record.update(totals=totals.record(sim, written[0], time.perf_counter() - t_start),
                       stage_seconds=_stage_seconds(times, mesher, queue))
         record["output"].update(writer_seconds=queue.busy, waited_seconds=queue.blocked)
         run.write_record(record)
@@ -153,6 +155,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
 
         def on_step(rec: dict) -> None:
             stats.write(rec)
+            totals.add(rec)
             times.merge({k: v / 1e3 for k, v in rec["ms"].items()})
 
         if scene.obstacles:  # static: one file for the viewers and Blender, not one per frame
@@ -202,7 +205,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         # the new run never got its first frame onto the disk: the old run stays as it was
         shutil.rmtree(run.path, ignore_errors=True)
         record.update(ended=ended if ended != "completed" else "failed", message=message or "no frame was written")
-        record["totals"] = _totals(sim, 0, time.perf_counter() - t_start)
+        record["totals"] = totals.record(sim, 0, time.perf_counter() - t_start)
         return record
     try:
         update_record(ended, message)
@@ -222,22 +225,39 @@ def _swap_in(run: RunFolder, out: Path) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
-def _totals(sim, frames: int, wall: float) -> dict:
-    stats = sim.stats
-    ph = sim.physics
-    unconverged = [s for s in stats if ph.method == "iisph" and s["iterations"] >= ph.max_iterations and s["density_error"] > ph.eta]
-    return {
-        "steps": sim.step_count,
-        "simulated_time": sim.time,
-        "frames": frames,
-        "wall_seconds": wall,
-        "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
-        "mean_iterations": float(np.mean([s["iterations"] for s in stats])) if stats else 0.0,
-        "mean_density_error": float(np.mean([s["density_error"] for s in stats])) if stats else 0.0,
-        "mean_compression": float(np.mean([s["compression"] for s in stats])) if stats else 0.0,
-        "unconverged_steps": len(unconverged),
-        "worst_unconverged_error": max((s["density_error"] for s in unconverged), default=0.0),
-    }
+class StepTotals:
+    """Sums over a run's step records, kept as they come (the records themselves go to disk)."""
+
+    def __init__(self, physics):
+        self.physics = physics
+        self.steps = 0
+        self.sums = {"iterations": 0.0, "density_error": 0.0, "compression": 0.0}
+        self.unconverged = 0
+        self.worst_unconverged = 0.0
+
+    def add(self, rec: dict) -> None:
+        ph = self.physics
+        self.steps += 1
+        for k in self.sums:
+            self.sums[k] += rec[k]
+        if ph.method == "iisph" and rec["iterations"] >= ph.max_iterations and rec["density_error"] > ph.eta:
+            self.unconverged += 1
+            self.worst_unconverged = max(self.worst_unconverged, rec["density_error"])
+
+    def record(self, sim, frames: int, wall: float) -> dict:
+        n = max(self.steps, 1)
+        return {
+            "steps": sim.step_count,
+            "simulated_time": sim.time,
+            "frames": frames,
+            "wall_seconds": wall,
+            "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
+            "mean_iterations": self.sums["iterations"] / n,
+            "mean_density_error": self.sums["density_error"] / n,
+            "mean_compression": self.sums["compression"] / n,
+            "unconverged_steps": self.unconverged,
+            "worst_unconverged_error": self.worst_unconverged,
+        }
 
 
 def _stage_seconds(times: StageTimes, mesher, queue: FrameQueue) -> dict:

@@ -108,7 +108,10 @@ class Scene:
     def particle_estimate(self) -> tuple[float, float]:
         """About how many fluid and boundary particles the scene makes (from volumes and areas,
         without sampling; ``inf`` when the spacing is absurdly small for the sizes)."""
-        h = self.spacing
+        with np.errstate(over="ignore"):  # NumPy floats: overflow gives inf, which the check refuses
+            return self._estimate(np.float64(self.spacing))
+
+    def _estimate(self, h: np.float64) -> tuple[float, float]:
         fluid = 0.0
         for f in self.fluids:
             lo, hi = f.bounds

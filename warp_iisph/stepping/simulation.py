@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import Callable, Optional
 
 import numpy as np
@@ -35,7 +36,9 @@ class Simulation:
         print(sim.stats[-1]["density_error"])
     """
 
-    def __init__(self, scene: Scene, device: str = "cpu", graph: bool = False):
+    def __init__(self, scene: Scene, device: str = "cpu", graph: bool = False, history: Optional[int] = None):
+        """``history``: how many step records ``stats`` keeps (``None``: every one; a long run that
+        writes them to disk keeps the last few, so memory stays flat)."""
         init_warp()
         self.scene = scene.validate()
         self.physics = scene.physics
@@ -52,7 +55,7 @@ class Simulation:
             self.stepper = CapturedStepper(self)
         self.time = 0.0
         self.step_count = 0
-        self.stats: list[dict] = []
+        self.stats: list[dict] | deque = [] if history is None else deque(maxlen=max(1, int(history)))
         self.max_speed = 0.0
         height = float(self.model.domain_upper[1] - self.model.domain_lower[1])
         g = float(np.linalg.norm(self.physics.gravity))

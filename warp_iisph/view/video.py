@@ -25,7 +25,7 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
 
     path = Path(path)
     if path.is_dir():
-        raise RunError(f"--out {path}: is a folder; give a file name, e.g. {path / ('video.gif' if gif else 'video.mp4')}")
+        raise RunError(f"--out {path}: is a folder; give a video file name (.{'gif' if gif else 'mp4'})")
     tmp = path.with_name(path.stem + ".part" + path.suffix)
     try:
         if gif:
