@@ -66,6 +66,7 @@ def snapshot(folder: Path) -> dict:
     (["run", "martin_moyce", "--set", "spacing=1e-4"], ["martin_moyce.toml", "spacing = 0.0001"]),
     (["run", "martin_moyce", "--set", "physics.dt=true"], ["physics.dt = True: must be a number"]),
     (["run", "martin_moyce", "--set", "tank.upper=[1e300, 1, 1]"], ["tank.upper", "within 1000 m"]),
+    (["run", "dam_break", "--set", "obstacles.0.scale=1e200"], ["obstacles[0].scale = 1e+200: puts the mesh beyond"]),
     (["run", "martin_moyce", "--bogus"], ["unrecognized arguments: --bogus"]),
     (["run", "no_such_scene"], ["not a file and not a bundled scene"]),
 ])

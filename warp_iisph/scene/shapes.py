@@ -98,7 +98,8 @@ class MeshShape:
         m = np.diag(np.append(np.broadcast_to(np.asarray(self.scale, dtype=float), (3,)), 1.0))
         r = trimesh.transformations.euler_matrix(*np.radians(self.rotate), axes="sxyz")
         t = trimesh.transformations.translation_matrix(self.translate)
-        mesh.apply_transform(t @ r @ m)
+        with np.errstate(all="ignore"):  # an absurd scale overflows: validate() refuses the bounds
+            mesh.apply_transform(t @ r @ m)
         self._loaded = (key, mesh)
         return mesh
 
