@@ -144,8 +144,13 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                          [state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_list, state.p, model.boundary_psi, nf, nb,
                           model.mass, solver.dt, ph.rho0, float(ph.omega), p_list, solver.density_error], device)
 
+    # the query twins walk a wp.HashGrid over the same points: the same candidates in the same
+    # order as the solver's own grid (warp_iisph.sph.grid), so the sums are bitwise the lists'
+    query_grid = wp.HashGrid(128, 128, 128, device=device)
+    query_grid.build(state.x, H)
+
     def iteration_query():
-        grid = search.grid.id
+        grid = query_grid.id
         launch_particles(pressure_sum_dij_pj_query, n, [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, sum_query], device)
         launch_particles(pressure_jacobi_query, n,
                          [grid, state.x, H, state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_query, state.p,

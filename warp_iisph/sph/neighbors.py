@@ -14,6 +14,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..engine.launch import launch_particles
+from .grid import CellGrid, ParticleGrid, cell_first, cell_hash, cell_range
 from .kernel import cubic_grad_W
 from .wall_mask import NearMask, may_have_neighbors, near_mask
 
@@ -65,7 +66,7 @@ def fill_neighbors(
     nbrs: NeighborList,
 ):
     """Write the lists; entries past the storage's end are dropped and the counts cut to match
-    (``list_total`` has flagged the overflow; the step is redone with more storage)."""
+    (``list_starts``'s total has flagged the overflow; the step is redone with more storage)."""
     i = wp.tid() + offset
     if nbrs.count[i] == 0:
         return
@@ -89,7 +90,7 @@ def fill_neighbors(
 @wp.kernel
 def fill_neighbors_strided(
     offset: int,
-    grid: wp.uint64,
+    grid: CellGrid,
     points: wp.array(dtype=wp.vec3),
     radius: float,
     stride: int,
@@ -105,16 +106,24 @@ def fill_neighbors_strided(
     k0 = i * stride
     nbrs.start[i] = k0
     k = int(0)
-    j = int(0)
-    query = wp.hash_grid_query(grid, x_i, radius)
-    while wp.hash_grid_query_next(query, j):
-        if j != i:
-            x_ij = x_i - points[j]
-            if wp.dot(x_ij, x_ij) < r2:
-                if k < stride:
-                    nbrs.index[k0 + k] = j
-                    nbrs.grad_W[k0 + k] = cubic_grad_W(x_ij, radius)
-                k += 1
+    cx = cell_range(grid, x_i, radius, 0)
+    cy = cell_range(grid, x_i, radius, 1)
+    cz = cell_range(grid, x_i, radius, 2)
+    for z in range(cz[0], cz[1] + 1):  # x fastest, as wp.hash_grid_query visits cells
+        for y in range(cy[0], cy[1] + 1):
+            for x in range(cx[0], cx[1] + 1):
+                c = cell_hash(x, y, z)
+                s = cell_first(grid, c)
+                while s < grid.n and grid.keys[s] == c:
+                    j = grid.ids[s]
+                    s += 1
+                    if j != i:
+                        x_ij = x_i - points[j]
+                        if wp.dot(x_ij, x_ij) < r2:
+                            if k < stride:
+                                nbrs.index[k0 + k] = j
+                                nbrs.grad_W[k0 + k] = cubic_grad_W(x_ij, radius)
+                            k += 1
     nbrs.count[i] = wp.min(k, stride)
     wanted[i] = k
 
@@ -126,15 +135,28 @@ def stride_needed(n: int, wanted: wp.array(dtype=wp.int32), needed: wp.array(dty
 
 
 @wp.kernel
-def list_total(n: int, nbrs: NeighborList, total: wp.array(dtype=wp.int32)):
-    """Entries the lists need (the scan's end), on the device: no host read inside a step."""
-    total[0] = nbrs.start[n - 1] + nbrs.count[n - 1]
+def list_starts(nbrs: NeighborList, total: wp.array(dtype=wp.int32)):
+    """Each non-empty list's start, taken from a running total (zeroed before): no scan, so no
+    allocation inside a graph's conditional body. A CPU launch is one loop in index order, so the
+    starts are the exclusive scan's; on CUDA the lists come in any order, each still whole."""
+    i = wp.tid()
+    c = nbrs.count[i]
+    if c > 0:
+        nbrs.start[i] = wp.atomic_add(total, 0, c)
 
 
 @wp.kernel
 def cell_order(grid: wp.uint64, order: wp.array(dtype=wp.int32)):
+    """Points in the order of a (built) ``wp.HashGrid``'s cells."""
     tid = wp.tid()
     order[tid] = wp.hash_grid_point_id(grid, tid)
+
+
+@wp.kernel
+def sorted_order(grid: CellGrid, order: wp.array(dtype=wp.int32)):
+    """Points in the order of a (built) :class:`CellGrid`'s cells."""
+    tid = wp.tid()
+    order[tid] = grid.ids[tid]
 
 
 class NeighborListBuffer:
@@ -165,8 +187,8 @@ class NeighborListBuffer:
             return
         lists = self.lists
         launch_particles(count_neighbors, n, [grid.id, points, queries, radius, mask, lists.count], self.device)
-        wp.utils.array_scan(lists.count[:n], lists.start[:n], inclusive=False)
-        wp.launch(list_total, dim=1, inputs=[n, lists, self.needed], device=self.device)
+        self.needed.zero_()
+        wp.launch(list_starts, dim=n, inputs=[lists, self.needed], device=self.device)
         if sync:
             total = int(self.needed.numpy()[0])
             if total > self.capacity:
@@ -200,13 +222,13 @@ class StridedListBuffer(NeighborListBuffer):
         self.stride = max(1, -(-capacity // self.n))
         super()._reserve(self.stride * self.n)
 
-    def build(self, grid: wp.HashGrid, points, n: int, radius: float, sync: bool = True):
-        """Each of the ``n`` ``points``' neighbours among the others; with ``sync`` a stride that
-        proves too short grows and the lists are filled again."""
+    def build(self, grid: ParticleGrid, points, n: int, radius: float, sync: bool = True):
+        """Each of the ``n`` ``points``' neighbours among the others (``grid``: built over them);
+        with ``sync`` a stride that proves too short grows and the lists are filled again."""
         if n == 0:
             return
         self.needed.zero_()
-        launch_particles(fill_neighbors_strided, n, [grid.id, points, radius, self.stride, self.lists, self.wanted], self.device)
+        launch_particles(fill_neighbors_strided, n, [grid.grid, points, radius, self.stride, self.lists, self.wanted], self.device)
         wp.launch(stride_needed, dim=n, inputs=[n, self.wanted, self.needed], device=self.device)
         if sync:
             needed = int(self.needed.numpy()[0])
@@ -226,8 +248,7 @@ class NeighborSearch:
         self.device = device
         self.n = n_fluid
         self.radius = float(radius)
-        self.grid = make_grid(device)
-        self.grid.reserve(max(n_fluid, 1))
+        self.grid = ParticleGrid(n_fluid, device)
         self.boundary_x = boundary_x
         self.boundary_grid = None
         if boundary_x is not None and boundary_x.shape[0] > 0:
@@ -241,7 +262,7 @@ class NeighborSearch:
     def cell_order(self, x: wp.array) -> wp.array:
         """Permutation that sorts particles by hash-grid cell (cache-friendly order)."""
         self.grid.build(x, self.radius)
-        wp.launch(cell_order, dim=self.n, inputs=[self.grid.id, self._order], device=self.device)
+        wp.launch(sorted_order, dim=self.n, inputs=[self.grid.grid, self._order], device=self.device)
         return self._order
 
     def build(self, x: wp.array, sync: bool = True) -> None:

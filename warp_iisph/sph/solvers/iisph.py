@@ -18,6 +18,7 @@ from __future__ import annotations
 import warp as wp
 
 from ...engine.launch import launch_particles
+from ...engine.reduce import sum_into
 from ..neighbors import NeighborList
 from .base import SPHSolver
 from .forces import non_pressure_acceleration
@@ -267,7 +268,7 @@ class IISPHSolver(SPHSolver):
             dev,
         )
         wp.copy(state.p, self.p_next, count=n)
-        wp.utils.array_sum(self.density_error[:n], out=self._error_sum)
+        sum_into(self.density_error, n, self._error_sum)
         wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, n, wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
                                                      self._iterations, self.keep_going], device=dev)
 

@@ -1,0 +1,123 @@
+"""The particles' hash grid, built from kernels and a radix sort into storage it keeps.
+
+``wp.HashGrid.build`` cannot run inside a conditional body of a CUDA graph (the loop over steps
+and the capture_if of the reorder), so the moving particles' grid is built here from operations
+that can: a kernel writing each point's cell key, ``wp.utils.radix_sort_pairs`` into preallocated
+buffers, and a kernel marking where each cell's run starts. The layout is Warp's own (the same
+cell hash, a stable sort of the same keys), so a query visits the same candidates in the same
+order as ``wp.hash_grid_query`` would: neighbour lists, and every result after them, are
+bitwise those of a ``wp.HashGrid``.
+
+A cell's run is found from ``starts`` and the sorted keys themselves: ``starts[c]`` is written for
+every occupied cell and checked against the key it points at, so cells emptied since an earlier
+build need no clearing (a HashGrid zeroes all of its 2M cells every build).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+GRID_DIM = wp.constant(128)  # cells per axis of the hash, as warp_iisph's wp.HashGrids use
+
+
+@wp.struct
+class CellGrid:
+    """Points sorted by hashed cell: ``ids[k]`` is the point at sorted position k, ``keys[k]`` its
+    cell; ``starts[c]`` the first sorted position of cell c (valid where ``keys`` agrees)."""
+
+    inv_cell: float
+    n: int
+    keys: wp.array(dtype=wp.int32)
+    ids: wp.array(dtype=wp.int32)
+    starts: wp.array(dtype=wp.int32)
+
+
+@wp.func
+def cell_coord(v: float) -> int:
+    return int(wp.floor(v))
+
+
+@wp.func
+def cell_hash(x: int, y: int, z: int) -> int:
+    """Warp's hash of a cell: coordinates wrapped (non-negative modulo) into the dim^3 table."""
+    cx = x % GRID_DIM
+    cy = y % GRID_DIM
+    cz = z % GRID_DIM
+    if cx < 0:
+        cx += GRID_DIM
+    if cy < 0:
+        cy += GRID_DIM
+    if cz < 0:
+        cz += GRID_DIM
+    return cz * (GRID_DIM * GRID_DIM) + cy * GRID_DIM + cx
+
+
+@wp.func
+def query_end(start: int, end: int) -> int:
+    # a radius wider than the table visits each cell once
+    if end - start >= GRID_DIM:
+        return start + GRID_DIM - 1
+    return end
+
+
+@wp.func
+def cell_range(g: CellGrid, p: wp.vec3, radius: float, axis: int) -> wp.vec2i:
+    """First and last cell coordinate a query of ``radius`` around ``p`` visits along ``axis``."""
+    lo = cell_coord((p[axis] - radius) * g.inv_cell)
+    hi = cell_coord((p[axis] + radius) * g.inv_cell)
+    return wp.vec2i(lo, query_end(lo, hi))
+
+
+@wp.func
+def cell_first(g: CellGrid, c: int) -> int:
+    """Sorted position of cell c's first point, or ``g.n`` when the cell is empty."""
+    k = g.starts[c]
+    if k >= 0 and k < g.n:
+        if g.keys[k] == c:
+            return k
+    return g.n
+
+
+@wp.kernel
+def cell_keys(points: wp.array(dtype=wp.vec3), inv_cell: float, keys: wp.array(dtype=wp.int32), ids: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    p = points[i]
+    keys[i] = cell_hash(cell_coord(p[0] * inv_cell), cell_coord(p[1] * inv_cell), cell_coord(p[2] * inv_cell))
+    ids[i] = i
+
+
+@wp.kernel
+def cell_starts(g: CellGrid):
+    # each occupied cell is written by the one thread at its run's start
+    k = wp.tid()
+    c = g.keys[k]
+    if k == 0:
+        g.starts[c] = 0
+    elif g.keys[k - 1] != c:
+        g.starts[c] = k
+
+
+class ParticleGrid:
+    """The hash grid of ``n`` moving points, rebuilt every step into the same storage."""
+
+    def __init__(self, n: int, device):
+        self.device = device
+        self.n = int(n)
+        self.grid = CellGrid()
+        self.grid.n = self.n
+        self.grid.inv_cell = 1.0
+        # radix_sort_pairs uses the second half of keys and ids as scratch
+        self.grid.keys = wp.zeros(2 * max(self.n, 1), dtype=wp.int32, device=device)
+        self.grid.ids = wp.zeros(2 * max(self.n, 1), dtype=wp.int32, device=device)
+        self.grid.starts = wp.full(GRID_DIM * GRID_DIM * GRID_DIM, -1, dtype=wp.int32, device=device)
+
+    def build(self, points: wp.array, cell: float) -> None:
+        """Sort the first ``n`` points by cell (cells of size ``cell``); allocation-free."""
+        g = self.grid
+        g.inv_cell = float(np.float32(1.0) / np.float32(cell))  # in float32, as wp.HashGrid computes it
+        if self.n == 0:
+            return
+        wp.launch(cell_keys, dim=self.n, inputs=[points, g.inv_cell, g.keys, g.ids], device=self.device)
+        wp.utils.radix_sort_pairs(g.keys, g.ids, self.n)
+        wp.launch(cell_starts, dim=self.n, inputs=[g], device=self.device)
