@@ -23,9 +23,9 @@ def run(scene, graph: bool, duration: float = 0.15, device: str = "cpu", shrink_
 def test_captured_step_equals_plain_launches(method):
     scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method, viscosity=1e-4, boundary_viscosity=0.003)  # noqa: E731
     plain, graph = run(scene(), False), run(scene(), True)
-    frames = graph._frames
-    assert frames.captures == 1 and graph.step_count == plain.step_count > 20
-    assert frames.replays == -(-(graph.step_count - 1) // frames.capacity)  # one per 256 steps, no host sync between
+    replays = graph.graph
+    assert replays.captures == 1 and graph.step_count == plain.step_count > 20
+    assert replays.replays == -(-(graph.step_count - 1) // graph.loop.capacity)  # one per 256 steps, no host sync between
     np.testing.assert_array_equal(graph.positions, plain.positions)
     np.testing.assert_array_equal(graph.velocities, plain.velocities)
     for key in ("dt", "iterations", "density_error", "compression", "max_velocity"):
@@ -37,24 +37,27 @@ def test_captured_step_equals_plain_launches(method):
 def test_neighbour_overflow_inside_the_graph_is_redone():
     scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1)  # noqa: E731
     plain, graph = run(scene(), False), run(scene(), True, shrink_lists=True)
-    assert graph._frames.redone == 1 and graph._frames.captures == 2
+    assert graph.graph.redone == 1 and graph.graph.captures == 2
     np.testing.assert_array_equal(graph.positions, plain.positions)
 
 
 def test_single_captured_steps_and_a_short_log_match_plain():
-    """Simulation.step replays a one-step graph; a log of 8 steps makes advance replay often."""
-    from warp_iisph.stepping.graph import FrameGraph
+    """Simulation.step replays the loop limited to one step; a log of 8 steps makes advance replay often."""
+    from warp_iisph.stepping.graph import LoopGraph
+    from warp_iisph.stepping.time_loop import TimeLoop
 
     scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1)  # noqa: E731
     plain, graph = Simulation(scene(), "cpu"), Simulation(scene(), "cpu", graph=True)
     for _ in range(12):  # crosses a reorder (every 10 steps)
         plain.step()
         graph.step()
-    assert graph.stepper.captures == 1
-    graph._frames = FrameGraph(graph, log_capacity=8)
+    assert graph.graph.captures == 1 and graph.graph.replays == 11  # the first step is plain
+    old = graph.loop
+    graph.loop = TimeLoop(old.model, old.state, old.solver, old.velocity_scale, old.velocity_limit, log_capacity=8)
+    graph.graph = LoopGraph(graph.loop)
     plain.advance(0.1)
     graph.advance(0.1)
-    assert graph._frames.replays >= 3 and graph.step_count == plain.step_count
+    assert graph.graph.replays >= 3 and graph.step_count == plain.step_count
     np.testing.assert_array_equal(graph.positions, plain.positions)
     assert [s["t"] for s in graph.stats] == [s["t"] for s in plain.stats]
 
@@ -78,3 +81,48 @@ def test_cuda_graph_matches_cpu():
     cpu, cuda = run(scene(), False, 0.1), run(scene(), True, 0.1, device="cuda")
     assert cuda.step_count == cpu.step_count
     assert np.max(np.abs(cuda.positions - cpu.positions)) < 0.02  # GPU atomics and FMA reorder sums
+
+
+def test_nothing_in_a_conditional_body_allocates(monkeypatch):
+    """On CUDA, a conditional body of a graph (the loop over steps, the reorder's capture_if, the
+    Jacobi loop) may not allocate: wp.utils.array_sum and array_scan fail there, and so does
+    HashGrid.build. On the CPU they work, so this test makes them fail while a conditional body is
+    being recorded: the CPU catches a regression without a GPU."""
+    import warp as wp
+
+    import warp_iisph.engine.launch as launch
+
+    depth = [0]
+    calls = []
+
+    def conditional(real):
+        def wrapped(condition, *args, **kwargs):
+            depth[0] += 1
+            try:
+                return real(condition, *args, **kwargs)
+            finally:
+                depth[0] -= 1
+        return wrapped
+
+    def forbidden(name, real):
+        def wrapped(*args, **kwargs):
+            if launch._recording and depth[0]:
+                calls.append(name)
+                raise RuntimeError(f"{name} inside a conditional graph body: it allocates on CUDA")
+            return real(*args, **kwargs)
+        return wrapped
+
+    monkeypatch.setattr(wp, "capture_while", conditional(wp.capture_while))
+    monkeypatch.setattr(wp, "capture_if", conditional(wp.capture_if))
+    monkeypatch.setattr(wp.utils, "array_sum", forbidden("array_sum", wp.utils.array_sum))
+    monkeypatch.setattr(wp.utils, "array_scan", forbidden("array_scan", wp.utils.array_scan))
+    monkeypatch.setattr(wp.HashGrid, "build", forbidden("HashGrid.build", wp.HashGrid.build))
+    # a scene with walls and an obstacle near the fluid: fluid, wall and reorder paths all recorded
+    from warp_iisph import Box
+
+    scene = scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1)
+    scene.add_obstacle(Box((0.3, 0.0, 0.0), (0.35, 0.1, 0.1)))
+    sim = Simulation(scene, "cpu", graph=True)
+    sim.advance(0.05)
+    assert sim.graph.captures == 1 and sim.graph.replays >= 1 and not calls
+    assert max(s["iterations"] for s in sim.stats) >= 2

@@ -1,5 +1,5 @@
 """What WCSPH and IISPH share: density, pressure acceleration with symplectic Euler, the
-divergence check, stage timing and the step skeleton.
+state check (speed, escapes, non-finite values) and the step skeleton.
 
 Density (Akinci boundaries): ``rho_i = sum_j m W_ij + sum_b psi_b W_ib`` (j includes i).
 Pressure acceleration: ``a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij
@@ -14,33 +14,14 @@ from __future__ import annotations
 
 from contextlib import nullcontext
 
-import numpy as np
 import warp as wp
 
 from ...engine.launch import launch_particles
-from ...engine.timing import StageTimes
+from ...engine.reduce import sum_into
 from ..kernel import cubic_W
 from ..neighbors import NeighborList, NeighborSearch
 
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
-
-
-@wp.kernel
-def pack_stats(
-    compression_sum: wp.array(dtype=wp.float64),
-    error_sum: wp.array(dtype=wp.float64),
-    iterations: wp.array(dtype=wp.int32),
-    max_speed2: wp.array(dtype=float),
-    counts: wp.array(dtype=wp.int32),
-    out: wp.array(dtype=wp.float64),
-):
-    """The step's statistics in one array, so the host reads them back in one copy."""
-    out[0] = compression_sum[0]
-    out[1] = error_sum[0]
-    out[2] = wp.float64(iterations[0])
-    out[3] = wp.float64(max_speed2[0])
-    out[4] = wp.float64(counts[0])
-    out[5] = wp.float64(counts[1])
 
 
 @wp.kernel
@@ -129,12 +110,10 @@ class SPHSolver:
     """Skeleton of an SPH time step shared by the methods; subclasses supply
     :meth:`predict_advection` and :meth:`pressure_solve`.
 
-    ``step`` = neighbour search, density, non-pressure forces and advection, pressure,
-    integration (symplectic Euler), each timed. Statistics come back as a dict.
+    :meth:`launch_step` = neighbour search, density, non-pressure forces and advection, pressure,
+    integration (symplectic Euler), each a named stage; the step's statistics stay on the device
+    (:meth:`solver_stats`), where the time loop (``warp_iisph.stepping``) logs them.
     """
-
-    #: reorder particles by grid cell every this many steps (1 = every step)
-    reorder_interval = 10
 
     def __init__(self, model):
         self.physics = model.physics
@@ -147,30 +126,16 @@ class SPHSolver:
         self._counts = wp.zeros(2, dtype=wp.int32, device=model.device)
         self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
         self._no_iterations = wp.zeros(1, dtype=wp.int32, device=model.device)
-        self._stats = wp.zeros(6, dtype=wp.float64, device=model.device)
         self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
-        self.steps = 0
 
     @property
     def signal_speed(self) -> float:
         """Speed of information the time step must resolve besides the flow (m/s)."""
         return 0.0
 
-    def step(self, model, state, dt: float) -> dict:
-        """One time step with plain launches (the reference path: every stage timed, the
-        neighbour storage grown before it overflows, the Jacobi loop driven from the host)."""
-        timer = StageTimes(model.device, STAGES)
-        self.dt.fill_(float(dt))
-        with timer("neighbours"):
-            if self.steps % self.reorder_interval == 0:
-                state.reorder(self.search.cell_order(state.x))
-        self.launch_step(model, state, timer, sync=True)
-        self.steps += 1
-        return self.read_stats(model, dt, timer.ms())
-
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
-        """Every launch of a step after the reorder, reading nothing back unless ``sync``: this
-        is what a graph captures. ``self.dt`` holds the step."""
+        """Every launch of a step (after the reorder, which the time loop schedules), reading
+        nothing back unless ``sync``: what a graph records. ``self.dt`` holds the step."""
         timer = timer or nullcontext  # timer(name) -> a context that does nothing
         n = model.n_fluid
         with timer("neighbours"):
@@ -184,7 +149,7 @@ class SPHSolver:
                  self.compression],
                 model.device,
             )
-            wp.utils.array_sum(self.compression[:n], out=self._compression_sum)
+            sum_into(self.compression, n, self._compression_sum)
         with timer("advection"):
             self.predict_advection(model, state)
         with timer("pressure"):
@@ -204,24 +169,6 @@ class SPHSolver:
                 inputs=[state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self._max_speed2, self._counts],
                 device=model.device,
             )
-
-    def read_stats(self, model, dt: float, ms: dict) -> dict:
-        """The step's statistics, read back from the device in one copy."""
-        n = max(model.n_fluid, 1)
-        error_sum, iterations = self.solver_stats()
-        wp.launch(pack_stats, dim=1, inputs=[self._compression_sum, error_sum, iterations, self._max_speed2, self._counts, self._stats],
-                  device=model.device)
-        compression_sum, error_sum, iterations, max_speed2, escaped, non_finite = self._stats.numpy().tolist()
-        return {
-            "dt": float(dt),
-            "iterations": int(iterations),
-            "density_error": error_sum / n,
-            "compression": compression_sum / n,
-            "max_velocity": float(np.sqrt(np.float32(max_speed2))),
-            "escaped": int(escaped),
-            "non_finite": int(non_finite),
-            "ms": ms,
-        }
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
         """The device sums of the pressure solver's final density error and its iteration count;

@@ -1,0 +1,202 @@
+"""The loop over time steps, the one owner of stepping: its device state (clock, end time, step
+count, the step's dt, a log of step statistics) and its rules (the CFL rule, the landing on an end
+time, the reorder schedule, the divergence checks), all kernels.
+
+One step is :meth:`TimeLoop.step_body`: choose dt, reorder by cell when due, the solver's step,
+record the statistics and decide whether another step follows. The plain path launches it from a
+Python loop, timing each stage and growing neighbour storage before it overflows; a graph
+(:mod:`.graph`) records :meth:`TimeLoop.loop_body`, the same body inside ``wp.capture_while``,
+and replays it. Nothing in the body allocates or reads back, so it may sit inside a CUDA graph's
+conditional nodes.
+"""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+
+import warp as wp
+
+from ..engine.timing import StageTimes
+from ..sph.solvers import STAGES
+
+LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity", "escaped", "non_finite", "t")
+# particles are reordered by grid cell every this many steps (1 = every step)
+REORDER_INTERVAL = 10
+
+
+@wp.kernel
+def choose_dt(
+    fixed_dt: wp.float64,
+    cfl: wp.float64,
+    h: wp.float64,
+    velocity_scale: wp.float64,
+    signal_speed: wp.float64,
+    dt_min: wp.float64,
+    dt_max: wp.float64,
+    dt_request: wp.array(dtype=wp.float64),
+    max_speed2: wp.array(dtype=float),
+    time: wp.array(dtype=wp.float64),
+    end: wp.array(dtype=wp.float64),
+    dt64: wp.array(dtype=wp.float64),
+    dt32: wp.array(dtype=float),
+):
+    """The step: a requested one, the scene's fixed dt, or the CFL rule
+    ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max]; then shortened to
+    land on the end time (and lengthened to it when less than a twentieth of a step would remain)."""
+    dt = dt_request[0]
+    if dt <= wp.float64(0.0):
+        dt = fixed_dt
+    if dt <= wp.float64(0.0):
+        speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), velocity_scale) + signal_speed
+        dt = dt_max
+        if speed > wp.float64(0.0):
+            dt = cfl * h / speed
+        dt = wp.min(wp.max(dt, dt_min), dt_max)
+    left = end[0] - time[0]
+    dt = wp.min(dt, left)
+    if left - dt < wp.float64(1.0e-9) + wp.float64(0.05) * dt:
+        dt = left
+    dt64[0] = dt
+    dt32[0] = float(dt)
+
+
+@wp.kernel
+def reorder_due(steps: wp.array(dtype=wp.int32), interval: int, due: wp.array(dtype=wp.int32)):
+    due[0] = wp.where(steps[0] % interval == 0, 1, 0)
+
+
+@wp.kernel
+def record_step(
+    n: int,
+    velocity_limit: wp.float64,
+    dt64: wp.array(dtype=wp.float64),
+    compression_sum: wp.array(dtype=wp.float64),
+    error_sum: wp.array(dtype=wp.float64),
+    iterations: wp.array(dtype=wp.int32),
+    max_speed2: wp.array(dtype=float),
+    counts: wp.array(dtype=wp.int32),
+    needed: wp.array(dtype=wp.int32),
+    list_total_f: wp.array(dtype=wp.int32),
+    list_total_b: wp.array(dtype=wp.int32),
+    time: wp.array(dtype=wp.float64),
+    end: wp.array(dtype=wp.float64),
+    steps: wp.array(dtype=wp.int32),
+    slot: wp.array(dtype=wp.int32),
+    step_limit: wp.array(dtype=wp.int32),
+    log: wp.array2d(dtype=wp.float64),
+    keep_going: wp.array(dtype=wp.int32),
+):
+    """Append the step's statistics to the log, advance the clock, and decide whether another
+    step follows: not at the end time, not past the step limit, not after a divergence."""
+    k = slot[0]
+    t = time[0] + dt64[0]
+    time[0] = t
+    speed = wp.float64(wp.sqrt(max_speed2[0]))
+    log[k, 0] = dt64[0]
+    log[k, 1] = wp.float64(iterations[0])
+    log[k, 2] = error_sum[0] / wp.float64(n)
+    log[k, 3] = compression_sum[0] / wp.float64(n)
+    log[k, 4] = speed
+    log[k, 5] = wp.float64(counts[0])
+    log[k, 6] = wp.float64(counts[1])
+    log[k, 7] = t
+    needed[0] = wp.max(needed[0], list_total_f[0])
+    needed[1] = wp.max(needed[1], list_total_b[0])
+    slot[0] = k + 1
+    steps[0] = steps[0] + 1
+    diverged = counts[0] > 0 or counts[1] > 0 or speed > velocity_limit
+    keep_going[0] = wp.where(diverged or k + 1 >= step_limit[0] or t >= end[0] - wp.float64(1.0e-9), 0, 1)
+
+
+class TimeLoop:
+    """The device state of the loop over steps of ``solver`` on ``model``/``state``, and its body.
+
+    ``velocity_scale`` is the speed the CFL rule assumes at least (sqrt(2 g y_top)), and
+    ``velocity_limit`` the speed beyond which a step counts as diverged."""
+
+    def __init__(self, model, state, solver, velocity_scale: float, velocity_limit: float, log_capacity: int = 256):
+        self.model, self.state, self.solver = model, state, solver
+        self.physics = model.physics
+        self.velocity_scale = float(velocity_scale)
+        self.velocity_limit = float(velocity_limit)
+        self.capacity = int(log_capacity)
+        dev = model.device
+        f64 = wp.float64
+        self.time = wp.zeros(1, dtype=f64, device=dev)
+        self.end = wp.zeros(1, dtype=f64, device=dev)
+        self.dt64 = wp.zeros(1, dtype=f64, device=dev)
+        self.dt_request = wp.zeros(1, dtype=f64, device=dev)
+        self.steps = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.slot = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.step_limit = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.due = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.needed = wp.zeros(2, dtype=wp.int32, device=dev)
+        self.log = wp.zeros((self.capacity, len(LOG_FIELDS)), dtype=f64, device=dev)
+        self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
+
+    def start(self, time: float, steps: int, end: float, dt: float | None = None, step_limit: int | None = None) -> None:
+        """Set the clock (the host's copy of time and step count is the truth between calls), the
+        end time, a requested dt (``None``: the rules choose) and how many steps a replay may take."""
+        self.time.fill_(time)
+        self.steps.fill_(steps)
+        self.end.fill_(end)
+        self.dt_request.fill_(-1.0 if dt is None else dt)
+        self.step_limit.fill_(self.capacity if step_limit is None else min(step_limit, self.capacity))
+
+    def step_body(self, timer=None, sync: bool = False) -> None:
+        """One step, all on the device. ``timer``: stage times (plain path); ``sync``: neighbour
+        storage may be read back and grown (plain path); without it an overflow shows in
+        ``needed`` and the caller redoes the step."""
+        model, state, solver, ph = self.model, self.state, self.solver, self.physics
+        dev = model.device
+        f64 = wp.float64
+        wp.launch(choose_dt, dim=1, device=dev, inputs=[
+            f64(ph.dt if ph.dt is not None else -1.0), f64(ph.cfl), f64(model.spacing), f64(self.velocity_scale),
+            f64(solver.signal_speed), f64(ph.dt_min), f64(ph.dt_max), self.dt_request, solver._max_speed2, self.time, self.end,
+            self.dt64, solver.dt])
+        wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
+        with timer("neighbours") if timer else nullcontext():
+            wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x)))
+        solver.launch_step(model, state, timer, sync=sync)
+        search = solver.search
+        wp.launch(record_step, dim=1, device=dev, inputs=[
+            model.n_fluid, f64(self.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
+            solver._max_speed2, solver._counts, self.needed, search.fluid.needed,
+            search.boundary.needed if search.boundary_grid is not None else self._zero_total,
+            self.time, self.end, self.steps, self.slot, self.step_limit, self.log, self.keep_going])
+
+    def loop_body(self) -> None:
+        """Steps until the end time, the step limit or a divergence: what a graph records."""
+        self.slot.zero_()
+        self.needed.zero_()
+        self.keep_going.fill_(1)
+        wp.capture_while(self.keep_going, self.step_body)
+
+    def plain_step(self) -> dict:
+        """One step launched from Python, every stage timed: its record (with ``ms`` per stage)."""
+        timer = StageTimes(self.model.device, STAGES)
+        self.slot.zero_()
+        self.step_body(timer, sync=True)
+        (record,) = self.records(1)
+        record["ms"] = timer.ms()
+        return record
+
+    def records(self, k: int) -> list[dict]:
+        """The first ``k`` log rows as records (``t``: the time at the step's end)."""
+        rows = self.log.numpy()[:k]
+        out = []
+        for row in rows:
+            rec = dict(zip(LOG_FIELDS, (float(v) for v in row)))
+            for key in ("iterations", "escaped", "non_finite"):
+                rec[key] = int(rec[key])
+            out.append(rec)
+        return out
+
+    def steps_logged(self) -> int:
+        return int(self.slot.numpy()[0])
+
+    def lists_needed(self) -> tuple[int, int]:
+        """Entries the fluid and boundary lists needed during the last loop."""
+        fluid, boundary = self.needed.numpy()
+        return int(fluid), int(boundary)
