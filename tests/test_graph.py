@@ -117,6 +117,8 @@ def test_nothing_in_a_conditional_body_allocates(monkeypatch):
     monkeypatch.setattr(wp.utils, "array_sum", forbidden("array_sum", wp.utils.array_sum))
     monkeypatch.setattr(wp.utils, "array_scan", forbidden("array_scan", wp.utils.array_scan))
     monkeypatch.setattr(wp.HashGrid, "build", forbidden("HashGrid.build", wp.HashGrid.build))
+    for name in ("empty", "zeros", "full", "empty_like", "zeros_like", "full_like", "clone"):  # any allocation
+        monkeypatch.setattr(wp, name, forbidden(f"wp.{name}", getattr(wp, name)))
     # a scene with walls and an obstacle near the fluid: fluid, wall and reorder paths all recorded
     from warp_iisph import Box
 
