@@ -21,13 +21,23 @@ from .wall_mask import NearMask, may_have_neighbors, near_mask
 
 @wp.struct
 class NeighborList:
-    """Compact (CSR) neighbour lists: the neighbours of particle i are
-    ``index[start[i] : start[i] + count[i]]`` with kernel gradients ``grad_W[...]``."""
+    """Neighbour lists: the m-th neighbour of particle i (m < ``count[i]``) is
+    ``index[start[i] + m * step]``, with kernel gradient ``grad_W[...]`` (:func:`entry`). Compact
+    (CSR) lists and particle-major strided lists have ``step`` 1; slot-major strided lists keep
+    slot m of every particle together (``start[i] = i``, ``step = n``), so neighbouring threads
+    read neighbouring entries: the layout a GPU gathers fastest."""
 
     start: wp.array(dtype=wp.int32)
     count: wp.array(dtype=wp.int32)
     index: wp.array(dtype=wp.int32)
     grad_W: wp.array(dtype=wp.vec3)
+    step: int
+
+
+@wp.func
+def entry(nbrs: NeighborList, i: int, m: int) -> int:
+    """Where particle i's m-th neighbour is stored."""
+    return nbrs.start[i] + m * nbrs.step
 
 
 @wp.kernel
@@ -97,13 +107,16 @@ def fill_neighbors_strided(
     nbrs: NeighborList,
     wanted: wp.array(dtype=wp.int32),
 ):
-    """One pass, no count: particle i's neighbours in its own ``stride`` slots from ``i * stride``
-    (in the same order as ``fill_neighbors``); ``wanted`` says how many it found, the count is cut
-    to the stride (``stride_needed`` flags it; the step is redone with a longer stride)."""
+    """One pass, no count: particle i's neighbours in its own ``stride`` slots (in the same order
+    as ``fill_neighbors``), from ``i * stride`` one after the other, or slot-major (``nbrs.step``
+    is n: slot m at ``m * n + i``); ``wanted`` says how many it found, the count is cut to the
+    stride (``stride_needed`` flags it; the step is redone with a longer stride)."""
     i = wp.tid() + offset
     x_i = points[i]
     r2 = radius * radius
     k0 = i * stride
+    if nbrs.step != 1:
+        k0 = i
     nbrs.start[i] = k0
     k = int(0)
     cx = cell_range(grid, x_i, radius, 0)
@@ -121,8 +134,9 @@ def fill_neighbors_strided(
                         x_ij = x_i - points[j]
                         if wp.dot(x_ij, x_ij) < r2:
                             if k < stride:
-                                nbrs.index[k0 + k] = j
-                                nbrs.grad_W[k0 + k] = cubic_grad_W(x_ij, radius)
+                                e = k0 + k * nbrs.step
+                                nbrs.index[e] = j
+                                nbrs.grad_W[e] = cubic_grad_W(x_ij, radius)
                             k += 1
     nbrs.count[i] = wp.min(k, stride)
     wanted[i] = k
@@ -168,6 +182,7 @@ class NeighborListBuffer:
         self.lists = NeighborList()
         self.lists.start = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
         self.lists.count = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
+        self.lists.step = 1
         self.needed = wp.zeros(1, dtype=wp.int32, device=device)  # entries the last build needed
         self.generation = -1  # bumped when the storage moves (captured graphs must be re-made)
         self._reserve(capacity or max(32 * n, 1))
@@ -203,7 +218,8 @@ class NeighborListBuffer:
         start = self.lists.start.numpy()[:n]
         count = self.lists.count.numpy()[:n]
         index = self.lists.index.numpy()
-        return [set(index[s : s + c].tolist()) for s, c in zip(start, count)]
+        step = self.lists.step
+        return [set(index[s : s + c * step : step].tolist()) for s, c in zip(start, count)]
 
 
 class StridedListBuffer(NeighborListBuffer):
@@ -213,10 +229,13 @@ class StridedListBuffer(NeighborListBuffer):
     stride, 48, is above the ~41 a dam break reaches (a lattice has 26 within 2h): a graph replay
     that outgrows it is redone whole, which would cost a frame."""
 
-    def __init__(self, n: int, device, stride: int = 48):
+    def __init__(self, n: int, device, stride: int = 48, slot_major: bool | None = None):
         self.n = max(n, 1)
         self.wanted = wp.zeros(self.n, dtype=wp.int32, device=device)
         super().__init__(n, device, capacity=stride * self.n)
+        if slot_major is None:
+            slot_major = wp.get_device(device).is_cuda  # see slot_major_default
+        self.lists.step = self.n if slot_major else 1
 
     def _reserve(self, capacity: int) -> None:
         self.stride = max(1, -(-capacity // self.n))

@@ -19,7 +19,7 @@ import warp as wp
 from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
 from ..kernel import cubic_W
-from ..neighbors import NeighborList, NeighborSearch
+from ..neighbors import NeighborList, NeighborSearch, entry
 
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
 
@@ -42,11 +42,11 @@ def compute_density(
     i = wp.tid() + offset
     x_i = x[i]
     r = mass * cubic_W(0.0, H)
-    s = nf.start[i]
-    for k in range(s, s + nf.count[i]):
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
         r += mass * cubic_W(wp.length(x_i - x[nf.index[k]]), H)
-    s = nb.start[i]
-    for k in range(s, s + nb.count[i]):
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
         b = nb.index[k]
         r += psi[b] * cubic_W(wp.length(x_i - xb[b]), H)
     rho[i] = r
@@ -72,12 +72,12 @@ def integrate(
     dt = dt_step[0]
     p_i = p[i] / (rho[i] * rho[i])
     a = wp.vec3(0.0, 0.0, 0.0)
-    s = nf.start[i]
-    for k in range(s, s + nf.count[i]):
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
         j = nf.index[k]
         a -= mass * (p_i + p[j] / (rho[j] * rho[j])) * nf.grad_W[k]
-    s = nb.start[i]
-    for k in range(s, s + nb.count[i]):
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
         a -= psi[nb.index[k]] * p_i * nb.grad_W[k]
     v_i = v_adv[i] + dt * a
     v[i] = v_i

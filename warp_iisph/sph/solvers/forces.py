@@ -11,7 +11,7 @@ coefficient ``mu_b`` (m^2/s); 0 (the default) keeps the walls free-slip and cost
 
 import warp as wp
 
-from ..neighbors import NeighborList
+from ..neighbors import NeighborList, entry
 
 
 @wp.func
@@ -41,8 +41,8 @@ def non_pressure_acceleration(
         x_i = x[i]
         v_i = v[i]
         visc = wp.vec3(0.0, 0.0, 0.0)
-        s = nf.start[i]
-        for k in range(s, s + nf.count[i]):
+        for m in range(nf.count[i]):
+            k = entry(nf, i, m)
             j = nf.index[k]
             visc += (mass / rho[j]) * viscous_pair(v_i - v[j], x_i - x[j], h, nf.grad_W[k])
         a = a + 2.0 * viscosity * visc
@@ -50,8 +50,8 @@ def non_pressure_acceleration(
         x_i = x[i]
         v_i = v[i]
         fric = wp.vec3(0.0, 0.0, 0.0)
-        s = nb.start[i]
-        for k in range(s, s + nb.count[i]):
+        for m in range(nb.count[i]):
+            k = entry(nb, i, m)
             b = nb.index[k]
             fric += (psi[b] / rho[i]) * viscous_pair(v_i, x_i - xb[b], h, nb.grad_W[k])
         a = a + 2.0 * boundary_viscosity * fric

@@ -19,7 +19,7 @@ import warp as wp
 
 from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
-from ..neighbors import NeighborList
+from ..neighbors import NeighborList, entry
 from .base import SPHSolver
 from .forces import non_pressure_acceleration
 
@@ -47,11 +47,11 @@ def predict_advection_velocity(
     dt = dt_step[0]
     v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, psi, nb, boundary_viscosity)
     d = wp.vec3(0.0, 0.0, 0.0)
-    s = nf.start[i]
-    for k in range(s, s + nf.count[i]):
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
         d -= mass * nf.grad_W[k]
-    s = nb.start[i]
-    for k in range(s, s + nb.count[i]):
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
         d -= psi[nb.index[k]] * nb.grad_W[k]
     rho_i = rho[i]
     d_ii[i] = d * (dt * dt / (rho_i * rho_i))
@@ -80,14 +80,14 @@ def predict_advection_density(
     d_ji_scale = dt * dt * mass / (rho_i * rho_i)
     r = float(0.0)
     a = float(0.0)
-    s = nf.start[i]
-    for k in range(s, s + nf.count[i]):
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
         j = nf.index[k]
         g = nf.grad_W[k]
         r += mass * wp.dot(v_i - v_adv[j], g)
         a += mass * wp.dot(dii - d_ji_scale * g, g)
-    s = nb.start[i]
-    for k in range(s, s + nb.count[i]):
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
         g = nb.grad_W[k]
         psi_b = psi[nb.index[k]]
         r += psi_b * wp.dot(v_i, g)
@@ -113,8 +113,8 @@ def jacobi_sigma_term(mass: float, sdp_i: wp.vec3, d_jj_p_j: wp.vec3, sdp_j: wp.
 def jacobi_boundary_sigma(i: int, psi: wp.array(dtype=float), nb: NeighborList, sdp_i: wp.vec3, fluid_sigma: float) -> float:
     """``s_i``: the walls' parts added, in list order, to the fluid neighbours' sum."""
     sigma = fluid_sigma
-    s = nb.start[i]
-    for k in range(s, s + nb.count[i]):
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
         sigma += psi[nb.index[k]] * wp.dot(sdp_i, nb.grad_W[k])
     return sigma
 
@@ -153,8 +153,8 @@ def pressure_sum_dij_pj(
     i = wp.tid() + offset
     dt = dt_step[0]
     acc = wp.vec3(0.0, 0.0, 0.0)
-    s = nf.start[i]
-    for k in range(s, s + nf.count[i]):
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
         j = nf.index[k]
         acc -= dij_pj_term(mass, p[j], rho[j], nf.grad_W[k])
     sum_dij_pj[i] = dt * dt * acc
@@ -186,8 +186,8 @@ def pressure_jacobi(
     sdp_i = sum_dij_pj[i]
     d_ji_scale = dt * dt * mass / (rho_i * rho_i)
     sigma = float(0.0)
-    s = nf.start[i]
-    for k in range(s, s + nf.count[i]):
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
         j = nf.index[k]
         g = nf.grad_W[k]
         sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
