@@ -297,7 +297,7 @@ def test_overwrite_replaces_the_whole_old_run_only_once_the_new_one_has_a_frame(
     assert main(["run", "drop_splash", "--duration", "0.05", "--out", str(run), "--overwrite", *SMALL[:2], "--set", "spacing=0.06",
                  "--no-progress"]) == 0
     names = {p.name for p in run.iterdir()}
-    assert names == {"particles", "stats.jsonl", "run.json"}, names
+    assert names == {"particles", "stats.jsonl", "run.json", "checkpoint.npz"}, names
     record = RunFolder(run).record()
     assert record["run_id"] != old_id and record["ended"] == "completed"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".run.")]

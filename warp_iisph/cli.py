@@ -26,7 +26,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show the Python traceback of an error instead of one line")
     sub = p.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     run = sub.add_parser("run", help="simulate a scene file (or a bundled scene) into an output folder")
-    run.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene (see `warp-iisph scenes`)")
+    run.add_argument("scene", nargs="?", help="a scene file (.toml) or the name of a bundled scene (see `warp-iisph scenes`)")
+    run.add_argument("--resume", metavar="RUN_DIR", default=None,
+                     help="continue a stopped, interrupted or diverged (then --set fixed) run from its last checkpoint, "
+                          "bitwise as it would have run; --duration may extend it")
     run.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's output.duration)")
     run.add_argument("--fps", type=float, default=None, help="frames per simulated second (default: the scene's output.fps)")
     run.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
@@ -167,19 +170,29 @@ def _run(args) -> int:
         overrides.append(f'physics.method="{args.method}"')
     if args.mesh:
         overrides.append("output.mesh=true")
-    scene = load_scene(args.scene, overrides)
+    if args.resume:
+        if args.scene or args.out or args.overwrite:
+            raise ValueError("--resume RUN_DIR: continues that run with its own scene and folder; give no SCENE, --out or --overwrite")
+        from .run.runner import resumed_scene
+
+        scene, out, source = resumed_scene(args.resume, overrides), args.resume, f"{args.resume}/run.json"
+    elif not args.scene:
+        raise ValueError("SCENE: required (a scene file or a bundled scene's name), or --resume RUN_DIR")
+    else:
+        scene = load_scene(args.scene, overrides)
+        out, source = args.out or f"runs/{scene.name}", resolve_scene(args.scene)
     _start_warp(args.threads)
     device = checked_device(args.device)
-    out = args.out or f"runs/{scene.name}"
+    from .run.folder import RunError
     from .run.runner import run_scene
 
     try:
         record = run_scene(scene, out, args.duration, args.fps, device, overwrite=args.overwrite, progress=not args.no_progress,
-                           graph=args.graph)
+                           graph=args.graph, resume=bool(args.resume))
     except ValueError as e:
-        if str(e).startswith("--"):  # an argument of the command
+        if str(e).startswith("--") or isinstance(e, RunError):  # an argument, or a run folder's file: named already
             raise
-        raise ValueError(f"{resolve_scene(args.scene)}: {e}") from None  # found while building the scene's particles
+        raise ValueError(f"{source}: {e}") from None  # found while building the scene's particles
     t = record["totals"]
     o = record["output"]
     wrote = " and ".join(k for k in ("particles", "mesh") if o[k]) or "no frame files (output.particles and output.mesh are false)"

@@ -3,7 +3,8 @@
 ```
 RUN/particles/frame_00000.ply   particle frames          RUN/stats.jsonl  one record per step
 RUN/mesh/frame_00000.obj        surface meshes           RUN/run.json     scene, device, totals, how it ended
-RUN/obstacles.obj               static obstacles         RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
+RUN/obstacles.obj               static obstacles         RUN/checkpoint.npz  the state at the last checkpoint
+RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
 ```
 """
 
@@ -23,6 +24,7 @@ FRAMES = "frames"  # rendered images (warp-iisph render)
 STATS = "stats.jsonl"
 RECORD = "run.json"
 OBSTACLES = "obstacles.obj"
+CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, to resume from
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 DEFAULT_FPS = 30.0
 _FRAME_EXT = {PARTICLES: "ply", MESHES: "obj"}
@@ -81,6 +83,10 @@ class RunFolder:
     @property
     def obstacles(self) -> Path:
         return self.path / OBSTACLES
+
+    @property
+    def checkpoint(self) -> Path:
+        return self.path / CHECKPOINT
 
     # --- contents --------------------------------------------------------------------------
 

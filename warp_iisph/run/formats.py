@@ -99,10 +99,17 @@ class StatsWriter:
     mid-line (killed, disk full) leaves at most its last line incomplete: :func:`read_stats`
     skips it."""
 
-    def __init__(self, path):
+    def __init__(self, path, keep: list[dict] | None = None):
+        """A new ``stats.jsonl``, or with ``keep`` one holding those records (a resumed run's steps
+        so far; replaced atomically) that the new records follow."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "w")
+        if keep is None:
+            self._f = open(self.path, "w")
+            return
+        lines = "".join(json.dumps(r, default=jsonable) + "\n" for r in keep)
+        atomic_write(self.path, lambda tmp: Path(tmp).write_text(lines))
+        self._f = open(self.path, "a")
 
     def write(self, record: dict) -> None:
         self._f.write(json.dumps(record, default=jsonable) + "\n")

@@ -19,16 +19,18 @@ import platform
 import shutil
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
 from ..engine.timing import StageTimes
-from ..scene import Scene, obstacles_mesh
+from ..scene import Scene, obstacles_mesh, scene_to_dict
 from ..scene.checks import in_range
-from .folder import MESHES, OBSTACLES, RunFolder, new_run_id
-from .formats import StatsWriter, write_obj, write_particles
+from .atomic import atomic_write
+from .folder import MESHES, OBSTACLES, PARTICLES, RunError, RunFolder, frame_index, new_run_id
+from .formats import StatsWriter, read_stats, write_obj, write_particles
 from .frame_queue import FrameQueue
 from .meshing import FrameMesher, mesh_settings
 from .progress import frame_bar
@@ -83,26 +85,42 @@ def _check_target(out: Path, overwrite: bool) -> bool:
 
 
 def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True,
-              graph: bool = False, background_output: bool = True) -> dict:
+              graph: bool = False, background_output: bool = True, resume: bool = False) -> dict:
     """Simulate the scene, writing ``particles/frame_%05d.ply`` every ``1/fps`` s, ``stats.jsonl``
     (one record per step), ``run.json`` and, for a scene with obstacles, ``obstacles.obj``.
     Returns the run record (``ended`` says how it ended). Frame files are written on a background
-    thread while the next frame simulates (``background_output=False``: inline)."""
+    thread while the next frame simulates (``background_output=False``: inline). With ``resume``,
+    ``out`` is a run stopped (or diverged, then fixed) after a checkpoint: it continues from there,
+    bitwise as it would have, to the frames ``duration`` asks for (``scene``: the run's own, see
+    :func:`resumed_scene`)."""
     from ..stepping import DivergenceError, Simulation
 
     plan = plan_frames(scene, duration, fps)
     out = Path(out)
-    replacing = _check_target(out, overwrite)
+    if resume:
+        run = RunFolder.existing(out)
+        before = run.record()
+        checkpoint = load_checkpoint(run)
+        if abs(run.fps(before) - plan.fps) > 1e-9 * plan.fps:
+            raise ValueError(f"--fps = {plan.fps:g}: a resumed run keeps its {run.fps(before):g} frames/s")
+        replacing = False
+    else:
+        replacing = _check_target(out, overwrite)
     t_start = time.perf_counter()
     # everything is built before the disk changes; step records go to stats.jsonl, not memory
     sim = Simulation(scene, device=device, graph=graph, history=1)
+    first = 0
+    if resume:
+        sim.restore(checkpoint)
+        first = int(checkpoint["frame"]) + 1
     totals = StepTotals(sim.physics)
-    run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out)
+    if not resume:
+        run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out)
     record = {
-        "run_id": new_run_id(),
+        "run_id": before["run_id"] if resume else new_run_id(),
         "ended": "running",
         "message": "",
-        "scene": dataclasses.asdict(scene),
+        "scene": scene_to_dict(scene),
         "device": str(sim.device),
         "graph": graph,
         "versions": versions(),
@@ -113,6 +131,10 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         "fps": plan.fps,
         "output": {"particles": scene.output.particles, "mesh": scene.output.mesh, "background": background_output},
     }
+    if resume:
+        record["resumed"] = before.get("resumed", []) + [{"frame": first - 1, "t": sim.time, "step": sim.step_count}]
+        if "obstacles" in before:
+            record["obstacles"] = before["obstacles"]
     # seconds per stage on the main thread; ``export`` is what output cost it: the host copies
     # plus the waits for the writer thread (whose own work overlaps the simulation)
     times = StageTimes()
@@ -130,6 +152,10 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         if mesher is not None:
             mesh, obj = mesher.mesh(sim.state.x), run.mesh_frame(k)
             jobs.append(lambda: mesher.export(mesh, obj))
+        every = scene.output.checkpoint_every
+        if every and (k % every == 0 or k == plan.frames - 1):
+            state = {**sim.checkpoint(), "frame": np.int64(k)}
+            jobs.append(lambda: save_checkpoint(run, state))  # after the frame's files: it never runs ahead of them
 
         def job():
             for j in jobs:
@@ -150,27 +176,37 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     bar = frame_bar(plan.frames, progress)
     ended, message = "completed", ""
     try:
-        run.path.mkdir(parents=True, exist_ok=True)
-        stats = StatsWriter(run.stats)
-
         def on_step(rec: dict) -> None:
             stats.write(rec)
             totals.add(rec)
             times.merge({k: v / 1e3 for k, v in rec["ms"].items()})
 
-        if scene.obstacles:  # static: one file for the viewers and Blender, not one per frame
-            mesh = obstacles_mesh(scene.obstacles)
-            write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
-            record["obstacles"] = OBSTACLES
-        if mesher is not None:
-            run.write_provenance(MESHES, record["run_id"], mesh_settings(scene.surface, scene.spacing))
-        write_frame(0)
-        queue.wait()
-        update_record()
-        if replacing:  # the new run is on disk: it takes the old one's place
-            _swap_in(run, out)
-        bar.update(1)
-        for k in range(1, plan.frames):
+        if resume:  # what the stopped run wrote after its checkpoint goes; the rest is this run's start
+            for old in _frames_after(run, first - 1):
+                old.unlink()
+            kept = [r for r in read_stats(run.stats) if r["step"] <= sim.step_count] if run.stats.exists() else []
+            for r in kept:
+                totals.add(r)
+            stats = StatsWriter(run.stats, keep=kept)
+            written[0] = first
+            update_record()
+        else:
+            run.path.mkdir(parents=True, exist_ok=True)
+            stats = StatsWriter(run.stats)
+            if scene.obstacles:  # static: one file for the viewers and Blender, not one per frame
+                mesh = obstacles_mesh(scene.obstacles)
+                write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
+                record["obstacles"] = OBSTACLES
+            if mesher is not None:
+                run.write_provenance(MESHES, record["run_id"], mesh_settings(scene.surface, scene.spacing))
+            write_frame(0)
+            queue.wait()
+            update_record()
+            if replacing:  # the new run is on disk: it takes the old one's place
+                _swap_in(run, out)
+            first = 1
+        bar.update(first)
+        for k in range(first, plan.frames):
             steps_before, wall_before = sim.step_count, time.perf_counter()
             sim.advance(k / plan.fps - sim.time, callback=on_step)
             write_frame(k)
@@ -213,6 +249,58 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         record.update(ended=ended if ended != "completed" else "failed",
                       message=f"{message}; run.json could not be updated ({e})" if message else f"run.json could not be updated ({e})")
     return record
+
+
+def resumed_scene(run_dir, overrides=()) -> Scene:
+    """The scene of the run in ``run_dir`` (as its ``run.json`` records it), changed by ``--set``
+    overrides of its physics, output, surface or camera: a resumed run keeps its particles, so its
+    spacing, tank, fluids and obstacles stay as they were."""
+    from ..scene import scene_from_dict
+    from ..scene.file import apply_override
+
+    run = RunFolder.existing(run_dir)
+    record = run.record()
+    data = record.get("scene")
+    if not data or "tank" not in data:
+        raise RunError(f"{run.record_path}: records no scene to resume")
+    # the run's own length and frame rate (asked on its command line, not in its scene file)
+    data.setdefault("output", {}).update(duration=record.get("requested_duration", record.get("duration")), fps=run.fps(record))
+    for assignment in overrides:
+        key = assignment.partition("=")[0].strip()
+        if key.split(".")[0] not in ("physics", "output", "surface", "camera"):
+            raise ValueError(f"--set {key}: a resumed run keeps its particles; only physics, output, surface and camera keys may change")
+        apply_override(data, assignment)
+    try:
+        return scene_from_dict(data, default_name=run.path.name)
+    except ValueError as e:
+        raise ValueError(f"{run.record_path}: {e}") from None
+
+
+def load_checkpoint(run: RunFolder) -> dict:
+    """The state ``run`` kept at its last checkpoint, with the frame it was taken at."""
+    if not run.checkpoint.is_file():
+        raise RunError(f"{run.checkpoint}: no checkpoint to resume from (output.checkpoint_every = 0, or no frame was written)")
+    try:
+        with np.load(run.checkpoint) as f:
+            return {k: f[k] for k in f.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as e:
+        raise RunError(f"{run.checkpoint}: not a readable checkpoint ({e})") from None
+
+
+def save_checkpoint(run: RunFolder, state: dict) -> None:
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, **state)
+
+    atomic_write(run.checkpoint, write)
+
+
+def _frames_after(run: RunFolder, k: int) -> list[Path]:
+    """The particle and mesh frames after frame ``k``."""
+    files = []
+    for kind in (PARTICLES, MESHES):
+        files += [f for f in (run.path / kind).glob("frame_*") if f.suffix != ".json" and frame_index(f) > k]
+    return files
 
 
 def _swap_in(run: RunFolder, out: Path) -> None:

@@ -3,12 +3,12 @@
 from . import cases
 from .checks import SceneFileError
 from .description import Scene
-from .file import load_scene
+from .file import load_scene, scene_from_dict, scene_to_dict
 from .library import bundled_scenes, resolve_scene
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, MeshShape, Sphere, obstacles_mesh, shape_mesh
 
 __all__ = [
     "Box", "Camera", "MeshShape", "Output", "Physics", "Scene", "SceneFileError", "Sphere", "SurfaceSettings",
-    "bundled_scenes", "cases", "load_scene", "obstacles_mesh", "resolve_scene", "shape_mesh",
+    "bundled_scenes", "cases", "load_scene", "scene_from_dict", "scene_to_dict", "obstacles_mesh", "resolve_scene", "shape_mesh",
 ]

@@ -124,6 +124,39 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
     return scene.validate()
 
 
+def _shape_table(shape) -> dict:
+    if isinstance(shape, Box):
+        return {"shape": "box", "lower": list(shape.lower), "upper": list(shape.upper)}
+    if isinstance(shape, Sphere):
+        return {"shape": "sphere", "center": list(shape.center), "radius": shape.radius}
+    table = {"shape": "mesh", "path": str((Path(shape.base_dir) / shape.path).resolve()), "translate": list(shape.translate),
+             "rotate": list(shape.rotate), "scale": list(shape.scale) if isinstance(shape.scale, tuple) else shape.scale}
+    if shape.shell:
+        table["shell"] = True
+    return table
+
+
+def _settings_table(settings) -> dict:
+    # TOML has no null: a setting left at None (e.g. physics.dt, the CFL rule) is left out
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(settings).items() if v is not None}
+
+
+def scene_to_dict(scene: Scene) -> dict:
+    """A validated scene as the table of a scene file (mesh paths absolute): what
+    :func:`scene_from_dict` reads back into the same scene. A run records it, to be resumed."""
+    return {
+        "name": scene.name,
+        "spacing": scene.spacing,
+        "tank": _shape_table(scene.tank),
+        "fluids": [_shape_table(f) for f in scene.fluids],
+        "obstacles": [_shape_table(o) for o in scene.obstacles],
+        "physics": _settings_table(scene.physics),
+        "output": _settings_table(scene.output),
+        "surface": _settings_table(scene.surface),
+        "camera": _settings_table(scene.camera),
+    }
+
+
 def load_scene(path, overrides=()) -> Scene:
     """Read a scene file (a path or a bundled name), apply ``--set`` overrides, validate.
     Every problem raises :class:`SceneFileError` with a one-line message naming the file."""

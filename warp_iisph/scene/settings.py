@@ -45,18 +45,23 @@ class SurfaceSettings:
 @dataclass
 class Output:
     """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
-    particle files (``particles``) and surface meshes (``mesh``)."""
+    particle files (``particles``), surface meshes (``mesh``), and the full state every
+    ``checkpoint_every`` frames (0: never) for ``warp-iisph run --resume``."""
 
     fps: float = 30.0
     duration: float = 2.0
     particles: bool = True
     mesh: bool = False
+    checkpoint_every: int = 1
 
     def validate(self) -> None:
         self.fps = in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
         self.duration = in_range(self.duration, "output.duration", 0.0, 1.0e6, "simulated seconds", lo_open=True)
         self.particles = flag(self.particles, "output.particles")
         self.mesh = flag(self.mesh, "output.mesh")
+        c = self.checkpoint_every
+        if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 0 <= c <= 1_000_000:
+            raise ValueError(f"output.checkpoint_every = {c!r}: must be a whole number of frames in [0, 1000000] (0: never)")
 
 
 @dataclass

@@ -121,6 +121,30 @@ class Simulation:
             raise DivergenceError(self.step_count, self.time, reason)
         return record
 
+    def checkpoint(self) -> dict:
+        """Everything the next step depends on, as NumPy arrays: the particles in their memory
+        order, the clock, the step count (the reorder schedule) and the top speed (the CFL rule).
+        A simulation restored from it continues bitwise as this one would."""
+        s = self.state
+        # copies: on the CPU .numpy() is a view of the live arrays
+        out = {name: getattr(s, name).numpy().copy() for name in ("x", "v", "rho", "p", "id")}
+        out.update(max_speed2=self.solver._max_speed2.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
+                   method=np.array(self.physics.method))
+        return out
+
+    def restore(self, checkpoint: dict) -> None:
+        """Continue from :meth:`checkpoint`'s arrays (``ValueError`` when they are not of this scene)."""
+        s = self.state
+        if checkpoint["x"].shape != (s.n, 3):
+            raise ValueError(f"checkpoint: holds {len(checkpoint['x'])} particles, the scene makes {s.n}; its geometry changed")
+        if str(checkpoint["method"]) != self.physics.method:
+            raise ValueError(f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}")
+        for name in ("x", "v", "rho", "p", "id"):
+            getattr(s, name).assign(checkpoint[name])
+        self.solver._max_speed2.assign(checkpoint["max_speed2"])
+        self.time = float(checkpoint["time"])
+        self.step_count = int(checkpoint["step_count"])
+
     # NumPy accessors, in original particle order.
     @property
     def positions(self) -> np.ndarray:
