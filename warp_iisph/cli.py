@@ -38,6 +38,8 @@ def _parser() -> argparse.ArgumentParser:
         help="override a scene-file key, e.g. --set spacing=0.01 --set physics.eta=0.0005 --set fluids.0.radius=0.1",
     )
     run.add_argument("--mesh", action="store_true", help="also write the surface mesh/frame_NNNNN.obj (same as --set output.mesh=true)")
+    run.add_argument("--format", choices=("ply", "vtu"), default=None,
+                     help="particle files: binary PLY (default; splashsurf reads it) or VTU for ParaView (same as --set output.format=F)")
     run.add_argument("--threads", default=None, help="CPU threads for per-particle kernels (default: all available cores)")
     run.add_argument("--graph", action="store_true", help="record one time step as a graph and replay it (no per-step Python launches)")
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
@@ -167,6 +169,8 @@ def _run(args) -> int:
         overrides.append(f'physics.method="{args.method}"')
     if args.mesh:
         overrides.append("output.mesh=true")
+    if args.format:
+        overrides.append(f'output.format="{args.format}"')
     scene = load_scene(args.scene, overrides)
     _start_warp(args.threads)
     device = checked_device(args.device)

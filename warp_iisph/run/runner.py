@@ -84,8 +84,9 @@ def _check_target(out: Path, overwrite: bool) -> bool:
 
 def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True,
               graph: bool = False, background_output: bool = True) -> dict:
-    """Simulate the scene, writing ``particles/frame_%05d.ply`` every ``1/fps`` s, ``stats.jsonl``
-    (one record per step), ``run.json`` and, for a scene with obstacles, ``obstacles.obj``.
+    """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
+    says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene
+    with obstacles, ``obstacles.obj``.
     Returns the run record (``ended`` says how it ended). Frame files are written on a background
     thread while the next frame simulates (``background_output=False``: inline)."""
     from ..stepping import DivergenceError, Simulation
@@ -97,7 +98,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     # everything is built before the disk changes; step records go to stats.jsonl, not memory
     sim = Simulation(scene, device=device, graph=graph, history=1)
     totals = StepTotals(sim.physics)
-    run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out)
+    run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out, scene.output.format)
     record = {
         "run_id": new_run_id(),
         "ended": "running",
@@ -111,7 +112,8 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         "duration": plan.duration,
         "requested_duration": plan.requested,
         "fps": plan.fps,
-        "output": {"particles": scene.output.particles, "mesh": scene.output.mesh, "background": background_output},
+        "output": {"particles": scene.output.particles, "format": scene.output.format, "mesh": scene.output.mesh,
+                   "background": background_output},
     }
     # seconds per stage on the main thread; ``export`` is what output cost it: the host copies
     # plus the waits for the writer thread (whose own work overlaps the simulation)
@@ -124,9 +126,9 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         jobs = []
         if scene.output.particles:
             with times("export"):
-                ply = run.particle_frame(k)
+                frame_file = run.particle_frame(k)
                 snapshot = (sim.positions, sim.velocities, sim.densities, sim.pressures)
-            jobs.append(lambda: write_particles(ply, *snapshot))
+            jobs.append(lambda: write_particles(frame_file, *snapshot))
         if mesher is not None:
             mesh, obj = mesher.mesh(sim.state.x), run.mesh_frame(k)
             jobs.append(lambda: mesher.export(mesh, obj))

@@ -13,6 +13,8 @@ METHODS = ("iisph", "wcsph")
 
 SMOOTHING = ("laplacian", "taubin", "none")
 
+PARTICLE_FORMATS = ("ply", "vtu")  # output.format: binary PLY (splashsurf reads it) or VTU (ParaView)
+
 
 @dataclass
 class SurfaceSettings:
@@ -45,18 +47,21 @@ class SurfaceSettings:
 @dataclass
 class Output:
     """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
-    particle files (``particles``) and surface meshes (``mesh``)."""
+    particle files (``particles``, in ``format``: ``ply`` or ``vtu``) and surface meshes (``mesh``)."""
 
     fps: float = 30.0
     duration: float = 2.0
     particles: bool = True
     mesh: bool = False
+    format: str = "ply"
 
     def validate(self) -> None:
         self.fps = in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
         self.duration = in_range(self.duration, "output.duration", 0.0, 1.0e6, "simulated seconds", lo_open=True)
         self.particles = flag(self.particles, "output.particles")
         self.mesh = flag(self.mesh, "output.mesh")
+        if self.format not in PARTICLE_FORMATS:
+            raise ValueError(f"output.format = {self.format!r}: must be one of {', '.join(PARTICLE_FORMATS)}")
 
 
 @dataclass
