@@ -8,22 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from warp_iisph import scenes
 from warp_iisph.cli import main
 from warp_iisph.run.folder import RunError, RunFolder, select_frames
-from warp_iisph.run.runner import run_scene
+from warp_iisph.view.camera import auto_camera
 
-
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    """A falling block of about 500 particles, 0.1 s at 30 frames/s: 4 particle and mesh frames."""
-    out = tmp_path_factory.mktemp("view") / "run"
-    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.16)
-    scene.tank.upper = (0.4, 0.5, 0.4)
-    scene.output.mesh = True
-    record = run_scene(scene, out, duration=0.1, fps=30, progress=False)
-    assert record["ended"] == "completed"
-    return out
+from conftest import PILLAR  # the obstacle of the obstacle_run fixture
 
 
 def video_frames(path):
@@ -88,7 +77,7 @@ def test_tiny_render_shows_the_liquid(tmp_path):
     ball.apply_translation([0.0, 0.2, 0.0])
     path = tmp_path / "ball.obj"
     ball.export(path)
-    eye, target = render.auto_camera(ball.bounds[0], ball.bounds[1], 40.0, 64 / 36)
+    eye, target = auto_camera(ball.bounds[0], ball.bounds[1], 40.0, 64 / 36)
     args = dict(camera=(eye, target), floor_y=0.0, extent=3.0, spp=4, width=64, height=36, fov=40.0)
     red = render.material_color("0.95,0.5,0.5")  # through the 0.4 m ball: red 66 %, green and blue 0.4 %
     with_liquid = render.render_image(render.scene_dict(path, color=red, **args), use_denoiser=True)
@@ -158,7 +147,7 @@ def test_materials_and_camera_framing():
         with pytest.raises(RunError):
             render.material_color(bad)
     lo, hi = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.5, 0.3])
-    eye, target = render.auto_camera(lo, hi, 40.0, 16 / 9)
+    eye, target = auto_camera(lo, hi, 40.0, 16 / 9)
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 0.5) for z in (0, 0.3)])
     view = (target - eye) / np.linalg.norm(target - eye)
     angles = [math.degrees(math.acos(np.dot(view, (c - eye) / np.linalg.norm(c - eye)))) for c in corners]
@@ -187,24 +176,6 @@ def test_blender_script_runs_in_blender(tiny_run, tmp_path):
 
 
 # --- Obstacles ------------------------------------------------------------------------------------
-
-PILLAR = ((0.14, 0.0, 0.14), (0.26, 0.3, 0.26))
-
-
-@pytest.fixture(scope="module")
-def obstacle_run(tmp_path_factory):
-    """Shallow water around a box pillar that rises above it: 2 particle and mesh frames."""
-    from warp_iisph.scene import Box
-
-    out = tmp_path_factory.mktemp("obstacle") / "run"
-    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.12)
-    scene.tank.upper = (0.4, 0.5, 0.4)
-    scene.add_obstacle(Box(*PILLAR))
-    scene.output.mesh = True
-    record = run_scene(scene, out, duration=1 / 30, fps=30, progress=False)
-    assert record["ended"] == "completed" and record["obstacles"] == "obstacles.obj"
-    return out
-
 
 def test_run_writes_its_obstacles_once(obstacle_run, tiny_run):
     mesh = trimesh.load(obstacle_run / "obstacles.obj", force="mesh")

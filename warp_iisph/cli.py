@@ -1,4 +1,4 @@
-"""Command line: ``warp-iisph run | scenes | mesh | preview | render | blender-script``.
+"""Command line: ``warp-iisph run | scenes | mesh | preview | render | usd | blender-script``.
 
 Every error is one line on stderr: exit status 2 for bad input (a file, key or argument and its
 allowed range), 1 for a failure at run time, 130 for Ctrl-C and 143 for SIGTERM; ``--debug``
@@ -84,6 +84,13 @@ def _parser() -> argparse.ArgumentParser:
     preview.add_argument("--gif", action="store_true", help="write preview.gif instead of preview.mp4")
     preview.add_argument("--out", default=None, help="video path (default RUN_DIR/preview.mp4)")
     preview.add_argument("--no-progress", action="store_true", help="no progress bar")
+    usd = sub.add_parser("usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)")
+    usd.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
+    usd.add_argument("--out", default=None, help="the stage's file: .usdc (binary), .usda (text) or .usd (default RUN_DIR/run.usdc)")
+    usd.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
+    usd.add_argument("--particles", action="store_true", help="also the particles, as points with velocities, ids, density, pressure")
+    usd.add_argument("--material", default="water", help="the liquid's preview colour: water, wine, whisky, or r,g,b")
+    usd.add_argument("--no-progress", action="store_true", help="no progress bar")
     blend = sub.add_parser("blender-script", help="write a script that loads a run's OBJ sequence into Blender")
     blend.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
     blend.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b")
@@ -111,6 +118,17 @@ def _render(args) -> int:
         raise ValueError(f"render: {e}") from None
     print(f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
           f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}")
+    return 0
+
+
+def _usd(args) -> int:
+    from .view.usd import UsdUnavailable, export_usd
+
+    try:
+        r = export_usd(args.run_dir, args.out, args.frames, args.particles, args.material, progress=not args.no_progress)
+    except UsdUnavailable as e:
+        raise ValueError(f"usd: {e}") from None
+    print(f"wrote frames {r['first']}..{r['last']} at {r['fps']:g} frames/s ({', '.join(r['prims'])}) -> {r['path']}")
     return 0
 
 
@@ -206,7 +224,8 @@ def _run(args) -> int:
     return {"interrupted": EXIT_INTERRUPTED, "terminated": EXIT_TERMINATED}.get(record["ended"], EXIT_FAILED)
 
 
-COMMANDS = {"run": _run, "scenes": _scenes, "mesh": _mesh, "preview": _preview, "render": _render, "blender-script": _blender_script}
+COMMANDS = {"run": _run, "scenes": _scenes, "mesh": _mesh, "preview": _preview, "render": _render, "usd": _usd,
+            "blender-script": _blender_script}
 
 
 def _on_sigterm(signum, frame):

@@ -71,13 +71,16 @@ def read_points(path) -> "meshio.Mesh":
 
 
 def read_mesh(path):
-    """A triangle mesh file as a ``trimesh.Trimesh`` (``FileFormatError`` naming the file when it
+    """A triangle mesh file as a ``trimesh.Trimesh``, its vertices and faces in the file's order and
+    its vertex normals the file's when it has them (``FileFormatError`` naming the file when it
     cannot be read, e.g. cut off mid-write by another program)."""
     import trimesh
 
     path = Path(path)
     try:
-        mesh = trimesh.load(path, process=False, force="mesh")
+        mesh = trimesh.load(path, process=False, maintain_order=True)
+        if not isinstance(mesh, trimesh.Trimesh):  # several parts, or none: one mesh of them all
+            mesh = trimesh.load(path, process=False, force="mesh")
         faces = np.asarray(mesh.faces)
         vertices = np.asarray(mesh.vertices)
     except Exception as e:  # trimesh raises many kinds for a bad file
