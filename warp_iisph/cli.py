@@ -91,10 +91,11 @@ def _parser() -> argparse.ArgumentParser:
     usd.add_argument("--particles", action="store_true", help="also the particles, as points with velocities, ids, density, pressure")
     usd.add_argument("--material", default="water", help="the liquid's preview colour: water, wine, whisky, or r,g,b")
     usd.add_argument("--no-progress", action="store_true", help="no progress bar")
-    blend = sub.add_parser("blender-script", help="write a script that loads a run's OBJ sequence into Blender")
+    blend = sub.add_parser("blender-script", help="write a script that loads a run into Blender as one liquid object")
     blend.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
     blend.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b")
     blend.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
+    blend.add_argument("--usd", action="store_true", help="import the run's USD stage (`warp-iisph usd RUN_DIR`) instead of its OBJ files")
     blend.add_argument("--out", default=None, help="script path (default RUN_DIR/blender_scene.py)")
     return p
 
@@ -135,7 +136,7 @@ def _usd(args) -> int:
 def _blender_script(args) -> int:
     from .view.blender import blender_script
 
-    path = blender_script(args.run_dir, args.out, args.material, args.frames)
+    path = blender_script(args.run_dir, args.out, args.material, args.frames, usd=args.usd)
     print(f"wrote {path}; run: blender -b -P {path} -- --render")
     return 0
 
