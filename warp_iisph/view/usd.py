@@ -29,12 +29,12 @@ class UsdUnavailable(RuntimeError):
     """usd-core (``pxr``) is not installed; the message says what to install."""
 
 
-def _pxr():
+def require_pxr() -> None:
+    """``UsdUnavailable`` unless usd-core's ``pxr`` imports."""
     try:
-        from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
+        import pxr.Usd  # noqa: F401
     except ImportError:
         raise UsdUnavailable(f"usd-core is not installed: {EXTRA}") from None
-    return Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 
 def _vec3f(a):
@@ -193,7 +193,7 @@ def export_usd(run_dir, out=None, frames: str | None = None, particles: bool = F
                progress: bool = True) -> dict:
     """Write the run as one USD stage (default ``RUN_DIR/run.usdc``); needs its meshes. Returns the
     path, the frames written and the prims."""
-    _pxr()
+    require_pxr()
     from pxr import Usd, UsdGeom
 
     run = RunFolder.existing(run_dir)
