@@ -18,3 +18,41 @@ def cuda_available() -> bool:
 
 
 requires_cuda = pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device on this machine")
+
+
+# --- tiny runs with meshes, for the viewers and exporters (each test module gets its own) -----------
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """A falling block of about 500 particles, 0.1 s at 30 frames/s: 4 particle and mesh frames."""
+    from warp_iisph import scenes
+    from warp_iisph.run.runner import run_scene
+
+    out = tmp_path_factory.mktemp("view") / "run"
+    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.16)
+    scene.tank.upper = (0.4, 0.5, 0.4)
+    scene.output.mesh = True
+    record = run_scene(scene, out, duration=0.1, fps=30, progress=False)
+    assert record["ended"] == "completed"
+    return out
+
+
+PILLAR = ((0.14, 0.0, 0.14), (0.26, 0.3, 0.26))
+
+
+@pytest.fixture(scope="module")
+def obstacle_run(tmp_path_factory):
+    """Shallow water around a box pillar that rises above it: 2 particle and mesh frames."""
+    from warp_iisph import scenes
+    from warp_iisph.run.runner import run_scene
+    from warp_iisph.scene import Box
+
+    out = tmp_path_factory.mktemp("obstacle") / "run"
+    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.12)
+    scene.tank.upper = (0.4, 0.5, 0.4)
+    scene.add_obstacle(Box(*PILLAR))
+    scene.output.mesh = True
+    record = run_scene(scene, out, duration=1 / 30, fps=30, progress=False)
+    assert record["ended"] == "completed" and record["obstacles"] == "obstacles.obj"
+    return out

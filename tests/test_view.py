@@ -8,22 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from warp_iisph import scenes
 from warp_iisph.cli import main
 from warp_iisph.run.folder import RunError, RunFolder, select_frames
-from warp_iisph.run.runner import run_scene
+from warp_iisph.view.camera import auto_camera
 
-
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    """A falling block of about 500 particles, 0.1 s at 30 frames/s: 4 particle and mesh frames."""
-    out = tmp_path_factory.mktemp("view") / "run"
-    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.16)
-    scene.tank.upper = (0.4, 0.5, 0.4)
-    scene.output.mesh = True
-    record = run_scene(scene, out, duration=0.1, fps=30, progress=False)
-    assert record["ended"] == "completed"
-    return out
+from conftest import PILLAR  # the obstacle of the obstacle_run fixture
 
 
 def video_frames(path):
@@ -88,7 +77,7 @@ def test_tiny_render_shows_the_liquid(tmp_path):
     ball.apply_translation([0.0, 0.2, 0.0])
     path = tmp_path / "ball.obj"
     ball.export(path)
-    eye, target = render.auto_camera(ball.bounds[0], ball.bounds[1], 40.0, 64 / 36)
+    eye, target = auto_camera(ball.bounds[0], ball.bounds[1], 40.0, 64 / 36)
     args = dict(camera=(eye, target), floor_y=0.0, extent=3.0, spp=4, width=64, height=36, fov=40.0)
     red = render.material_color("0.95,0.5,0.5")  # through the 0.4 m ball: red 66 %, green and blue 0.4 %
     with_liquid = render.render_image(render.scene_dict(path, color=red, **args), use_denoiser=True)
@@ -158,7 +147,7 @@ def test_materials_and_camera_framing():
         with pytest.raises(RunError):
             render.material_color(bad)
     lo, hi = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.5, 0.3])
-    eye, target = render.auto_camera(lo, hi, 40.0, 16 / 9)
+    eye, target = auto_camera(lo, hi, 40.0, 16 / 9)
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 0.5) for z in (0, 0.3)])
     view = (target - eye) / np.linalg.norm(target - eye)
     angles = [math.degrees(math.acos(np.dot(view, (c - eye) / np.linalg.norm(c - eye)))) for c in corners]
@@ -168,12 +157,90 @@ def test_materials_and_camera_framing():
 # --- Blender --------------------------------------------------------------------------------------
 
 
-def test_blender_script_is_valid_python_listing_every_frame(tiny_run, capsys):
+def script_constants(text: str) -> dict:
+    """The upper-case constants a generated script starts with, read as Python literals."""
+    import ast
+
+    return {node.targets[0].id: ast.literal_eval(node.value) for node in ast.parse(text).body
+            if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name) and node.targets[0].id.isupper()}
+
+
+def obj_counts(path) -> tuple[int, int]:
+    """Vertices and triangles of an OBJ, counted from its lines."""
+    lines = path.read_text().splitlines()
+    return sum(line.startswith("v ") for line in lines), sum(line.startswith("f ") for line in lines)
+
+
+def test_blender_script_makes_one_liquid_object_whose_mesh_changes_per_frame(tiny_run, capsys):
+    from warp_iisph.view.camera import framing_box, run_camera
+
     assert main(["blender-script", str(tiny_run), "--material", "whisky"]) == 0
     script = tiny_run / "blender_scene.py"
     text = script.read_text()
     compile(text, str(script), "exec")
-    assert text.count("frame_0000") >= 4 and "1.33" in text and "ShaderNodeVolumeAbsorption" in text
+    assert "1.33" in text and "ShaderNodeVolumeAbsorption" in text
+    c = script_constants(text)
+    meshes = RunFolder(tiny_run).frames("mesh")
+    assert c["FRAMES"] == [[k, str(m.resolve())] for k, m in enumerate(meshes)] and c["USD"] is None and c["FPS"] == 30.0
+    # one object, made once; every frame's OBJ becomes a mesh datablock kept in the file; nothing
+    # is made per frame or keyed visible any more
+    assert text.count("bpy.data.objects.new(") == 2  # the liquid and the camera
+    assert 'bpy.data.objects.new("liquid", bpy.data.meshes["liquid_%05d" % FRAMES[0][0]])' in text
+    assert "use_fake_user = True" in text and "keyframe_insert" not in text and "hide_render" not in text
+    # the frame handler is saved in the .blend as a registered text and run now
+    assert "text.use_module = True" in text and "exec(compile(HANDLER" in text and "frame_change_pre" in c["HANDLER"]
+    # the camera is the run's, as the render and the USD stage frame it, in Blender's z-up axes
+    record = RunFolder(tiny_run).record()
+    eye, target, fov = run_camera(record, framing_box(RunFolder(tiny_run), record, meshes), 16 / 9)
+    (bx, by, bz), (tx, ty, tz), bfov = c["CAMERA"]
+    assert np.allclose([bx, bz, -by], eye, atol=1e-5) and np.allclose([tx, tz, -ty], target, atol=1e-5) and bfov == fov
+
+
+def test_blender_frame_handler_swaps_the_mesh(monkeypatch, tiny_run):
+    """The handler's logic, run against a stand-in for bpy (Blender itself: the test below)."""
+    import types
+
+    from warp_iisph.view.blender import HANDLER
+
+    handlers = types.SimpleNamespace(frame_change_pre=[], persistent=lambda f: f)
+    meshes = {f"liquid_{k:05d}": object() for k in (3, 4, 5)}
+    fake = types.SimpleNamespace(app=types.SimpleNamespace(handlers=handlers), data=types.SimpleNamespace(meshes=meshes))
+    monkeypatch.setitem(sys.modules, "bpy", fake)
+    for _ in range(2):  # run twice (the script again, or the .blend reopened): registered once
+        exec(compile(HANDLER, "warp_iisph_liquid.py", "exec"), {"__name__": "warp_iisph_liquid.py"})
+    assert len(handlers.frame_change_pre) == 1
+    handler = handlers.frame_change_pre[0]
+
+    class Liquid(dict):
+        data = None
+
+    liquid = Liquid(warp_iisph_first=3, warp_iisph_last=5)
+    scene = types.SimpleNamespace(objects={"liquid": liquid}, frame_current=4)
+    handler(scene)
+    assert liquid.data is meshes["liquid_00004"]
+    for frame, shown in ((0, 3), (3, 3), (5, 5), (99, 5)):  # held before the first and after the last
+        scene.frame_current = frame
+        handler(scene)
+        assert liquid.data is meshes[f"liquid_{shown:05d}"]
+    scene.objects = {"liquid": Liquid()}  # another file's object called liquid: left alone
+    handler(scene)
+    assert scene.objects["liquid"].data is None
+
+
+def test_blender_script_usd_needs_the_stage(tiny_run, tmp_path, capsys):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    for stale in RunFolder(run).usd_files():
+        stale.unlink()
+    assert main(["blender-script", str(run), "--usd"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "warp-iisph usd" in err
+    (run / "run.usda").write_text("#usda 1.0\n")
+    assert main(["blender-script", str(run), "--usd"]) == 0
+    c = script_constants((run / "blender_scene.py").read_text())
+    assert c["USD"] == str((run / "run.usda").resolve()) and len(c["FRAMES"]) == 4
 
 
 def test_blender_script_runs_in_blender(tiny_run, tmp_path):
@@ -182,28 +249,42 @@ def test_blender_script_runs_in_blender(tiny_run, tmp_path):
 
     script = blender_script(tiny_run, tmp_path / "scene.py")
     exec(compile(script.read_text(), str(script), "exec"), {"__name__": "__main__"})
-    liquids = [o for o in bpy.data.objects if o.name.startswith("liquid_")]
-    assert len(liquids) == 4 and bpy.context.scene.frame_end == 3
+    scene = bpy.context.scene
+    liquids = [o for o in bpy.data.objects if o.name.startswith("liquid")]
+    assert [o.name for o in liquids] == ["liquid"] and scene.frame_start == 0 and scene.frame_end == 3
+    assert sorted(m.name for m in bpy.data.meshes if m.name.startswith("liquid_")) == [f"liquid_{k:05d}" for k in range(4)]
+    assert bpy.data.texts["warp_iisph_liquid.py"].use_module
+    for k, obj in enumerate(RunFolder(tiny_run).frames("mesh")):
+        scene.frame_set(k)
+        mesh = liquids[0].data
+        assert mesh.name == f"liquid_{k:05d}" and (len(mesh.vertices), len(mesh.polygons)) == obj_counts(obj)
+        assert mesh.materials[0].name.startswith("warp_iisph_liquid")
+
+
+def test_blender_imports_the_usd_stage(tiny_run, tmp_path):
+    bpy = pytest.importorskip("bpy", reason="Blender's Python module (bpy) is not installed")
+    pytest.importorskip("pxr", reason="usd-core is not installed")
+    import shutil
+
+    from warp_iisph.view.blender import blender_script
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    assert main(["usd", str(run), "--no-progress"]) == 0
+    script = blender_script(run, tmp_path / "scene.py", usd=True)
+    exec(compile(script.read_text(), str(script), "exec"), {"__name__": "__main__"})
+    scene = bpy.context.scene
+    liquid = bpy.data.objects["liquid"]
+    assert [m.type for m in liquid.modifiers] == ["MESH_SEQUENCE_CACHE"] and scene.frame_end == 3
+    for k, obj in enumerate(RunFolder(run).frames("mesh")):
+        scene.frame_set(k)
+        evaluated = liquid.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        mesh = evaluated.to_mesh()
+        assert (len(mesh.vertices), len(mesh.polygons)) == obj_counts(obj)
+        evaluated.to_mesh_clear()
 
 
 # --- Obstacles ------------------------------------------------------------------------------------
-
-PILLAR = ((0.14, 0.0, 0.14), (0.26, 0.3, 0.26))
-
-
-@pytest.fixture(scope="module")
-def obstacle_run(tmp_path_factory):
-    """Shallow water around a box pillar that rises above it: 2 particle and mesh frames."""
-    from warp_iisph.scene import Box
-
-    out = tmp_path_factory.mktemp("obstacle") / "run"
-    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.12)
-    scene.tank.upper = (0.4, 0.5, 0.4)
-    scene.add_obstacle(Box(*PILLAR))
-    scene.output.mesh = True
-    record = run_scene(scene, out, duration=1 / 30, fps=30, progress=False)
-    assert record["ended"] == "completed" and record["obstacles"] == "obstacles.obj"
-    return out
 
 
 def test_run_writes_its_obstacles_once(obstacle_run, tiny_run):

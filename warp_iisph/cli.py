@@ -1,4 +1,4 @@
-"""Command line: ``warp-iisph run | scenes | mesh | preview | render | blender-script``.
+"""Command line: ``warp-iisph run | scenes | mesh | preview | render | usd | blender-script``.
 
 Every error is one line on stderr: exit status 2 for bad input (a file, key or argument and its
 allowed range), 1 for a failure at run time, 130 for Ctrl-C and 143 for SIGTERM; ``--debug``
@@ -41,6 +41,8 @@ def _parser() -> argparse.ArgumentParser:
         help="override a scene-file key, e.g. --set spacing=0.01 --set physics.eta=0.0005 --set fluids.0.radius=0.1",
     )
     run.add_argument("--mesh", action="store_true", help="also write the surface mesh/frame_NNNNN.obj (same as --set output.mesh=true)")
+    run.add_argument("--format", choices=("ply", "vtu"), default=None,
+                     help="particle files: binary PLY (default; splashsurf reads it) or VTU for ParaView (same as --set output.format=F)")
     run.add_argument("--threads", default=None, help="CPU threads for per-particle kernels (default: all available cores)")
     run.add_argument("--graph", action="store_true", help="record one time step as a graph and replay it (no per-step Python launches)")
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
@@ -85,10 +87,18 @@ def _parser() -> argparse.ArgumentParser:
     preview.add_argument("--gif", action="store_true", help="write preview.gif instead of preview.mp4")
     preview.add_argument("--out", default=None, help="video path (default RUN_DIR/preview.mp4)")
     preview.add_argument("--no-progress", action="store_true", help="no progress bar")
-    blend = sub.add_parser("blender-script", help="write a script that loads a run's OBJ sequence into Blender")
+    usd = sub.add_parser("usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)")
+    usd.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
+    usd.add_argument("--out", default=None, help="the stage's file: .usdc (binary), .usda (text) or .usd (default RUN_DIR/run.usdc)")
+    usd.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
+    usd.add_argument("--particles", action="store_true", help="also the particles, as points with velocities, ids, density, pressure")
+    usd.add_argument("--material", default="water", help="the liquid's preview colour: water, wine, whisky, or r,g,b")
+    usd.add_argument("--no-progress", action="store_true", help="no progress bar")
+    blend = sub.add_parser("blender-script", help="write a script that loads a run into Blender as one liquid object")
     blend.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
     blend.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b")
     blend.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
+    blend.add_argument("--usd", action="store_true", help="import the run's USD stage (`warp-iisph usd RUN_DIR`) instead of its OBJ files")
     blend.add_argument("--out", default=None, help="script path (default RUN_DIR/blender_scene.py)")
     return p
 
@@ -115,10 +125,21 @@ def _render(args) -> int:
     return 0
 
 
+def _usd(args) -> int:
+    from .view.usd import UsdUnavailable, export_usd
+
+    try:
+        r = export_usd(args.run_dir, args.out, args.frames, args.particles, args.material, progress=not args.no_progress)
+    except UsdUnavailable as e:
+        raise ValueError(f"usd: {e}") from None
+    print(f"wrote frames {r['first']}..{r['last']} at {r['fps']:g} frames/s ({', '.join(r['prims'])}) -> {r['path']}")
+    return 0
+
+
 def _blender_script(args) -> int:
     from .view.blender import blender_script
 
-    path = blender_script(args.run_dir, args.out, args.material, args.frames)
+    path = blender_script(args.run_dir, args.out, args.material, args.frames, usd=args.usd)
     print(f"wrote {path}; run: blender -b -P {path} -- --render")
     return 0
 
@@ -170,6 +191,8 @@ def _run(args) -> int:
         overrides.append(f'physics.method="{args.method}"')
     if args.mesh:
         overrides.append("output.mesh=true")
+    if args.format:
+        overrides.append(f'output.format="{args.format}"')
     if args.resume:
         if args.scene or args.out or args.overwrite:
             raise ValueError("--resume RUN_DIR: continues that run with its own scene and folder; give no SCENE, --out or --overwrite")
@@ -215,7 +238,8 @@ def _run(args) -> int:
     return {"interrupted": EXIT_INTERRUPTED, "terminated": EXIT_TERMINATED}.get(record["ended"], EXIT_FAILED)
 
 
-COMMANDS = {"run": _run, "scenes": _scenes, "mesh": _mesh, "preview": _preview, "render": _render, "blender-script": _blender_script}
+COMMANDS = {"run": _run, "scenes": _scenes, "mesh": _mesh, "preview": _preview, "render": _render, "usd": _usd,
+            "blender-script": _blender_script}
 
 
 def _on_sigterm(signum, frame):

@@ -1,8 +1,9 @@
 """The run folder: the one place that knows its layout, names and run record.
 
 ```
-RUN/particles/frame_00000.ply   particle frames          RUN/stats.jsonl  one record per step
-RUN/mesh/frame_00000.obj        surface meshes           RUN/run.json     scene, device, totals, how it ended
+RUN/particles/frame_00000.ply   particle frames (.vtu    RUN/stats.jsonl  one record per step
+                                with output.format vtu)  RUN/run.json     scene, device, totals, how it ended
+RUN/mesh/frame_00000.obj        surface meshes           RUN/run.usdc     the whole run as one USD stage
 RUN/obstacles.obj               static obstacles         RUN/checkpoint.npz  the state at the last checkpoint
 RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
 ```
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..scene.settings import PARTICLE_FORMATS  # the extensions of particle frames, as output.format names them
 from .atomic import write_json
 
 PARTICLES = "particles"
@@ -26,8 +28,10 @@ RECORD = "run.json"
 OBSTACLES = "obstacles.obj"
 CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, to resume from
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
+USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
+USD_NAMES = (USD, "run.usda", "run.usd")
 DEFAULT_FPS = 30.0
-_FRAME_EXT = {PARTICLES: "ply", MESHES: "obj"}
+MESH_FORMAT = "obj"
 
 
 class RunError(ValueError):
@@ -46,8 +50,13 @@ def frame_index(path: Path) -> int:
 class RunFolder:
     """Paths of a run's files, its record, and its frames in order."""
 
-    def __init__(self, path):
+    def __init__(self, path, particle_format: str | None = None):
+        """``particle_format`` (``ply``, ``vtu``) names the particle frames a run writes; left out,
+        it is the run record's ``output.format``, else the format of the frames on disk, else PLY."""
         self.path = Path(path)
+        if particle_format is not None and particle_format not in PARTICLE_FORMATS:
+            raise RunError(f"particle format {particle_format!r}: must be one of {', '.join(PARTICLE_FORMATS)}")
+        self._particle_format = particle_format
 
     def __str__(self) -> str:
         return str(self.path)
@@ -62,9 +71,23 @@ class RunFolder:
 
     # --- names -----------------------------------------------------------------------------
 
+    @property
+    def particle_format(self) -> str:
+        """The extension of this run's particle frames (see the constructor)."""
+        if self._particle_format is None:
+            try:
+                fmt = (self.record().get("output") or {}).get("format")
+            except RunError:  # an unreadable run.json: the files on disk say
+                fmt = None
+            if fmt not in PARTICLE_FORMATS:
+                on_disk = [e for e in PARTICLE_FORMATS if any((self.path / PARTICLES).glob(f"frame_*.{e}"))]
+                fmt = on_disk[0] if on_disk else PARTICLE_FORMATS[0]
+            self._particle_format = fmt
+        return self._particle_format
+
     def frame_path(self, kind: str, k: int) -> Path:
-        """Frame ``k`` of ``kind`` (``particles`` or ``mesh``)."""
-        return self.path / kind / f"frame_{k:05d}.{_FRAME_EXT[kind]}"
+        """Frame ``k`` of ``kind`` (``particles``, in the run's particle format, or ``mesh``)."""
+        return self.path / kind / f"frame_{k:05d}.{self.particle_format if kind == PARTICLES else MESH_FORMAT}"
 
     def particle_frame(self, k: int) -> Path:
         return self.frame_path(PARTICLES, k)
@@ -88,15 +111,39 @@ class RunFolder:
     def checkpoint(self) -> Path:
         return self.path / CHECKPOINT
 
+    def usd_files(self) -> list[Path]:
+        """The run's USD stages: ``run.usdc``, ``run.usda``, ``run.usd``, those that exist."""
+        return [self.path / name for name in USD_NAMES if (self.path / name).is_file()]
+
+    def usd_file(self) -> Path | None:
+        """The run's USD stage (the first of :meth:`usd_files`), ``None`` when it has none."""
+        return next(iter(self.usd_files()), None)
+
     # --- contents --------------------------------------------------------------------------
 
+    def _frame_files(self, kind: str) -> list[Path]:
+        if kind == MESHES:
+            return sorted((self.path / kind).glob(f"frame_*.{MESH_FORMAT}"))
+        # the run's own format first; a folder of the other format (copied in, or an older run) is read too
+        for ext in dict.fromkeys((self.particle_format, *PARTICLE_FORMATS)):
+            files = sorted((self.path / kind).glob(f"frame_*.{ext}"))
+            if files:
+                return files
+        return []
+
+    def has_frames(self, kind: str) -> bool:
+        """Whether the run holds any frame of ``kind``."""
+        return bool(self._frame_files(kind))
+
     def frames(self, kind: str) -> list[Path]:
-        """``particles/frame_*.ply`` or ``mesh/frame_*.obj``, in frame order (``RunError`` for none)."""
-        ext = _FRAME_EXT[kind]
-        files = sorted((self.path / kind).glob(f"frame_*.{ext}"))
+        """``particles/frame_*.ply`` (or ``.vtu``) or ``mesh/frame_*.obj``, in frame order
+        (``RunError`` for none)."""
+        files = self._frame_files(kind)
         if not files:
-            hint = "run with --mesh, or `warp-iisph mesh RUN_DIR`" if kind == MESHES else "was the run written with output.particles = false?"
-            raise RunError(f"{self.path / kind}: no frame_*.{ext} files ({hint})")
+            if kind == MESHES:
+                raise RunError(f"{self.path / kind}: no frame_*.{MESH_FORMAT} files (run with --mesh, or `warp-iisph mesh RUN_DIR`)")
+            raise RunError(f"{self.path / kind}: no frame_*.{' or frame_*.'.join(PARTICLE_FORMATS)} files "
+                           "(was the run written with output.particles = false?)")
         return files
 
     def record(self) -> dict:

@@ -69,12 +69,12 @@ def _jobs_of_run(run: RunFolder, overrides, spacing, overwrite: bool):
     settings = mesh_settings(params, spacing)
     made = run.provenance(MESHES)
     mine = {"run_id": record.get("run_id"), "settings": settings}
-    existing = any((run.path / MESHES).glob("frame_*.obj"))
+    existing = run.has_frames(MESHES)
     if existing and not overwrite and made != mine:
         what = "another run" if made and made.get("run_id") != mine["run_id"] else "other settings"
         raise RunError(f"{run.path / MESHES}: holds meshes made from {what}; pass --overwrite to replace them")
-    if overwrite:
-        for old in (run.path / MESHES).glob("frame_*.obj"):
+    if overwrite:  # the old meshes go, and the USD stage made of them (`warp-iisph usd` writes it anew)
+        for old in [*(run.path / MESHES).glob("frame_*.obj"), *run.usd_files()]:
             old.unlink()
     run.write_provenance(MESHES, record.get("run_id"), settings)
     return [(f, run.mesh_frame(frame_index(f))) for f in frames], spacing, params, run.path / MESHES
@@ -100,7 +100,7 @@ def _jobs_of_files(path: Path, overrides, spacing, out):
 
 def mesh_path(path, overrides: dict | None = None, device="cpu", overwrite: bool = False, progress: bool = True,
               spacing: float | None = None, out=None) -> dict:
-    """Mesh a run folder's ``particles/frame_*.ply`` into ``mesh/frame_*.obj`` with the run's
+    """Mesh a run folder's ``particles/frame_*.ply`` (or ``.vtu``) into ``mesh/frame_*.obj`` with the run's
     ``surface`` settings changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``), or any
     particle file (or folder of them) meshio reads, with ``spacing``. Meshes already there are kept
     unless ``overwrite``; a run's meshes made from other settings are refused. Returns counts,

@@ -86,8 +86,9 @@ def _check_target(out: Path, overwrite: bool) -> bool:
 
 def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True,
               graph: bool = False, background_output: bool = True, resume: bool = False) -> dict:
-    """Simulate the scene, writing ``particles/frame_%05d.ply`` every ``1/fps`` s, ``stats.jsonl``
-    (one record per step), ``run.json`` and, for a scene with obstacles, ``obstacles.obj``.
+    """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
+    says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene
+    with obstacles, ``obstacles.obj``.
     Returns the run record (``ended`` says how it ended). Frame files are written on a background
     thread while the next frame simulates (``background_output=False``: inline). With ``resume``,
     ``out`` is a run stopped (or diverged, then fixed) after a checkpoint: it continues from there,
@@ -103,6 +104,8 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         checkpoint = load_checkpoint(run)
         if abs(run.fps(before) - plan.fps) > 1e-9 * plan.fps:
             raise ValueError(f"--fps = {plan.fps:g}: a resumed run keeps its {run.fps(before):g} frames/s")
+        if run.particle_format != scene.output.format:
+            raise ValueError(f"--set output.format: a resumed run keeps its {run.particle_format} frames")
         replacing = False
     else:
         replacing = _check_target(out, overwrite)
@@ -114,8 +117,10 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         sim.restore(checkpoint)
         first = int(checkpoint["frame"]) + 1
     totals = StepTotals(sim.physics)
-    if not resume:
-        run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out)
+    if resume:
+        run = RunFolder(out, scene.output.format)
+    else:
+        run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out, scene.output.format)
     record = {
         "run_id": before["run_id"] if resume else new_run_id(),
         "ended": "running",
@@ -129,7 +134,8 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         "duration": plan.duration,
         "requested_duration": plan.requested,
         "fps": plan.fps,
-        "output": {"particles": scene.output.particles, "mesh": scene.output.mesh, "background": background_output},
+        "output": {"particles": scene.output.particles, "format": scene.output.format, "mesh": scene.output.mesh,
+                   "background": background_output},
     }
     if resume:
         record["resumed"] = before.get("resumed", []) + [{"frame": first - 1, "t": sim.time, "step": sim.step_count}]
@@ -146,9 +152,9 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         jobs = []
         if scene.output.particles:
             with times("export"):
-                ply = run.particle_frame(k)
+                frame_file = run.particle_frame(k)
                 snapshot = (sim.positions, sim.velocities, sim.densities, sim.pressures)
-            jobs.append(lambda: write_particles(ply, *snapshot))
+            jobs.append(lambda: write_particles(frame_file, *snapshot))
         if mesher is not None:
             mesh, obj = mesher.mesh(sim.state.x), run.mesh_frame(k)
             jobs.append(lambda: mesher.export(mesh, obj))

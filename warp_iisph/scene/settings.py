@@ -13,6 +13,8 @@ METHODS = ("iisph", "wcsph")
 
 SMOOTHING = ("laplacian", "taubin", "none")
 
+PARTICLE_FORMATS = ("ply", "vtu")  # output.format: binary PLY (splashsurf reads it) or VTU (ParaView)
+
 
 @dataclass
 class SurfaceSettings:
@@ -45,14 +47,15 @@ class SurfaceSettings:
 @dataclass
 class Output:
     """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
-    particle files (``particles``), surface meshes (``mesh``), and the full state every
-    ``checkpoint_every`` frames (0: never) for ``warp-iisph run --resume``."""
+    particle files (``particles``, in ``format``: ``ply`` or ``vtu``), surface meshes (``mesh``),
+    and the full state every ``checkpoint_every`` frames (0: never) for ``warp-iisph run --resume``."""
 
     fps: float = 30.0
     duration: float = 2.0
     particles: bool = True
     mesh: bool = False
     checkpoint_every: int = 1
+    format: str = "ply"
 
     def validate(self) -> None:
         self.fps = in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
@@ -62,6 +65,8 @@ class Output:
         c = self.checkpoint_every
         if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 0 <= c <= 1_000_000:
             raise ValueError(f"output.checkpoint_every = {c!r}: must be a whole number of frames in [0, 1000000] (0: never)")
+        if self.format not in PARTICLE_FORMATS:
+            raise ValueError(f"output.format = {self.format!r}: must be one of {', '.join(PARTICLE_FORMATS)}")
 
 
 @dataclass

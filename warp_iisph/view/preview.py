@@ -130,7 +130,7 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
     record = run.record()
     width, height = parse_resolution(resolution)
     if source is None:
-        source = PARTICLES if any((run.path / PARTICLES).glob("frame_*.ply")) else MESHES
+        source = PARTICLES if run.has_frames(PARTICLES) else MESHES
     if source not in (PARTICLES, MESHES):
         raise RunError(f"--source {source!r}: must be particles or mesh")
     files = select_frames(run.frames(source), frames)

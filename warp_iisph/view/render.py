@@ -18,6 +18,7 @@ import numpy as np
 from ..run.folder import FRAMES, MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
 from ..run.formats import read_mesh
 from ..run.progress import frame_bar
+from .camera import framing_box, run_camera
 from .materials import IOR, THICKNESS, material_color
 from .video import parse_resolution, write_video
 
@@ -102,26 +103,6 @@ def sky_bitmap(height: int = 128) -> np.ndarray:
     sun = np.array([0.4, 0.75, 0.5]) / np.linalg.norm([0.4, 0.75, 0.5])
     img += 400.0 * (d @ sun > math.cos(math.radians(2.0)))[..., None]
     return img.astype(np.float32)
-
-
-def auto_camera(lower, upper, fov: float, aspect: float) -> tuple[np.ndarray, np.ndarray]:
-    """Look at the box's centre from the front, right and above, far enough to see all of it."""
-    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    target = 0.5 * (lower + upper)
-    radius = 0.5 * float(np.linalg.norm(upper - lower))
-    direction = np.array([0.45, 0.5, 1.0]) / np.linalg.norm([0.45, 0.5, 1.0])
-    half = math.radians(0.5 * fov)
-    half = min(half, math.atan(math.tan(half) / aspect))  # the narrower of the two
-    return target + direction * radius / math.sin(half) * 1.05, target
-
-
-def mesh_bounds(paths: list[Path]) -> tuple[np.ndarray, np.ndarray] | None:
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for p in paths:
-        v = np.asarray(read_mesh(p).vertices).reshape(-1, 3)
-        if len(v):
-            lo, hi = np.minimum(lo, v.min(0)), np.maximum(hi, v.max(0))
-    return (lo, hi) if np.all(np.isfinite(lo)) else None
 
 
 def scene_dict(mesh_path: Path | None, camera, floor_y: float, extent: float, color, spp: int, width: int, height: int,
@@ -236,21 +217,10 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
     color = material_color(material)
     files = select_frames(run.frames(MESHES), frames)
     chosen_variant, why = choose_variant(record.get("device", "cpu").split(":")[0], variant)
-    cam = record.get("scene", {}).get("camera", {}) or {}
-    fov = float(cam.get("fov") or 40.0)
     tank = tank_bounds(record)
-    liquid = mesh_bounds([files[0], files[len(files) // 2], files[-1]])
-    if liquid is None and tank is None:
-        raise RunError(f"{run.path / MESHES}: the meshes are empty and the run has no box tank to frame")
-    box = liquid if liquid is not None else tank
     solid = run.obstacle_mesh()
-    if solid is not None:  # frame the obstacles with the liquid
-        box = (np.minimum(box[0], solid.bounds[0]), np.maximum(box[1], solid.bounds[1]))
-    if cam.get("position"):
-        eye = np.asarray(cam["position"], float)
-        target = np.asarray(cam["target"], float) if cam.get("target") else 0.5 * (box[0] + box[1])
-    else:
-        eye, target = auto_camera(*box, fov, width / height)
+    box = framing_box(run, record, files, solid)  # the obstacles are framed with the liquid
+    eye, target, fov = run_camera(record, box, width / height)
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
     wall_list = far_walls(*tank, eye) if walls and tank is not None else []
