@@ -184,8 +184,9 @@ def test_blender_script_makes_one_liquid_object_whose_mesh_changes_per_frame(tin
     assert c["FRAMES"] == [[k, str(m.resolve())] for k, m in enumerate(meshes)] and c["USD"] is None and c["FPS"] == 30.0
     # one object, made once; every frame's OBJ becomes a mesh datablock kept in the file; nothing
     # is made per frame or keyed visible any more
-    assert text.count("bpy.data.objects.new(") == 2  # the liquid and the camera
-    assert 'bpy.data.objects.new("liquid", bpy.data.meshes["liquid_%05d" % FRAMES[0][0]])' in text
+    assert text.count("bpy.data.objects.new(") == 2  # the frame sequence's object (liquid, moving obstacles) and the camera
+    assert 'bpy.data.objects.new(name, bpy.data.meshes[name + "_%05d" % frames[0][0]])' in text
+    assert 'liquid = sequence("liquid", FRAMES, mat)' in text and c["OBSTACLE_FRAMES"] == []
     assert "use_fake_user = True" in text and "keyframe_insert" not in text and "hide_render" not in text
     # the frame handler is saved in the .blend as a registered text and run now
     assert "text.use_module = True" in text and "exec(compile(HANDLER" in text and "frame_change_pre" in c["HANDLER"]
@@ -225,6 +226,11 @@ def test_blender_frame_handler_swaps_the_mesh(monkeypatch, tiny_run):
     scene.objects = {"liquid": Liquid()}  # another file's object called liquid: left alone
     handler(scene)
     assert scene.objects["liquid"].data is None
+    meshes.update({f"obstacles_{k:05d}": object() for k in (3, 4, 5)})  # moving obstacles: swapped the same way
+    obstacles = Liquid(warp_iisph_first=3, warp_iisph_last=5)
+    scene.objects, scene.frame_current = {"obstacles": obstacles}, 5
+    handler(scene)
+    assert obstacles.data is meshes["obstacles_00005"]
 
 
 def test_blender_script_usd_needs_the_stage(tiny_run, tmp_path, capsys):

@@ -4,7 +4,8 @@
 RUN/particles/frame_00000.ply   particle frames (.vtu    RUN/stats.jsonl  one record per step
                                 with output.format vtu)  RUN/run.json     scene, device, totals, how it ended
 RUN/mesh/frame_00000.obj        surface meshes           RUN/run.usdc     the whole run as one USD stage
-RUN/obstacles.obj               static obstacles         RUN/checkpoint.npz  the state at the last checkpoint
+RUN/obstacles.obj               the obstacles (at t = 0; RUN/obstacles/frame_00000.obj ... when some move)
+RUN/checkpoint.npz              the state at the last checkpoint
 RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
 ```
 """
@@ -26,6 +27,7 @@ FRAMES = "frames"  # rendered images (warp-iisph render)
 STATS = "stats.jsonl"
 RECORD = "run.json"
 OBSTACLES = "obstacles.obj"
+OBSTACLE_FRAMES = "obstacles"  # with moving obstacles: obstacles/frame_00000.obj, all of them at each frame
 CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, to resume from
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
@@ -176,8 +178,21 @@ class RunFolder:
         record = self.record() if record is None else record
         return float(record.get("fps") or DEFAULT_FPS)
 
-    def obstacle_mesh(self):
-        """The run's obstacles as one ``trimesh.Trimesh``, or ``None`` when it has none."""
+    def obstacle_frame(self, k: int) -> Path:
+        """The obstacles at frame ``k`` (written when some of them move)."""
+        return self.path / OBSTACLE_FRAMES / f"frame_{k:05d}.obj"
+
+    @property
+    def obstacles_move(self) -> bool:
+        return (self.path / OBSTACLE_FRAMES).is_dir()
+
+    def obstacle_mesh(self, frame: int | None = None):
+        """The run's obstacles as one ``trimesh.Trimesh`` (at ``frame`` when they move), or
+        ``None`` when it has none."""
+        if frame is not None and self.obstacle_frame(frame).is_file():
+            from .formats import read_mesh
+
+            return read_mesh(self.obstacle_frame(frame))
         if not self.obstacles.is_file():
             return None
         from .formats import read_mesh

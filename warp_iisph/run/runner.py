@@ -29,7 +29,7 @@ from ..engine.timing import StageTimes
 from ..scene import Scene, obstacles_mesh, scene_to_dict
 from ..scene.checks import in_range
 from .atomic import atomic_write
-from .folder import MESHES, OBSTACLES, PARTICLES, RunError, RunFolder, frame_index, new_run_id
+from .folder import MESHES, OBSTACLE_FRAMES, OBSTACLES, PARTICLES, RunError, RunFolder, frame_index, new_run_id
 from .formats import StatsWriter, read_stats, write_obj, write_particles
 from .frame_queue import FrameQueue
 from .meshing import FrameMesher, mesh_settings
@@ -147,6 +147,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     mesher = FrameMesher(scene.spacing, scene.surface, sim.device) if scene.output.mesh else None
     queue = FrameQueue(background=background_output)
     written = [0]  # frames whose files are all on disk
+    moving_obstacles = any(o.motion is not None for o in scene.obstacles)
 
     def write_frame(k: int) -> None:
         jobs = []
@@ -158,6 +159,9 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         if mesher is not None:
             mesh, obj = mesher.mesh(sim.state.x), run.mesh_frame(k)
             jobs.append(lambda: mesher.export(mesh, obj))
+        if moving_obstacles:  # where every obstacle is at this frame, for the viewers
+            solid, path = obstacles_mesh(scene.obstacles, k / plan.fps), run.obstacle_frame(k)
+            jobs.append(lambda: write_obj(path, np.asarray(solid.vertices), np.asarray(solid.faces)))
         every = scene.output.checkpoint_every
         if every and (k % every == 0 or k == plan.frames - 1):
             state = {**sim.checkpoint(), "frame": np.int64(k)}
@@ -199,7 +203,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         else:
             run.path.mkdir(parents=True, exist_ok=True)
             stats = StatsWriter(run.stats)
-            if scene.obstacles:  # static: one file for the viewers and Blender, not one per frame
+            if scene.obstacles:  # one file for the viewers and Blender (at t = 0; per frame as well when some move)
                 mesh = obstacles_mesh(scene.obstacles)
                 write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
                 record["obstacles"] = OBSTACLES
@@ -304,7 +308,7 @@ def save_checkpoint(run: RunFolder, state: dict) -> None:
 def _frames_after(run: RunFolder, k: int) -> list[Path]:
     """The particle and mesh frames after frame ``k``."""
     files = []
-    for kind in (PARTICLES, MESHES):
+    for kind in (PARTICLES, MESHES, OBSTACLE_FRAMES):
         files += [f for f in (run.path / kind).glob("frame_*") if f.suffix != ".json" and frame_index(f) > k]
     return files
 

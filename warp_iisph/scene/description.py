@@ -62,6 +62,8 @@ class Scene:
         if not isinstance(self.tank, (Box, MeshShape)):
             raise ValueError(f"tank = {self.tank!r}: must be a box or a mesh")
         self.tank.validate("tank")
+        if getattr(self.tank, "motion", None) is not None:
+            raise ValueError("tank.motion: the tank stays put; give an obstacle the motion")
         if isinstance(self.tank, MeshShape) and not self.tank.load().is_watertight:
             raise ValueError(f"tank.path = {self.tank.path!r}: a container mesh must be closed (watertight)")
         tlo, thi = self.tank.bounds
@@ -74,6 +76,8 @@ class Scene:
             if not isinstance(f, (Box, Sphere)):
                 raise ValueError(f"{name} = {f!r}: must be a Box or a Sphere")
             f.validate(name)
+            if f.motion is not None:
+                raise ValueError(f"{name}.motion: fluid blocks do not move; give an obstacle the motion")
             lo, hi = f.bounds
             eps = 1e-9 * max(1.0, float(np.max(np.abs(thi))))
             if np.any(lo < tlo - eps) or np.any(hi > thi + eps):
@@ -90,6 +94,8 @@ class Scene:
                 raise ValueError(f"{name} = {o!r}: must be a box, a sphere or a mesh")
             o.validate(name)
             lo, hi = o.bounds
+            if o.motion is not None and o.motion.pivot is None:
+                o.motion.pivot = tuple(float(c) for c in 0.5 * (lo + hi))  # about its own centre
             if np.any(hi <= tlo) or np.any(lo >= thi):
                 raise ValueError(f"{name}: lies entirely outside the tank {tuple(tlo)}..{tuple(thi)}")
             if isinstance(o, MeshShape) and not o.shell and not o.load().is_watertight:

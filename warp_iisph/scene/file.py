@@ -70,12 +70,13 @@ def _check_keys(table, allowed: set, where: str) -> dict:
     return table
 
 
-def _shape(table, where: str, allowed: tuple, base_dir: Path):
-    _check_keys(table, {"shape"} | set().union(*(SHAPE_KEYS[s] for s in allowed)), where)
+def _shape(table, where: str, allowed: tuple, base_dir: Path, movable: bool = False):
+    extra = {"shape", "motion"} if movable else {"shape"}
+    _check_keys(table, extra | set().union(*(SHAPE_KEYS[s] for s in allowed)), where)
     kind = table.get("shape", "box")
     if kind not in allowed:
         raise ValueError(f"{where}.shape = {kind!r}: must be one of {', '.join(allowed)}")
-    _check_keys(table, {"shape"} | SHAPE_KEYS[kind], where)
+    _check_keys(table, extra | SHAPE_KEYS[kind], where)
     missing = [k for k in sorted(SHAPE_KEYS[kind]) if k not in table and k in ("lower", "upper", "center", "radius", "path")]
     if missing:
         raise ValueError(f"{where}.{missing[0]}: required for shape = {kind!r}")
@@ -114,7 +115,7 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         spacing=data["spacing"],
         tank=_shape(data["tank"], "tank", ("box", "mesh"), base_dir),
         fluids=[_shape(f, f"fluids[{k}]", ("box", "sphere"), base_dir) for k, f in enumerate(fluids)],
-        obstacles=[_shape(o, f"obstacles[{k}]", ("box", "sphere", "mesh"), base_dir) for k, o in enumerate(obstacles)],
+        obstacles=[_shape(o, f"obstacles[{k}]", ("box", "sphere", "mesh"), base_dir, movable=True) for k, o in enumerate(obstacles)],
         physics=Physics(**physics),
         output=Output(**output),
         surface=SurfaceSettings(**surface),
@@ -126,13 +127,16 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
 
 def _shape_table(shape) -> dict:
     if isinstance(shape, Box):
-        return {"shape": "box", "lower": list(shape.lower), "upper": list(shape.upper)}
-    if isinstance(shape, Sphere):
-        return {"shape": "sphere", "center": list(shape.center), "radius": shape.radius}
-    table = {"shape": "mesh", "path": str((Path(shape.base_dir) / shape.path).resolve()), "translate": list(shape.translate),
-             "rotate": list(shape.rotate), "scale": list(shape.scale) if isinstance(shape.scale, tuple) else shape.scale}
-    if shape.shell:
-        table["shell"] = True
+        table = {"shape": "box", "lower": list(shape.lower), "upper": list(shape.upper)}
+    elif isinstance(shape, Sphere):
+        table = {"shape": "sphere", "center": list(shape.center), "radius": shape.radius}
+    else:
+        table = {"shape": "mesh", "path": str((Path(shape.base_dir) / shape.path).resolve()), "translate": list(shape.translate),
+                 "rotate": list(shape.rotate), "scale": list(shape.scale) if isinstance(shape.scale, tuple) else shape.scale}
+        if shape.shell:
+            table["shell"] = True
+    if shape.motion is not None:
+        table["motion"] = _settings_table(shape.motion)
     return table
 
 

@@ -3,19 +3,36 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Union
+from typing import Optional, Union
 
 import numpy as np
 
 from .checks import MAX_COORDINATE, flag, in_range, position, positive, vec3
+from .motion import Motion
+
+
+def _check_motion(shape, name: str) -> None:
+    if shape.motion is None:
+        return
+    if isinstance(shape.motion, dict):
+        unknown = sorted(set(shape.motion) - {"times", "translate", "rotate", "pivot", "interpolation"})
+        if unknown:
+            raise ValueError(f"{name}.motion.{unknown[0]}: unknown key; allowed: interpolation, pivot, rotate, times, translate")
+        if "times" not in shape.motion:
+            raise ValueError(f"{name}.motion.times: required (the key times, seconds)")
+        shape.motion = Motion(**shape.motion)
+    if not isinstance(shape.motion, Motion):
+        raise ValueError(f"{name}.motion = {shape.motion!r}: must be a table of keyframes")
+    shape.motion.validate(f"{name}.motion")
 
 
 @dataclass
 class Box:
-    """Axis-aligned box from ``lower`` to ``upper`` (metres)."""
+    """Axis-aligned box from ``lower`` to ``upper`` (metres); an obstacle may move (``motion``)."""
 
     lower: tuple
     upper: tuple
+    motion: Optional[Motion] = None
 
     def validate(self, name: str) -> None:
         lo = position(self.lower, f"{name}.lower")
@@ -23,6 +40,7 @@ class Box:
         if np.any(hi <= lo):
             raise ValueError(f"{name}: upper {tuple(hi)} must exceed lower {tuple(lo)} on every axis")
         self.lower, self.upper = tuple(lo), tuple(hi)
+        _check_motion(self, name)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -31,14 +49,16 @@ class Box:
 
 @dataclass
 class Sphere:
-    """Ball of ``radius`` around ``center`` (metres)."""
+    """Ball of ``radius`` around ``center`` (metres); an obstacle may move (``motion``)."""
 
     center: tuple
     radius: float
+    motion: Optional[Motion] = None
 
     def validate(self, name: str) -> None:
         self.center = tuple(position(self.center, f"{name}.center"))
         self.radius = in_range(self.radius, f"{name}.radius", 0.0, MAX_COORDINATE, "metres", lo_open=True)
+        _check_motion(self, name)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -60,6 +80,7 @@ class MeshShape:
     scale: Union[float, tuple] = 1.0
     base_dir: str = "."
     shell: bool = False
+    motion: Optional[Motion] = None
 
     def validate(self, name: str) -> None:
         if not isinstance(self.path, str) or not self.path:
@@ -74,6 +95,7 @@ class MeshShape:
         else:
             self.scale = positive(self.scale, f"{name}.scale", "a factor, or three")
         self.shell = flag(self.shell, f"{name}.shell")
+        _check_motion(self, name)
         mesh = self.load(name)
         if not np.all(np.isfinite(mesh.bounds)) or float(np.max(np.abs(mesh.bounds))) > MAX_COORDINATE:
             raise ValueError(f"{name}.scale = {self.scale!r}: puts the mesh beyond {MAX_COORDINATE:g} m of the origin")
@@ -124,12 +146,18 @@ def shape_mesh(shape) -> "object":
 
 
 
-def obstacles_mesh(shapes) -> "object":
-    """Obstacles as one ``trimesh.Trimesh`` (their meshes side by side, not merged), for the
-    viewers; ``None`` for none."""
+def obstacles_mesh(shapes, time: float = 0.0) -> "object":
+    """Obstacles as one ``trimesh.Trimesh`` (their meshes side by side, not merged), moving ones
+    where their motion has them at ``time``, for the viewers; ``None`` for none."""
     import trimesh
 
-    meshes = [shape_mesh(s) for s in shapes]
+    meshes = []
+    for s in shapes:
+        m = shape_mesh(s)
+        if s.motion is not None:
+            m = m.copy()
+            m.apply_transform(s.motion.matrix(time, np.asarray(s.motion.pivot)))
+        meshes.append(m)
     return trimesh.util.concatenate(meshes) if meshes else None
 
 

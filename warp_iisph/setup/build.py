@@ -8,6 +8,8 @@ import numpy as np
 import warp as wp
 
 from ..scene import Box, Scene, shape_mesh
+from ..sph.bodies import MovingBodies
+from ..sph.containment import Containment
 from ..sph.neighbors import cell_order, make_grid
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
@@ -26,13 +28,25 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
     ph = scene.physics
     meshes = _shape_meshes(scene)
     _check_memory(*(int(c) for c in scene.particle_estimate()), device)  # before sampling allocates anything
-    xf, xb = sample_scene(scene, device, meshes)
+    xf, xb, bodies = sample_scene(scene, device, meshes)
     if len(xf) == 0:
         raise ValueError(f"fluids: no particle fits at spacing = {h} m; make the blocks larger or the spacing smaller")
-    _check_memory(len(xf), len(xb), device)
+    n_moving = sum(len(rest) for _, rest in bodies)
+    _check_memory(len(xf), len(xb) + n_moving, device)
     H = 2.0 * h
     xb_dev = _cell_sorted(xb, H, device)
     psi = compute_boundary_psi(xb_dev, h, ph.rho0, device)
+    moving = None
+    if bodies:
+        # a body's psi comes from its own particles (rigid: it never changes); the walls keep theirs
+        rest = np.concatenate([r for _, r in bodies])
+        body_of = np.concatenate([np.full(len(r), k) for k, (_, r) in enumerate(bodies)])
+        psis = [psi.numpy()[: len(xb)]] + [compute_boundary_psi(wp.array(r.astype(np.float32), dtype=wp.vec3, device=device), h, ph.rho0,
+                                                                 device).numpy()[: len(r)] for _, r in bodies]
+        at_start = np.concatenate([_placed(m, r, 0.0) for m, r in bodies])
+        xb_dev = wp.array(np.concatenate([xb_dev.numpy(), at_start]).astype(np.float32), dtype=wp.vec3, device=device)
+        psi = wp.array(np.concatenate(psis).astype(np.float32), dtype=float, device=device)
+        moving = MovingBodies([m for m, _ in bodies], rest, body_of, len(xb), device)
     if scene.obstacles or not isinstance(scene.tank, Box):
         # Rasterised meshes are not a calibrated wall: fluid sampled where they make it denser
         # than rest is left out rather than kicked away in the first step.
@@ -50,6 +64,9 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
         mass=ph.rho0 * h**3,
         boundary_x=xb_dev,
         boundary_psi=psi,
+        boundary_v=wp.zeros(max(xb_dev.shape[0], 1), dtype=wp.vec3, device=device),
+        bodies=moving,
+        containment=_containment(scene, meshes, h, moving, device),
         domain_lower=lo - margin,
         domain_upper=hi + margin,
     )
@@ -63,29 +80,61 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
     return model, state
 
 
+def _containment(scene: Scene, meshes: dict, h: float, moving, device) -> Containment:
+    """The walls fluid may never cross: the box tank's faces, or the container mesh, and every
+    closed obstacle (open ``shell`` meshes have no inside to keep fluid out of)."""
+    solids = []
+    if not isinstance(scene.tank, Box):
+        m = meshes[id(scene.tank)]
+        solids.append((m.vertices, m.faces, -1, True))
+    body = 0
+    for o in scene.obstacles:
+        m = meshes.get(id(o)) or shape_mesh(o)
+        k = -1
+        if o.motion is not None:
+            k, body = body, body + 1
+        if m.is_watertight and not getattr(o, "shell", False):
+            solids.append((m.vertices, m.faces, k, False))
+    box = scene.tank.bounds if isinstance(scene.tank, Box) else None
+    return Containment(device, box, solids, h, moving.keys if moving is not None else None)
+
+
 def _shape_meshes(scene: Scene) -> dict:
     """The triangle mesh of every mesh tank and obstacle, built or read once, by ``id`` of the shape."""
     shapes = ([] if isinstance(scene.tank, Box) else [scene.tank]) + list(scene.obstacles)
     return {id(s): shape_mesh(s) for s in shapes}
 
 
-def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Fluid and boundary particles of a scene (``meshes``: its shapes' meshes, from
-    :func:`_shape_meshes`). A scene without obstacles and with a box tank costs no mesh work;
-    fluid overlapping an obstacle or outside a mesh container is dropped."""
+def _placed(motion, points: np.ndarray, time: float) -> np.ndarray:
+    """``points`` of a moving body where its motion has them at ``time``."""
+    m = motion.matrix(time, np.asarray(motion.pivot))
+    return points @ m[:3, :3].T + m[:3, 3]
+
+
+def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.ndarray, list]:
+    """Fluid particles, the static boundary particles (tank and still obstacles) and, per moving
+    obstacle, its motion and its boundary particles where the scene places it (``meshes``: the
+    shapes' meshes, from :func:`_shape_meshes`). A scene without obstacles and with a box tank
+    costs no mesh work; fluid overlapping an obstacle (where it is at t = 0) or outside a mesh
+    container is dropped."""
     h = scene.spacing
     box_tank = isinstance(scene.tank, Box)
     xf = sample_fluid(scene.fluids, scene.tank if box_tank else None, h)
     walls = [sample_tank_walls(scene.tank, h)] if box_tank else []
     shapes = ([] if box_tank else [scene.tank]) + list(scene.obstacles)
     if not shapes:
-        return xf, walls[0]
+        return xf, walls[0], []
     trimeshes = [meshes[id(s)] for s in shapes]
     sampled = [sample_mesh(m.vertices, m.faces, h, device) for m in trimeshes]
-    solids = [(m.vertices, m.faces) for m, o in zip(trimeshes, shapes) if o is not scene.tank and m.is_watertight and not getattr(o, "shell", False)]
+    # where everything is at t = 0: moving bodies as their first keyframe places them
+    start = [_placed(o.motion, x, 0.0) if getattr(o, "motion", None) else x for x, o in zip(sampled, shapes)]
+    solids = [(_placed(o.motion, np.asarray(m.vertices), 0.0) if getattr(o, "motion", None) else m.vertices, m.faces)
+              for m, o in zip(trimeshes, shapes) if o is not scene.tank and m.is_watertight and not getattr(o, "shell", False)]
     containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
-    xf = clear_fluid(xf, np.concatenate(sampled), solids, h, containers, device)
-    return xf, np.concatenate(walls + sampled)
+    xf = clear_fluid(xf, np.concatenate(start), solids, h, containers, device)
+    still = walls + [x for x, o in zip(sampled, shapes) if not getattr(o, "motion", None)]
+    bodies = [(o.motion, x) for x, o in zip(sampled, shapes) if getattr(o, "motion", None)]
+    return xf, np.concatenate(still) if still else np.zeros((0, 3)), bodies
 
 
 def _cell_sorted(points: np.ndarray, H: float, device) -> wp.array:

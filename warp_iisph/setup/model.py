@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 import warp as wp
 
 from ..engine.launch import launch_particles
 from ..scene import Physics
+from ..sph.bodies import MovingBodies
+from ..sph.containment import Containment
 
 
 @dataclass
@@ -31,10 +34,18 @@ class Model:
     boundary_psi: wp.array
     domain_lower: np.ndarray
     domain_upper: np.ndarray
+    boundary_v: wp.array = None  # zero for still walls; moving obstacles' particles carry their velocity
+    bodies: Optional[MovingBodies] = None  # the moving obstacles: the last boundary particles
+    containment: Optional[Containment] = None  # the walls no particle may be beyond after a step
 
     @property
     def n_boundary(self) -> int:
         return 0 if self.boundary_x is None else int(self.boundary_x.shape[0])
+
+    @property
+    def n_still(self) -> int:
+        """Boundary particles that never move (the first ones)."""
+        return self.n_boundary if self.bodies is None else self.bodies.first
 
 
 @wp.kernel

@@ -40,6 +40,56 @@ def entry(nbrs: NeighborList, i: int, m: int) -> int:
     return nbrs.start[i] + m * nbrs.step
 
 
+@wp.func
+def count_in_cells(g: CellGrid, points: wp.array(dtype=wp.vec3), first: int, x_i: wp.vec3, radius: float) -> int:
+    """How many of the points ``first + ids`` a :class:`CellGrid` holds lie within ``radius`` of ``x_i``."""
+    n = int(0)
+    if g.n == 0:
+        return n
+    r2 = radius * radius
+    cx = cell_range(g, x_i, radius, 0)
+    cy = cell_range(g, x_i, radius, 1)
+    cz = cell_range(g, x_i, radius, 2)
+    for z in range(cz[0], cz[1] + 1):
+        for y in range(cy[0], cy[1] + 1):
+            for x in range(cx[0], cx[1] + 1):
+                c = cell_hash(x, y, z)
+                s = cell_first(g, c)
+                while s < g.n and g.keys[s] == c:
+                    d = x_i - points[first + g.ids[s]]
+                    s += 1
+                    if wp.dot(d, d) < r2:
+                        n += 1
+    return n
+
+
+@wp.func
+def fill_from_cells(g: CellGrid, points: wp.array(dtype=wp.vec3), first: int, x_i: wp.vec3, radius: float, nbrs: NeighborList,
+                    k: int, capacity: int) -> int:
+    """Append the points of :func:`count_in_cells` to a list from entry ``k``; returns the next entry."""
+    if g.n == 0:
+        return k
+    r2 = radius * radius
+    cx = cell_range(g, x_i, radius, 0)
+    cy = cell_range(g, x_i, radius, 1)
+    cz = cell_range(g, x_i, radius, 2)
+    for z in range(cz[0], cz[1] + 1):
+        for y in range(cy[0], cy[1] + 1):
+            for x in range(cx[0], cx[1] + 1):
+                c = cell_hash(x, y, z)
+                s = cell_first(g, c)
+                while s < g.n and g.keys[s] == c:
+                    j = first + g.ids[s]
+                    s += 1
+                    x_ij = x_i - points[j]
+                    if wp.dot(x_ij, x_ij) < r2:
+                        if k < capacity:
+                            nbrs.index[k] = j
+                            nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
+                        k += 1
+    return k
+
+
 @wp.kernel
 def count_neighbors(
     offset: int,
@@ -48,22 +98,24 @@ def count_neighbors(
     queries: wp.array(dtype=wp.vec3),
     radius: float,
     mask: NearMask,
+    moving: CellGrid,
+    moving_first: int,
     count: wp.array(dtype=wp.int32),
 ):
+    """Neighbours among the still points (their ``wp.HashGrid``, skipped where ``mask`` clears
+    the cell) and the moving ones (``moving``, over the points from ``moving_first``)."""
     i = wp.tid() + offset
     x_i = queries[i]
-    if not may_have_neighbors(mask, x_i):
-        count[i] = 0
-        return
-    r2 = radius * radius
     n = int(0)
-    j = int(0)
-    query = wp.hash_grid_query(grid, x_i, radius)
-    while wp.hash_grid_query_next(query, j):
-        d = x_i - points[j]
-        if wp.dot(d, d) < r2:
-            n += 1
-    count[i] = n
+    if may_have_neighbors(mask, x_i):
+        r2 = radius * radius
+        j = int(0)
+        query = wp.hash_grid_query(grid, x_i, radius)
+        while wp.hash_grid_query_next(query, j):
+            d = x_i - points[j]
+            if wp.dot(d, d) < r2:
+                n += 1
+    count[i] = n + count_in_cells(moving, points, moving_first, x_i, radius)
 
 
 @wp.kernel
@@ -73,10 +125,14 @@ def fill_neighbors(
     points: wp.array(dtype=wp.vec3),
     queries: wp.array(dtype=wp.vec3),
     radius: float,
+    mask: NearMask,
+    moving: CellGrid,
+    moving_first: int,
     nbrs: NeighborList,
 ):
-    """Write the lists; entries past the storage's end are dropped and the counts cut to match
-    (``list_starts``'s total has flagged the overflow; the step is redone with more storage)."""
+    """Write the lists (the still points', then the moving ones'); entries past the storage's end
+    are dropped and the counts cut to match (``list_starts``'s total has flagged the overflow; the
+    step is redone with more storage)."""
     i = wp.tid() + offset
     if nbrs.count[i] == 0:
         return
@@ -84,15 +140,17 @@ def fill_neighbors(
     r2 = radius * radius
     k = nbrs.start[i]
     capacity = nbrs.index.shape[0]
-    j = int(0)
-    query = wp.hash_grid_query(grid, x_i, radius)
-    while wp.hash_grid_query_next(query, j):
-        x_ij = x_i - points[j]
-        if wp.dot(x_ij, x_ij) < r2:
-            if k < capacity:
-                nbrs.index[k] = j
-                nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
-            k += 1
+    if may_have_neighbors(mask, x_i):
+        j = int(0)
+        query = wp.hash_grid_query(grid, x_i, radius)
+        while wp.hash_grid_query_next(query, j):
+            x_ij = x_i - points[j]
+            if wp.dot(x_ij, x_ij) < r2:
+                if k < capacity:
+                    nbrs.index[k] = j
+                    nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
+                k += 1
+    k = fill_from_cells(moving, points, moving_first, x_i, radius, nbrs, k, capacity)
     if k > capacity:  # keep every later loop inside the storage
         nbrs.count[i] = wp.max(capacity - nbrs.start[i], 0)
 
@@ -193,22 +251,25 @@ class NeighborListBuffer:
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
         self.lists.grad_W = wp.zeros(capacity, dtype=wp.vec3, device=self.device)
 
-    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, mask: NearMask, sync: bool = True):
+    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, mask: NearMask, moving: ParticleGrid,
+              moving_first: int, sync: bool = True):
         """Neighbours among ``points`` (another set: the walls) of each of the ``n`` ``queries``:
-        count, scan, fill; queries in cells that ``mask`` (see :func:`near_mask`) clears skip
-        the grid. With ``sync`` the storage grows first when too small; without it (inside a
-        captured graph) nothing is read back and ``needed`` tells afterwards."""
+        count, starts, fill. The still points are in ``grid`` (queries in cells that ``mask``, see
+        :func:`near_mask`, clears skip it), the moving ones from ``moving_first`` in ``moving``.
+        With ``sync`` the storage grows first when too small; without it (inside a captured
+        graph) nothing is read back and ``needed`` tells afterwards."""
         if n == 0:
             return
         lists = self.lists
-        launch_particles(count_neighbors, n, [grid.id, points, queries, radius, mask, lists.count], self.device)
+        common = [grid.id, points, queries, radius, mask, moving.grid, moving_first]
+        launch_particles(count_neighbors, n, [*common, lists.count], self.device)
         self.needed.zero_()
         wp.launch(list_starts, dim=n, inputs=[lists, self.needed], device=self.device)
         if sync:
             total = int(self.needed.numpy()[0])
             if total > self.capacity:
                 self.grow(total)
-        launch_particles(fill_neighbors, n, [grid.id, points, queries, radius, self.lists], self.device)
+        launch_particles(fill_neighbors, n, [*common, self.lists], self.device)
 
     def grow(self, needed: int) -> None:
         self._reserve(int(needed * 1.25) + 16)
@@ -261,19 +322,25 @@ def make_grid(device, dim: int = 128) -> wp.HashGrid:
 
 
 class NeighborSearch:
-    """Fluid-fluid and fluid-boundary neighbour lists within the support radius ``H``."""
+    """Fluid-fluid and fluid-boundary neighbour lists within the support radius ``H``. The first
+    ``n_still`` boundary particles never move (one grid, built once, and a mask of the cells near
+    them); the rest belong to moving obstacles, whose grid is rebuilt every step."""
 
-    def __init__(self, n_fluid: int, boundary_x: wp.array, radius: float, device):
+    def __init__(self, n_fluid: int, boundary_x: wp.array, radius: float, device, n_still: int | None = None):
         self.device = device
         self.n = n_fluid
         self.radius = float(radius)
         self.grid = ParticleGrid(n_fluid, device)
         self.boundary_x = boundary_x
+        n_boundary = 0 if boundary_x is None else int(boundary_x.shape[0])
+        self.n_still = n_boundary if n_still is None else int(n_still)
         self.boundary_grid = None
-        if boundary_x is not None and boundary_x.shape[0] > 0:
+        if n_boundary:
+            still = boundary_x[: self.n_still]
             self.boundary_grid = make_grid(device)
-            self.boundary_grid.build(boundary_x, self.radius)
-            self.boundary_mask = near_mask(boundary_x, self.radius, device)  # most particles are far from walls
+            self.boundary_grid.build(still, self.radius)
+            self.boundary_mask = near_mask(still, self.radius, device)  # most particles are far from walls
+        self.moving_grid = ParticleGrid(n_boundary - self.n_still, device)
         self.fluid = StridedListBuffer(n_fluid, device)
         self.boundary = NeighborListBuffer(n_fluid, device)
         self._order = wp.zeros(max(n_fluid, 1), dtype=wp.int32, device=device)
@@ -290,7 +357,10 @@ class NeighborSearch:
         self.grid.build(x, self.radius)
         self.fluid.build(self.grid, x, self.n, self.radius, sync=sync)
         if self.boundary_grid is not None:
-            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, self.boundary_mask, sync=sync)
+            if self.moving_grid.n:  # moving obstacles: where they are this step
+                self.moving_grid.build(self.boundary_x[self.n_still :], self.radius)
+            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, self.boundary_mask, self.moving_grid,
+                                self.n_still, sync=sync)
         else:
             self.boundary.lists.count.zero_()
             self.boundary.lists.start.zero_()

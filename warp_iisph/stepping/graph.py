@@ -34,7 +34,7 @@ class LoopGraph:
     def _sources(self) -> list:
         """What a replay changes and a redo restores: the particles and the last step's top speed."""
         s = self.loop.state
-        return [s.x, s.v, s.rho, s.p, s.id, self.loop.solver._max_speed2]
+        return [s.x, s.v, s.rho, s.p, s.id, self.loop.max_speed2]
 
     def _generations(self) -> tuple:
         search = self.loop.solver.search

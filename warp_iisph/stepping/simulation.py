@@ -128,7 +128,7 @@ class Simulation:
         s = self.state
         # copies: on the CPU .numpy() is a view of the live arrays
         out = {name: getattr(s, name).numpy().copy() for name in ("x", "v", "rho", "p", "id")}
-        out.update(max_speed2=self.solver._max_speed2.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
+        out.update(max_speed2=self.loop.max_speed2.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
                    method=np.array(self.physics.method))
         return out
 
@@ -141,7 +141,7 @@ class Simulation:
             raise ValueError(f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}")
         for name in ("x", "v", "rho", "p", "id"):
             getattr(s, name).assign(checkpoint[name])
-        self.solver._max_speed2.assign(checkpoint["max_speed2"])
+        self.loop.max_speed2.assign(checkpoint["max_speed2"])
         self.time = float(checkpoint["time"])
         self.step_count = int(checkpoint["step_count"])
 

@@ -19,7 +19,8 @@ import warp as wp
 from ..engine.timing import StageTimes
 from ..sph.solvers import STAGES
 
-LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity", "escaped", "non_finite", "t")
+LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity", "escaped", "non_finite", "wall_corrections",
+              "obstacle_corrections", "t")
 # particles are reordered by grid cell every this many steps (1 = every step)
 REORDER_INTERVAL = 10
 
@@ -61,6 +62,29 @@ def choose_dt(
 
 
 @wp.kernel
+def check_state(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    lower: wp.vec3,
+    upper: wp.vec3,
+    max_speed2: wp.array(dtype=float),
+    counts: wp.array(dtype=wp.int32),
+):
+    """Largest squared speed, particles outside the domain (counts[0]) and non-finite ones (counts[1])."""
+    i = wp.tid()
+    x_i = x[i]
+    v_i = v[i]
+    s2 = wp.dot(v_i, v_i)
+    if not (wp.isfinite(x_i) and wp.isfinite(v_i)):
+        wp.atomic_add(counts, 1, 1)
+        return
+    wp.atomic_max(max_speed2, 0, s2)
+    if x_i[0] < lower[0] or x_i[1] < lower[1] or x_i[2] < lower[2] or x_i[0] > upper[0] or x_i[1] > upper[1] or x_i[2] > upper[2]:
+        wp.atomic_add(counts, 0, 1)
+
+
+
+@wp.kernel
 def reorder_due(steps: wp.array(dtype=wp.int32), interval: int, due: wp.array(dtype=wp.int32)):
     due[0] = wp.where(steps[0] % interval == 0, 1, 0)
 
@@ -75,6 +99,7 @@ def record_step(
     iterations: wp.array(dtype=wp.int32),
     max_speed2: wp.array(dtype=float),
     counts: wp.array(dtype=wp.int32),
+    corrections: wp.array(dtype=wp.int32),
     needed: wp.array(dtype=wp.int32),
     list_total_f: wp.array(dtype=wp.int32),
     list_total_b: wp.array(dtype=wp.int32),
@@ -99,7 +124,9 @@ def record_step(
     log[k, 4] = speed
     log[k, 5] = wp.float64(counts[0])
     log[k, 6] = wp.float64(counts[1])
-    log[k, 7] = t
+    log[k, 7] = wp.float64(corrections[0])
+    log[k, 8] = wp.float64(corrections[1])
+    log[k, 9] = t
     needed[0] = wp.max(needed[0], list_total_f[0])
     needed[1] = wp.max(needed[1], list_total_b[0])
     slot[0] = k + 1
@@ -132,6 +159,8 @@ class TimeLoop:
         self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
         self.due = wp.zeros(1, dtype=wp.int32, device=dev)
         self.needed = wp.zeros(2, dtype=wp.int32, device=dev)
+        self.max_speed2 = wp.zeros(1, dtype=float, device=dev)  # the last step's top speed, squared: the CFL rule's
+        self.counts = wp.zeros(2, dtype=wp.int32, device=dev)  # particles out of the domain, non-finite
         self.log = wp.zeros((self.capacity, len(LOG_FIELDS)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
 
@@ -153,16 +182,25 @@ class TimeLoop:
         f64 = wp.float64
         wp.launch(choose_dt, dim=1, device=dev, inputs=[
             f64(ph.dt if ph.dt is not None else -1.0), f64(ph.cfl), f64(model.spacing), f64(self.velocity_scale),
-            f64(solver.signal_speed), f64(ph.dt_min), f64(ph.dt_max), self.dt_request, solver._max_speed2, self.time, self.end,
+            f64(solver.signal_speed), f64(ph.dt_min), f64(ph.dt_max), self.dt_request, self.max_speed2, self.time, self.end,
             self.dt64, solver.dt])
+        if model.bodies is not None:  # moving obstacles where they are at the step's start
+            model.bodies.place(model.boundary_x, model.boundary_v, self.time, self.dt64)
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
             wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x)))
         solver.launch_step(model, state, timer, sync=sync)
         search = solver.search
+        with timer("integration") if timer else nullcontext():
+            # the last line: nothing beyond a wall, every correction counted; then the checks
+            model.containment.apply(state.x, state.v, search.boundary.lists, model.n_fluid, self.time, self.dt64)
+            self.max_speed2.zero_()
+            self.counts.zero_()
+            wp.launch(check_state, dim=model.n_fluid, device=dev, inputs=[
+                state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self.max_speed2, self.counts])
         wp.launch(record_step, dim=1, device=dev, inputs=[
             model.n_fluid, f64(self.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
-            solver._max_speed2, solver._counts, self.needed, search.fluid.needed,
+            self.max_speed2, self.counts, model.containment.corrections, self.needed, search.fluid.needed,
             search.boundary.needed if search.boundary_grid is not None else self._zero_total,
             self.time, self.end, self.steps, self.slot, self.step_limit, self.log, self.keep_going])
 
@@ -188,7 +226,7 @@ class TimeLoop:
         out = []
         for row in rows:
             rec = dict(zip(LOG_FIELDS, (float(v) for v in row)))
-            for key in ("iterations", "escaped", "non_finite"):
+            for key in ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections"):
                 rec[key] = int(rec[key])
             out.append(rec)
         return out

@@ -24,19 +24,20 @@ ASPECT = 16 / 9  # the script's render resolution, 1920 x 1080
 
 # Kept in the .blend as a registered text block: Blender runs it when the file is opened (if the
 # user allows scripts to run), and the handler is persistent while Blender stays open.
-HANDLER = """# warp-iisph: shows the liquid mesh of the current frame on the object 'liquid'
+HANDLER = """# warp-iisph: shows the current frame's mesh on the objects 'liquid' and (when they move) 'obstacles'
 import bpy
 
 
 @bpy.app.handlers.persistent
 def warp_iisph_liquid_frame(scene, depsgraph=None):
-    obj = scene.objects.get("liquid")
-    if obj is None or "warp_iisph_first" not in obj:
-        return
-    frame = min(max(scene.frame_current, obj["warp_iisph_first"]), obj["warp_iisph_last"])
-    mesh = bpy.data.meshes.get("liquid_%05d" % frame)
-    if mesh is not None and obj.data is not mesh:
-        obj.data = mesh
+    for name in ("liquid", "obstacles"):
+        obj = scene.objects.get(name)
+        if obj is None or "warp_iisph_first" not in obj:
+            continue
+        frame = min(max(scene.frame_current, obj["warp_iisph_first"]), obj["warp_iisph_last"])
+        mesh = bpy.data.meshes.get(name + "_%05d" % frame)
+        if mesh is not None and obj.data is not mesh:
+            obj.data = mesh
 
 
 for old in [h for h in bpy.app.handlers.frame_change_pre if h.__name__ == "warp_iisph_liquid_frame"]:
@@ -58,6 +59,7 @@ COLOR = {color}          # colour seen through {thickness_cm:g} cm of the liquid
 DENSITY = {density}      # volume absorption density, 1/m
 OUTPUT = {output!r}
 OBSTACLES = {obstacles!r}  # the run's obstacles, shown on every frame (None: none)
+OBSTACLE_FRAMES = {obstacle_frames}  # [frame number, OBJ file] of moving obstacles (empty: they stand still)
 CAMERA = {camera}  # position, target (Blender's axes: z up) and horizontal field of view (degrees)
 FLOOR = {floor}  # the floor's height and size (m)
 HANDLER = """{handler}"""  # kept in the .blend as the registered text warp_iisph_liquid.py
@@ -65,7 +67,7 @@ HANDLER = """{handler}"""  # kept in the .blend as the registered text warp_iisp
 scene = bpy.context.scene
 for obj in list(bpy.data.objects):
     bpy.data.objects.remove(obj, do_unlink=True)
-for mesh in [m for m in bpy.data.meshes if m.name.startswith("liquid_")]:
+for mesh in [m for m in bpy.data.meshes if m.name.startswith(("liquid_", "obstacles_"))]:
     bpy.data.meshes.remove(mesh)
 
 
@@ -124,25 +126,31 @@ if USD:
             bpy.data.objects.remove(stage[name], do_unlink=True)
 else:
     # one mesh datablock per frame, kept in the file (fake user); one object shows the current one
-    for frame, path in FRAMES:
-        objects = obj_import(path)
-        mesh = objects[0].data if objects else bpy.data.meshes.new("liquid")  # an empty OBJ: an empty mesh
-        for obj in objects:
-            bpy.data.objects.remove(obj, do_unlink=True)
-        mesh.name = "liquid_%05d" % frame
-        mesh.use_fake_user = True
-        dress(mesh, mat)
-    liquid = bpy.data.objects.new("liquid", bpy.data.meshes["liquid_%05d" % FRAMES[0][0]])
-    scene.collection.objects.link(liquid)
-    liquid["warp_iisph_first"], liquid["warp_iisph_last"] = FRAMES[0][0], FRAMES[-1][0]
+    def sequence(name, frames, material, smooth=True):
+        for frame, path in frames:
+            objects = obj_import(path)
+            mesh = objects[0].data if objects else bpy.data.meshes.new(name)  # an empty OBJ: an empty mesh
+            for obj in objects:
+                bpy.data.objects.remove(obj, do_unlink=True)
+            mesh.name = name + "_%05d" % frame
+            mesh.use_fake_user = True
+            dress(mesh, material, smooth)
+        obj = bpy.data.objects.new(name, bpy.data.meshes[name + "_%05d" % frames[0][0]])
+        scene.collection.objects.link(obj)
+        obj["warp_iisph_first"], obj["warp_iisph_last"] = frames[0][0], frames[-1][0]
+        return obj
+
+    liquid = sequence("liquid", FRAMES, mat)
+    if OBSTACLE_FRAMES:
+        sequence("obstacles", OBSTACLE_FRAMES, stone, smooth=False)
+    elif OBSTACLES:
+        for obj in obj_import(OBSTACLES):
+            obj.name = "obstacles"
+            dress(obj.data, stone, smooth=False)
     text = bpy.data.texts.get("warp_iisph_liquid.py") or bpy.data.texts.new("warp_iisph_liquid.py")
     text.from_string(HANDLER)
     text.use_module = True  # run when the .blend is opened (if Blender may run its scripts)
     exec(compile(HANDLER, text.name, "exec"), {{"__name__": text.name}})
-    if OBSTACLES:
-        for obj in obj_import(OBSTACLES):
-            obj.name = "obstacles"
-            dress(obj.data, stone, smooth=False)
 
 world = with_nodes(bpy.data.worlds.new("sky") if scene.world is None else scene.world)
 scene.world = world
@@ -221,6 +229,8 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
         thickness_cm=100 * THICKNESS,
         output=str((run.path / "blender" / "frame_").resolve()),
         obstacles=str(run.obstacles.resolve()) if obstacles is not None else None,
+        obstacle_frames=json.dumps([[frame_index(f), str(run.obstacle_frame(frame_index(f)).resolve())] for f in files
+                                    if run.obstacle_frame(frame_index(f)).is_file()]),
         camera=json.dumps([_blender_axes(eye), _blender_axes(target), round(float(fov), 6)]),
         floor=json.dumps([[cx, cy, round(floor_y, 6)], floor_size]),
         handler=HANDLER,

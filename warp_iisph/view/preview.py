@@ -153,10 +153,11 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
             bounds = (np.minimum(bounds[0], obstacles.bounds[0]), np.maximum(bounds[1], obstacles.bounds[1]))
     view = OrthoView(*bounds, width, height, yaw, pitch)
     edges = box_edges(*bounds, step=0.5 / view.scale)
-    # what does not move is drawn once: the tank's edges and the obstacles
+    # what does not move is drawn once: the tank's edges and still obstacles; moving ones every frame
     still, still_depth = background(width, height), np.full((height, width), -np.inf)
     splat(still, still_depth, view, edges, np.full((len(edges), 3), 0.45), 0.5 / view.scale, shade_spheres=False)
-    if obstacles is not None:
+    moving = run.obstacles_move
+    if obstacles is not None and not moving:
         splat_surface(still, still_depth, view, obstacles)
     g = 9.81
     v_ref = math.sqrt(2 * g * max(float(bounds[1][1] - bounds[0][1]), h))
@@ -170,6 +171,10 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
                 t0 = time.perf_counter()
                 data = first if k == 0 else load(path)
                 img, zb = still.copy(), still_depth.copy()
+                if moving:
+                    solid = run.obstacle_mesh(frame_index(path))
+                    if solid is not None:
+                        splat_surface(img, zb, view, solid)
                 if source == PARTICLES:
                     speed = np.linalg.norm(data["v"], axis=1) if data["v"] is not None else np.zeros(len(data["x"]))
                     colors = ramp(speed / v_ref)

@@ -249,8 +249,10 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
             else:
                 t0 = time.perf_counter()
                 empty = len(read_mesh(path).faces) == 0  # also: a file cut off mid-write is refused here
+                k = frame_index(path)
+                obstacles = run.obstacle_frame(k) if run.obstacle_frame(k).is_file() else (run.obstacles if solid is not None else None)
                 sd = scene_dict(None if empty else path, (eye, target), floor_y, extent, color, spp, width, height, fov, wall_list,
-                                obstacles=run.obstacles if solid is not None else None)
+                                obstacles=obstacles)
                 image = render_image(sd, use_denoiser, seed=frame_index(path))
                 tmp = png.with_name(png.stem + ".part.png")
                 imageio.imwrite(tmp, image)

@@ -242,7 +242,8 @@ def export_usd(run_dir, out=None, frames: str | None = None, particles: bool = F
 
     obstacles = run.obstacle_mesh()
     if obstacles is not None:
-        add_obstacles(stage, obstacles)
+        moving = {k: run.obstacle_mesh(k) for k in numbers if run.obstacle_frame(k).is_file()}
+        add_obstacles(stage, obstacles, meshes=moving)
     eye, target, fov = run_camera(record, framing_box(run, record, files, obstacles), ASPECT)
     add_camera(stage, eye, target, fov)
     if particles:

@@ -1,5 +1,5 @@
-"""What WCSPH and IISPH share: density, pressure acceleration with symplectic Euler, the
-state check (speed, escapes, non-finite values) and the step skeleton.
+"""What WCSPH and IISPH share: density, pressure acceleration with symplectic Euler and the step
+skeleton.
 
 Density (Akinci boundaries): ``rho_i = sum_j m W_ij + sum_b psi_b W_ib`` (j includes i).
 Pressure acceleration: ``a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij
@@ -84,28 +84,6 @@ def integrate(
     x[i] = x[i] + dt * v_i
 
 
-@wp.kernel
-def check_state(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    lower: wp.vec3,
-    upper: wp.vec3,
-    max_speed2: wp.array(dtype=float),
-    counts: wp.array(dtype=wp.int32),
-):
-    """Largest squared speed, particles outside the domain (counts[0]) and non-finite ones (counts[1])."""
-    i = wp.tid()
-    x_i = x[i]
-    v_i = v[i]
-    s2 = wp.dot(v_i, v_i)
-    if not (wp.isfinite(x_i) and wp.isfinite(v_i)):
-        wp.atomic_add(counts, 1, 1)
-        return
-    wp.atomic_max(max_speed2, 0, s2)
-    if x_i[0] < lower[0] or x_i[1] < lower[1] or x_i[2] < lower[2] or x_i[0] > upper[0] or x_i[1] > upper[1] or x_i[2] > upper[2]:
-        wp.atomic_add(counts, 0, 1)
-
-
 class SPHSolver:
     """Skeleton of an SPH time step shared by the methods; subclasses supply
     :meth:`predict_advection` and :meth:`pressure_solve`.
@@ -119,11 +97,9 @@ class SPHSolver:
         self.physics = model.physics
         self.device = model.device
         n = model.n_fluid
-        self.search = NeighborSearch(n, model.boundary_x, model.support_radius, model.device)
+        self.search = NeighborSearch(n, model.boundary_x, model.support_radius, model.device, model.n_still)
         self.v_adv = wp.zeros(n, dtype=wp.vec3, device=model.device)
         self.compression = wp.zeros(n, dtype=wp.float64, device=model.device)
-        self._max_speed2 = wp.zeros(1, dtype=float, device=model.device)
-        self._counts = wp.zeros(2, dtype=wp.int32, device=model.device)
         self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
         self._no_iterations = wp.zeros(1, dtype=wp.int32, device=model.device)
         self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
@@ -160,14 +136,6 @@ class SPHSolver:
                 n,
                 [self.v_adv, state.rho, state.p, model.boundary_psi, nf, nb, model.mass, self.dt, state.v, state.x],
                 model.device,
-            )
-            self._max_speed2.zero_()
-            self._counts.zero_()
-            wp.launch(
-                check_state,
-                dim=n,
-                inputs=[state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self._max_speed2, self._counts],
-                device=model.device,
             )
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:

@@ -4,8 +4,9 @@ Viscosity (IGR205 report, after Monaghan): ``F_i = 2 mu m_i sum_j (m_j / rho_j)
 (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2) grad W_ij`` with ``mu`` in m^2/s. With ``mu = 0`` the
 neighbour loop is skipped entirely: the acceleration is gravity alone.
 
-Wall friction (Akinci et al. 2012) uses the same form against the static boundary particles,
-``a_i += 2 mu_b sum_b (psi_b / rho_i) (v_i . x_ib) / (|x_ib|^2 + 0.01 h^2) grad W_ib``, with its own
+Wall friction (Akinci et al. 2012) uses the same form against the boundary particles (moving with
+their obstacle's velocity ``v_b``), ``a_i += 2 mu_b sum_b (psi_b / rho_i) ((v_i - v_b) . x_ib) /
+(|x_ib|^2 + 0.01 h^2) grad W_ib``, with its own
 coefficient ``mu_b`` (m^2/s); 0 (the default) keeps the walls free-slip and costs nothing.
 """
 
@@ -32,6 +33,7 @@ def non_pressure_acceleration(
     h: float,
     gravity: wp.vec3,
     xb: wp.array(dtype=wp.vec3),
+    vb: wp.array(dtype=wp.vec3),
     psi: wp.array(dtype=float),
     nb: NeighborList,
     boundary_viscosity: float,
@@ -53,7 +55,7 @@ def non_pressure_acceleration(
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
             b = nb.index[k]
-            fric += (psi[b] / rho[i]) * viscous_pair(v_i, x_i - xb[b], h, nb.grad_W[k])
+            fric += (psi[b] / rho[i]) * viscous_pair(v_i - vb[b], x_i - xb[b], h, nb.grad_W[k])
         a = a + 2.0 * boundary_viscosity * fric
     return a
 
@@ -70,6 +72,7 @@ def predict_velocity(
     h: float,
     gravity: wp.vec3,
     xb: wp.array(dtype=wp.vec3),
+    vb: wp.array(dtype=wp.vec3),
     psi: wp.array(dtype=float),
     nb: NeighborList,
     boundary_viscosity: float,
@@ -79,4 +82,4 @@ def predict_velocity(
     """v_adv = v + dt * (gravity + viscosity): the velocity before pressure acts."""
     i = wp.tid() + offset
     dt = dt_step[0]
-    v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, psi, nb, boundary_viscosity)
+    v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity)

@@ -2,7 +2,7 @@
 
 Per step, after densities: ``predict_advection`` computes ``v_adv = v + dt a_nonpressure``,
 ``d_ii = -dt^2 sum_j m/rho_i^2 grad W_ij - dt^2 sum_b psi_b/rho_i^2 grad W_ib``,
-``rho_adv = rho_i + dt sum_j m v_adv_ij . grad W_ij + dt sum_b psi_b v_adv_i . grad W_ib`` and
+``rho_adv = rho_i + dt sum_j m v_adv_ij . grad W_ij + dt sum_b psi_b (v_adv_i - v_b) . grad W_ib`` and
 ``a_ii = sum_j m (d_ii - d_ji) . grad W_ij + sum_b psi_b d_ii . grad W_ib`` with
 ``d_ji = dt^2 m/rho_i^2 grad W_ij``; the pressure starts at ``0.5 p(t - dt)``.
 ``pressure_solve`` runs relaxed Jacobi: ``sum_j d_ij p_j = -dt^2 sum_j m p_j/rho_j^2 grad W_ij``,
@@ -38,6 +38,7 @@ def predict_advection_velocity(
     h: float,
     gravity: wp.vec3,
     xb: wp.array(dtype=wp.vec3),
+    vb: wp.array(dtype=wp.vec3),
     boundary_viscosity: float,
     dt_step: wp.array(dtype=float),
     v_adv: wp.array(dtype=wp.vec3),
@@ -45,7 +46,7 @@ def predict_advection_velocity(
 ):
     i = wp.tid() + offset
     dt = dt_step[0]
-    v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, psi, nb, boundary_viscosity)
+    v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity)
     d = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
@@ -64,6 +65,7 @@ def predict_advection_density(
     rho: wp.array(dtype=float),
     d_ii: wp.array(dtype=wp.vec3),
     psi: wp.array(dtype=float),
+    vb: wp.array(dtype=wp.vec3),
     nf: NeighborList,
     nb: NeighborList,
     mass: float,
@@ -89,8 +91,9 @@ def predict_advection_density(
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         g = nb.grad_W[k]
-        psi_b = psi[nb.index[k]]
-        r += psi_b * wp.dot(v_i, g)
+        b = nb.index[k]
+        psi_b = psi[b]
+        r += psi_b * wp.dot(v_i - vb[b], g)  # a moving wall's velocity: the flow through it compresses
         a += psi_b * wp.dot(dii, g)
     rho_adv[i] = rho_i + dt * r
     a_ii[i] = a
@@ -238,13 +241,14 @@ class IISPHSolver(SPHSolver):
             predict_advection_velocity,
             n,
             [state.x, state.v, state.rho, model.boundary_psi, nf, nb, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
-             model.boundary_x, ph.boundary_viscosity, self.dt, self.v_adv, self.d_ii],
+             model.boundary_x, model.boundary_v, ph.boundary_viscosity, self.dt, self.v_adv, self.d_ii],
             dev,
         )
         launch_particles(
             predict_advection_density,
             n,
-            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, nf, nb, model.mass, self.dt, self.rho_adv, self.a_ii, state.p],
+            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt, self.rho_adv,
+             self.a_ii, state.p],
             dev,
         )
 

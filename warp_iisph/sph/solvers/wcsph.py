@@ -38,7 +38,8 @@ class WCSPHSolver(SPHSolver):
             predict_velocity,
             model.n_fluid,
             [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
-             model.boundary_x, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt, self.v_adv],
+             model.boundary_x, model.boundary_v, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt,
+             self.v_adv],
             model.device,
         )
 

@@ -1,0 +1,148 @@
+"""The last line: after each step, no fluid particle is beyond a wall. A particle past a box
+tank's face, inside a closed obstacle (still or moving) or outside a mesh container is put back
+on the surface it crossed and loses the velocity that carried it through (relative to the wall);
+every such correction is counted in the step's statistics. The pressure solver is meant to do
+nearly all of this work: the count says how much it left.
+
+Obstacles are queried as ``wp.Mesh`` signed distances, in their own frame (a moving body's
+transform at the step's end), only for particles that had wall neighbours at the step's start
+(others cannot reach a wall within a CFL-limited step).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .bodies import BodyKeys, body_transform
+from .neighbors import NeighborList
+
+# A particle put back lands this far (a fraction of the spacing) on the fluid's side of the surface.
+CLEARANCE = 1.0e-3
+
+
+@wp.struct
+class Solids:
+    """Closed surfaces fluid may not cross: ``meshes[k]`` (its ``wp.Mesh`` id, in the frame of
+    moving body ``body[k]``, -1 for a still one); ``container[k]`` is 1 where the fluid belongs
+    inside (a mesh tank), 0 where it belongs outside (an obstacle)."""
+
+    meshes: wp.array(dtype=wp.uint64)
+    body: wp.array(dtype=wp.int32)
+    container: wp.array(dtype=wp.int32)
+    count: int
+    box_lower: wp.vec3
+    box_upper: wp.vec3
+    has_box: int
+
+
+@wp.func
+def clamp_to_box(x: wp.vec3, v: wp.vec3, lo: wp.vec3, hi: wp.vec3):
+    """``x`` inside [lo, hi], the velocity out through a crossed face removed; and whether it moved."""
+    moved = int(0)
+    for a in range(3):
+        if x[a] < lo[a]:
+            x[a] = lo[a]
+            v[a] = wp.max(v[a], 0.0)
+            moved = 1
+        elif x[a] > hi[a]:
+            x[a] = hi[a]
+            v[a] = wp.min(v[a], 0.0)
+            moved = 1
+    return x, v, moved
+
+
+@wp.kernel
+def contain(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    nb: NeighborList,
+    solids: Solids,
+    keys: BodyKeys,
+    time: wp.array(dtype=wp.float64),
+    dt: wp.array(dtype=wp.float64),
+    reach: float,
+    clearance: float,
+    corrections: wp.array(dtype=wp.int32),
+):
+    """corrections[0]: particles put back inside the tank; corrections[1]: out of obstacles.
+    Atomics: one launch, never split."""
+    i = wp.tid()
+    x_i = x[i]
+    v_i = v[i]
+    if solids.has_box != 0:
+        x_i, v_i, moved = clamp_to_box(x_i, v_i, solids.box_lower, solids.box_upper)
+        if moved != 0:
+            wp.atomic_add(corrections, 0, 1)
+    if nb.count[i] > 0:
+        t_end = time[0] + dt[0]
+        for k in range(solids.count):
+            b = solids.body[k]
+            frame = wp.transform_identity()
+            if b >= 0:
+                frame = body_transform(keys, b, t_end)
+            p = wp.transform_point(wp.transform_inverse(frame), x_i)
+            q = wp.mesh_query_point_sign_normal(solids.meshes[k], p, reach)
+            if q.result:
+                escaped = q.sign < 0.0
+                if solids.container[k] != 0:
+                    escaped = q.sign >= 0.0
+                if escaped:
+                    c = wp.mesh_eval_position(solids.meshes[k], q.face, q.u, q.v)
+                    n = wp.normalize(c - p)  # towards the fluid's side
+                    x_new = wp.transform_point(frame, c + clearance * n)
+                    n_world = wp.transform_vector(frame, n)
+                    v_wall = wp.vec3(0.0)
+                    if b >= 0:
+                        before = body_transform(keys, b, t_end - dt[0])
+                        v_wall = (x_new - wp.transform_point(before, c)) / float(dt[0])
+                    vn = wp.dot(v_i - v_wall, n_world)
+                    if vn < 0.0:
+                        v_i = v_i - vn * n_world
+                    x_i = x_new
+                    wp.atomic_add(corrections, 1, 1)
+    x[i] = x_i
+    v[i] = v_i
+
+
+class Containment:
+    """The walls a step's particles are held within: a box tank's faces and the closed meshes
+    (obstacles, a mesh container). Built once per model."""
+
+    def __init__(self, device, box=None, meshes=(), spacing: float = 1.0, keys: BodyKeys | None = None):
+        """``box``: (lower, upper) of a box tank, or None; ``meshes``: (vertices, faces, body,
+        container) per closed surface (vertices where the scene places the shape)."""
+        self.device = device
+        self.spacing = float(spacing)
+        self._meshes = [wp.Mesh(points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
+                                indices=wp.array(np.asarray(f, np.int32).reshape(-1), dtype=wp.int32, device=device))
+                        for v, f, _, _ in meshes]
+        s = Solids()
+        s.meshes = wp.array(np.array([m.id for m in self._meshes], dtype=np.uint64), dtype=wp.uint64, device=device)
+        s.body = wp.array(np.array([b for _, _, b, _ in meshes], dtype=np.int32), dtype=wp.int32, device=device)
+        s.container = wp.array(np.array([int(c) for _, _, _, c in meshes], dtype=np.int32), dtype=wp.int32, device=device)
+        s.count = len(self._meshes)
+        s.has_box = int(box is not None)
+        lo, hi = box if box is not None else (np.zeros(3), np.zeros(3))
+        s.box_lower, s.box_upper = wp.vec3(*np.asarray(lo, float)), wp.vec3(*np.asarray(hi, float))
+        self.solids = s
+        self.keys = keys if keys is not None else _no_keys(device)
+        self.corrections = wp.zeros(2, dtype=wp.int32, device=device)
+
+    def apply(self, x: wp.array, v: wp.array, nb: NeighborList, n: int, time: wp.array, dt: wp.array) -> None:
+        """Put the ``n`` particles back within the walls, counting into ``corrections`` (zeroed here)."""
+        self.corrections.zero_()
+        if n:
+            wp.launch(contain, dim=n, device=self.device, inputs=[
+                x, v, nb, self.solids, self.keys, time, dt, 2.0 * self.spacing, CLEARANCE * self.spacing, self.corrections])
+
+
+def _no_keys(device) -> BodyKeys:
+    k = BodyKeys()
+    k.first = wp.zeros(1, dtype=wp.int32, device=device)
+    k.smooth = wp.zeros(1, dtype=wp.int32, device=device)
+    k.pivot = wp.zeros(1, dtype=wp.vec3, device=device)
+    k.times = wp.zeros(1, dtype=wp.float64, device=device)
+    for name in ("translate", "rotate", "slope_translate", "slope_rotate"):
+        setattr(k, name, wp.zeros(1, dtype=wp.vec3, device=device))
+    return k
