@@ -85,7 +85,7 @@ def _parser() -> argparse.ArgumentParser:
     preview.add_argument("--yaw", type=float, default=30.0, help="camera turn about the vertical, degrees (default 30)")
     preview.add_argument("--pitch", type=float, default=25.0, help="camera elevation, degrees (default 25)")
     preview.add_argument("--gif", action="store_true", help="write preview.gif instead of preview.mp4")
-    preview.add_argument("--out", default=None, help="video path (default RUN_DIR/preview.mp4)")
+    preview.add_argument("--out", default=None, help="video path (default RUN_DIR/preview.mp4), or a .png for one frame's still")
     preview.add_argument("--no-progress", action="store_true", help="no progress bar")
     usd = sub.add_parser("usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)")
     usd.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
@@ -225,7 +225,10 @@ def _run(args) -> int:
     summary = (
         f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated{cut} in {t['wall_seconds']:.1f} s wall, "
         f"{t['frames']} frames of {wrote}, {record['particles']['fluid']} particles, mean {t['mean_iterations']:.1f} iterations, "
-        f"mean compression {100 * t['mean_compression']:.3f} % -> {out}"
+        f"mean compression {100 * t['mean_compression']:.3f} %"
+        + (f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back within the walls in {t['corrected_steps']} steps"
+           if t.get("corrected_steps") else "")
+        + f" -> {out}"
     )
     if t["unconverged_steps"]:
         ph = scene.physics

@@ -330,6 +330,8 @@ class StepTotals:
         self.physics = physics
         self.steps = 0
         self.sums = {"iterations": 0.0, "density_error": 0.0, "compression": 0.0}
+        self.corrections = {"wall_corrections": 0, "obstacle_corrections": 0}
+        self.corrected_steps = 0
         self.unconverged = 0
         self.worst_unconverged = 0.0
 
@@ -338,6 +340,9 @@ class StepTotals:
         self.steps += 1
         for k in self.sums:
             self.sums[k] += rec[k]
+        for k in self.corrections:
+            self.corrections[k] += rec.get(k, 0)
+        self.corrected_steps += int(any(rec.get(k, 0) for k in self.corrections))
         if ph.method == "iisph" and rec["iterations"] >= ph.max_iterations and rec["density_error"] > ph.eta:
             self.unconverged += 1
             self.worst_unconverged = max(self.worst_unconverged, rec["density_error"])
@@ -353,6 +358,8 @@ class StepTotals:
             "mean_iterations": self.sums["iterations"] / n,
             "mean_density_error": self.sums["density_error"] / n,
             "mean_compression": self.sums["compression"] / n,
+            **self.corrections,
+            "corrected_steps": self.corrected_steps,
             "unconverged_steps": self.unconverged,
             "worst_unconverged_error": self.worst_unconverged,
         }

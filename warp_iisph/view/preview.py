@@ -119,7 +119,8 @@ def background(width: int, height: int) -> np.ndarray:
 
 def preview_run(run_dir, out=None, source: str | None = None, resolution: str = "640x360", frames: str | None = None,
                 fps: float | None = None, gif: bool = False, yaw: float = 30.0, pitch: float = 25.0, progress: bool = True) -> dict:
-    """Write ``preview.mp4`` (or ``.gif``) of a run; returns the path, frame count and seconds per frame."""
+    """Write ``preview.mp4`` (or ``.gif``) of a run, or with ``out`` a ``.png`` file one frame's
+    still; returns the path, frame count and seconds per frame."""
     import time
 
     from PIL import Image, ImageDraw
@@ -191,7 +192,15 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
         finally:
             bar.close()
 
-    write_video(images(), out, fps, gif=gif)
+    if out.suffix.lower() == ".png":
+        if len(files) != 1:
+            raise RunError(f"--out {out}: a still shows one frame; choose it with --frames, e.g. --frames {frame_index(files[-1])}:")
+        from ..run.atomic import atomic_write
+
+        image = Image.fromarray(next(images()))
+        atomic_write(out, lambda tmp: image.save(tmp, format="PNG"))
+    else:
+        write_video(images(), out, fps, gif=gif)
     return {"path": out, "frames": len(files), "source": source, "seconds_per_frame": float(np.median(timing))}
 
 
