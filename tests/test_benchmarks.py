@@ -33,7 +33,7 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         dt = {r["method"]: r["dt_max"] for r in rows}
         assert dt["iisph"] > 2 * dt["wcsph"], dt
     else:
-        assert all(r["mean_abs_error"] < 0.1 for r in rows if r["wall_friction"] > 0)
+        assert all(r["mean_abs_error"] < 0.1 for r in rows if r["viscosity"] > 0)
 
 
 def _quick(script: str, tmp_path, stem: str, *extra) -> dict:

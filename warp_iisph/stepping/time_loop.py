@@ -12,6 +12,7 @@ conditional nodes.
 
 from __future__ import annotations
 
+import math
 from contextlib import nullcontext
 
 import warp as wp
@@ -23,6 +24,15 @@ LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity"
               "obstacle_corrections", "t")
 # particles are reordered by grid cell every this many steps (1 = every step)
 REORDER_INTERVAL = 10
+
+
+def viscous_dt_limit(h: float, physics) -> float:
+    """Largest step the explicit viscosity is stable with: Morris et al. (1997) ``0.125 h^2 / nu``
+    for a kinematic viscosity nu. The report's form ``2 mu sum_j ...`` is ``2(d + 2) nu sum_j ...``
+    (the SPH Laplacian, Monaghan 2005) with ``nu = mu / (d + 2) = mu / 5``, so the limit is
+    ``0.625 h^2 / mu``; wall friction has the same form. Infinite without viscosity."""
+    mu = max(physics.viscosity, physics.boundary_viscosity)
+    return math.inf if mu <= 0.0 else 0.625 * h * h / mu
 
 
 @wp.kernel
@@ -42,8 +52,9 @@ def choose_dt(
     dt32: wp.array(dtype=float),
 ):
     """The step: a requested one, the scene's fixed dt, or the CFL rule
-    ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max]; then shortened to
-    land on the end time (and lengthened to it when less than a twentieth of a step would remain)."""
+    ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max] (``dt_max`` here is
+    also the explicit viscosity's limit, :func:`viscous_dt_limit`); then shortened to land on the
+    end time (and lengthened to it when less than a twentieth of a step would remain)."""
     dt = dt_request[0]
     if dt <= wp.float64(0.0):
         dt = fixed_dt
@@ -146,6 +157,9 @@ class TimeLoop:
         self.physics = model.physics
         self.velocity_scale = float(velocity_scale)
         self.velocity_limit = float(velocity_limit)
+        # the CFL rule's longest step: dt_max, or shorter where the explicit viscosity needs it
+        # (a fixed dt is the user's choice and left alone)
+        self.dt_limit = min(self.physics.dt_max, viscous_dt_limit(model.spacing, self.physics))
         self.capacity = int(log_capacity)
         dev = model.device
         f64 = wp.float64
@@ -182,7 +196,7 @@ class TimeLoop:
         f64 = wp.float64
         wp.launch(choose_dt, dim=1, device=dev, inputs=[
             f64(ph.dt if ph.dt is not None else -1.0), f64(ph.cfl), f64(model.spacing), f64(self.velocity_scale),
-            f64(solver.signal_speed), f64(ph.dt_min), f64(ph.dt_max), self.dt_request, self.max_speed2, self.time, self.end,
+            f64(solver.signal_speed), f64(ph.dt_min), f64(self.dt_limit), self.dt_request, self.max_speed2, self.time, self.end,
             self.dt64, solver.dt])
         if model.bodies is not None:  # moving obstacles where they are at the step's start
             model.bodies.place(model.boundary_x, model.boundary_v, self.time, self.dt64)

@@ -10,7 +10,8 @@ then ``p_i = max((1 - omega) p_i + omega / a_ii (rho0 - rho_adv_i - s_i), 0)`` w
 ``s_i = sum_j m (sum_dij_pj_i - d_jj p_j - (sum_dij_pj_j - d_ji p_i)) . grad W_ij
 + sum_b psi_b sum_dij_pj_i . grad W_ib``, until the average predicted density error
 ``mean(max(rho_i/rho0 - 1, 0))`` (reduced in float64) is at most ``eta`` and at least
-``min_iterations`` ran, or ``max_iterations`` is reached.
+``min_iterations`` ran, or ``max_iterations`` is reached. The error is that of the iteration's
+input pressures, ``rho_adv + a_ii p_i + s_i`` (the residual; see ``jacobi_update``).
 """
 
 from __future__ import annotations
@@ -134,12 +135,18 @@ def jacobi_update(
     p_new: wp.array(dtype=float),
     density_error: wp.array(dtype=wp.float64),
 ):
-    """The relaxed Jacobi pressure from ``s_i`` and the predicted density error it leaves."""
+    """The relaxed Jacobi pressure from ``s_i``, and the predicted density error of the pressures
+    this iteration started from.
+
+    ``s_i`` is summed from the iteration's input pressures, so ``rho_adv + a_ii p_i + s_i`` is the
+    density those pressures predict: the true residual. Evaluating it with the updated ``p_i``
+    instead (as SPlisHSPlasH does) mixes two iterates and reports ``(1 - omega)`` times the
+    residual, half of it at omega = 0.5, so the solver stopped at twice the error eta allows."""
     p_next = float(0.0)
     if wp.abs(a) > 1.0e-12:
         p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv_i - sigma), 0.0)
     p_new[i] = p_next
-    rho_pred = rho_adv_i + a * p_next + sigma
+    rho_pred = rho_adv_i + a * p_i + sigma
     density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
 
 
