@@ -13,14 +13,19 @@ def test_bundled_scenes_include_the_reports_three():
     assert set(REPORT_SCENES) | {"martin_moyce", "dam_break_cube"} <= set(bundled_scenes())
 
 
+COARSE = {"dam_break_cube": ["spacing=0.12"], "pour": []}  # pour: its glass needs its own spacing
+
+
 @pytest.mark.parametrize("name", sorted(bundled_scenes()))
 def test_bundled_scene_runs_a_few_steps_coarse(name):
-    scene = load_scene(name, ["spacing=0.04"] if name != "dam_break_cube" else ["spacing=0.12"])
+    scene = load_scene(name, COARSE.get(name, ["spacing=0.04"]))
     sim = Simulation(scene, "cpu")
-    assert sim.n_particles > 50
+    assert sim.n_particles > 50 or scene.emitters
     for _ in range(5):
         rec = sim.step()
-    assert rec["escaped"] == 0 and rec["non_finite"] == 0 and rec["max_velocity"] < 1.0
+    assert sim.n_particles > 0 and rec["escaped"] == 0 and rec["non_finite"] == 0
+    # from rest (or a nozzle's stream), a few steps in: nothing fast
+    assert rec["max_velocity"] < 1.0 + max((e.speed for e in scene.emitters), default=0.0) * 1.5
 
 
 def test_obstacles_are_built_and_fluid_kept_out_of_them():

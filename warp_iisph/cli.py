@@ -224,12 +224,17 @@ def _run(args) -> int:
         cut = f" (the {record['requested_duration']:g} s asked for, cut to whole frames)"
     summary = (
         f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated{cut} in {t['wall_seconds']:.1f} s wall, "
-        f"{t['frames']} frames of {wrote}, {record['particles']['fluid']} particles, mean {t['mean_iterations']:.1f} iterations, "
+        f"{t['frames']} frames of {wrote}, {t.get('particles', record['particles']['fluid'])} particles"
+        + (f" ({t['emitted']} emitted, {t['removed']} removed by sinks)" if "emitted" in t else "")
+        + f", mean {t['mean_iterations']:.1f} iterations, "
         f"mean compression {100 * t['mean_compression']:.3f} %"
         + (f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back within the walls in {t['corrected_steps']} steps"
            if t.get("corrected_steps") else "")
         + f" -> {out}"
     )
+    if t.get("not_emitted"):
+        print(f"warp-iisph: warning: the emitters could not add {t['not_emitted']} particles: the liquid reached its capacity of "
+              f"{record['particles']['capacity']} (raise max_particles)", file=sys.stderr)
     if t["unconverged_steps"]:
         ph = scene.physics
         print(f"warp-iisph: warning: {t['unconverged_steps']} of {t['steps']} steps stopped at max_iterations = {ph.max_iterations} "
@@ -252,7 +257,9 @@ def _on_sigterm(signum, frame):
 
 
 def main(argv=None) -> int:
-    debug = "--debug" in (sys.argv[1:] if argv is None else argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]  # anywhere on the line, before or after the command
     try:
         if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
             signal.signal(signal.SIGTERM, _on_sigterm)

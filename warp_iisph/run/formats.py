@@ -99,7 +99,7 @@ def read_particles(path) -> dict[str, np.ndarray]:
 
     def field(name):
         v = pd.get(name)
-        return None if v is None else np.asarray(v).reshape(len(x), -1).squeeze(-1)
+        return None if v is None else np.asarray(v).reshape(len(x), -1)[:, 0] if np.asarray(v).ndim > 1 else np.asarray(v)
 
     if all(k in pd for k in ("vx", "vy", "vz")):
         v = np.stack([field("vx"), field("vy"), field("vz")], axis=1)

@@ -111,7 +111,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         replacing = _check_target(out, overwrite)
     t_start = time.perf_counter()
     # everything is built before the disk changes; step records go to stats.jsonl, not memory
-    sim = Simulation(scene, device=device, graph=graph, history=1)
+    sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration)
     first = 0
     if resume:
         sim.restore(checkpoint)
@@ -130,7 +130,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         "graph": graph,
         "versions": versions(),
         "command": " ".join(sys.argv),
-        "particles": {"fluid": sim.n_particles, "boundary": sim.model.n_boundary},
+        "particles": {"fluid": sim.n_particles, "boundary": sim.model.n_boundary, "capacity": sim.model.capacity},
         "duration": plan.duration,
         "requested_duration": plan.requested,
         "fps": plan.fps,
@@ -157,7 +157,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
                 snapshot = (sim.positions, sim.velocities, sim.densities, sim.pressures)
             jobs.append(lambda: write_particles(frame_file, *snapshot))
         if mesher is not None:
-            mesh, obj = mesher.mesh(sim.state.x), run.mesh_frame(k)
+            mesh, obj = mesher.mesh(sim.state.x[: sim.n_particles]), run.mesh_frame(k)
             jobs.append(lambda: mesher.export(mesh, obj))
         if moving_obstacles:  # where every obstacle is at this frame, for the viewers
             solid, path = obstacles_mesh(scene.obstacles, k / plan.fps), run.obstacle_frame(k)
@@ -353,6 +353,8 @@ class StepTotals:
             "steps": sim.step_count,
             "simulated_time": sim.time,
             "frames": frames,
+            "particles": sim.n_particles,
+            **({"emitted": sim.flows.emitted, "removed": sim.flows.removed, "not_emitted": sim.flows.refused} if sim.flows else {}),
             "wall_seconds": wall,
             "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
             "mean_iterations": self.sums["iterations"] / n,

@@ -24,6 +24,11 @@ def _number(value) -> float:
     return float(value)
 
 
+def floats(values) -> tuple:
+    """Plain Python floats (NumPy's scalars would print as np.float64(...) in messages and files)."""
+    return tuple(float(v) for v in values)
+
+
 def vec3(value, name: str) -> np.ndarray:
     try:
         if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, np.bool_, str)) for c in value):

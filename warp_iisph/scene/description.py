@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Union
+from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_PARTICLES, positive
+from .checks import MAX_PARTICLES, floats, positive
+from .flows import Emitter, Sink
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere
 
@@ -40,6 +41,9 @@ class Scene:
     surface: SurfaceSettings = field(default_factory=SurfaceSettings)
     name: str = "scene"
     camera: Camera = field(default_factory=Camera)
+    emitters: list = field(default_factory=list)
+    sinks: list = field(default_factory=list)
+    max_particles: Optional[int] = None  # fluid particles at most (with emitters); None: what they emit over output.duration
 
     def add_fluid_box(self, lower, upper) -> "Scene":
         self.fluids.append(Box(tuple(lower), tuple(upper)))
@@ -51,6 +55,14 @@ class Scene:
 
     def add_obstacle(self, shape: Obstacle) -> "Scene":
         self.obstacles.append(shape)
+        return self
+
+    def add_emitter(self, emitter: Emitter) -> "Scene":
+        self.emitters.append(emitter)
+        return self
+
+    def add_sink(self, sink: Sink) -> "Scene":
+        self.sinks.append(sink)
         return self
 
     def validate(self) -> "Scene":
@@ -69,8 +81,8 @@ class Scene:
         tlo, thi = self.tank.bounds
         if np.any((thi - tlo) < self.spacing):
             raise ValueError(f"tank: every side must be at least spacing = {self.spacing} m long")
-        if not self.fluids:
-            raise ValueError("fluids: the scene needs at least one fluid block")
+        if not self.fluids and not self.emitters:
+            raise ValueError("fluids: the scene needs at least one fluid block or an emitter")
         for k, f in enumerate(self.fluids):
             name = f"fluids[{k}]"
             if not isinstance(f, (Box, Sphere)):
@@ -82,7 +94,7 @@ class Scene:
             eps = 1e-9 * max(1.0, float(np.max(np.abs(thi))))
             if np.any(lo < tlo - eps) or np.any(hi > thi + eps):
                 raise ValueError(
-                    f"{name}: fluid {tuple(lo)}..{tuple(hi)} must lie inside the tank {tuple(tlo)}..{tuple(thi)}"
+                    f"{name}: fluid {floats(lo)}..{floats(hi)} must lie inside the tank {floats(tlo)}..{floats(thi)}"
                 )
         for a in range(len(self.fluids)):
             for b in range(a + 1, len(self.fluids)):
@@ -97,12 +109,28 @@ class Scene:
             if o.motion is not None and o.motion.pivot is None:
                 o.motion.pivot = tuple(float(c) for c in 0.5 * (lo + hi))  # about its own centre
             if np.any(hi <= tlo) or np.any(lo >= thi):
-                raise ValueError(f"{name}: lies entirely outside the tank {tuple(tlo)}..{tuple(thi)}")
+                raise ValueError(f"{name}: lies entirely outside the tank {floats(tlo)}..{floats(thi)}")
             if isinstance(o, MeshShape) and not o.shell and not o.load().is_watertight:
                 raise ValueError(
                     f"{name}.path = {o.path!r}: the mesh is not closed ({_open_edges(o.load())} open edges), so its inside is "
                     f"undefined; close it, or set {name}.shell = true to use it as a thin wall"
                 )
+        for k, e in enumerate(self.emitters):
+            name = f"emitters[{k}]"
+            if not isinstance(e, Emitter):
+                raise ValueError(f"{name} = {e!r}: must be an emitter")
+            e.validate(name)
+            c = np.asarray(e.center)
+            if np.any(c < tlo) or np.any(c > thi):
+                raise ValueError(f"{name}.center = {list(e.center)}: must lie inside the tank {floats(tlo)}..{floats(thi)}")
+        for k, s in enumerate(self.sinks):
+            if not isinstance(s, Sink):
+                raise ValueError(f"sinks[{k}] = {s!r}: must be a box")
+            s.validate(f"sinks[{k}]")
+        if self.max_particles is not None:
+            m = self.max_particles
+            if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= MAX_PARTICLES:
+                raise ValueError(f"max_particles = {m!r}: must be a whole number in [1, {MAX_PARTICLES}]")
         self._check_particle_counts()
         self.physics.validate()
         self.output.validate()
@@ -122,6 +150,7 @@ class Scene:
         for f in self.fluids:
             lo, hi = f.bounds
             fluid += float(np.prod((hi - lo) / h)) if isinstance(f, Box) else 4.0 / 3.0 * np.pi * (f.radius / h) ** 3
+        fluid = max(fluid, self.capacity_estimate(h, fluid)) if self.emitters else fluid
         walls = 0.0
         for shape in [self.tank, *self.obstacles]:
             if isinstance(shape, Box):
@@ -132,6 +161,14 @@ class Scene:
             else:
                 walls += float(shape.load().area) / h / h
         return fluid, 2.0 * walls  # walls: two layers
+
+    def capacity_estimate(self, h: float, initial: float, until: Optional[float] = None) -> float:
+        """Fluid particles the scene holds at most: ``max_particles``, or ``initial`` plus what its
+        emitters inject until ``until`` (default ``output.duration``)."""
+        if self.max_particles is not None:
+            return float(self.max_particles)
+        until = self.output.duration if until is None else until
+        return initial + sum(float(e.particles(float(h), until)) for e in self.emitters)
 
     def _check_particle_counts(self) -> None:
         fluid, boundary = self.particle_estimate()

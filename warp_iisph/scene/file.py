@@ -13,6 +13,7 @@ from pathlib import Path
 
 from .checks import SceneFileError
 from .description import Scene
+from .flows import Emitter, Sink
 from .library import resolve_scene
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, MeshShape, Sphere
@@ -22,7 +23,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output", "surface", "camera"}
+TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output", "surface", "camera", "emitters", "sinks",
+            "max_particles"}
 SHAPE_KEYS = {
     "box": {"lower", "upper"},
     "sphere": {"center", "radius"},
@@ -88,6 +90,15 @@ def _shape(table, where: str, allowed: tuple, base_dir: Path, movable: bool = Fa
     return MeshShape(**args, base_dir=str(base_dir))
 
 
+def _record(cls, table, where: str):
+    """A table as a ``cls`` record: unknown keys and missing required ones name the key."""
+    _check_keys(table, _fields(cls), where)
+    for field_ in dataclasses.fields(cls):
+        if field_.default is dataclasses.MISSING and field_.default_factory is dataclasses.MISSING and field_.name not in table:
+            raise ValueError(f"{where}.{field_.name}: required")
+    return cls(**table)
+
+
 def _fields(cls) -> set:
     return {f.name for f in dataclasses.fields(cls)}
 
@@ -101,7 +112,9 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         raise ValueError("tank: required (a box with lower/upper, or shape = 'mesh')")
     fluids = data.get("fluids", [])
     obstacles = data.get("obstacles", [])
-    for key, value in (("fluids", fluids), ("obstacles", obstacles)):
+    emitters = data.get("emitters", [])
+    sinks = data.get("sinks", [])
+    for key, value in (("fluids", fluids), ("obstacles", obstacles), ("emitters", emitters), ("sinks", sinks)):
         if not isinstance(value, list):
             raise ValueError(f"{key}: must be an array of tables ([[{key}]])")
     physics = _check_keys(data.get("physics", {}), _fields(Physics), "physics")
@@ -121,6 +134,9 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         surface=SurfaceSettings(**surface),
         name=name,
         camera=Camera(**camera),
+        emitters=[_record(Emitter, e, f"emitters[{k}]") for k, e in enumerate(emitters)],
+        sinks=[_record(Sink, s, f"sinks[{k}]") for k, s in enumerate(sinks)],
+        max_particles=data.get("max_particles"),
     )
     return scene.validate()
 
@@ -158,6 +174,9 @@ def scene_to_dict(scene: Scene) -> dict:
         "output": _settings_table(scene.output),
         "surface": _settings_table(scene.surface),
         "camera": _settings_table(scene.camera),
+        "emitters": [_settings_table(e) for e in scene.emitters],
+        "sinks": [_settings_table(s) for s in scene.sinks],
+        **({"max_particles": scene.max_particles} if scene.max_particles is not None else {}),
     }
 
 

@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import flag, in_range, position, positive, vec3
+from .checks import flag, floats, in_range, position, positive, vec3
 
 METHODS = ("iisph", "wcsph")
 
@@ -140,7 +140,7 @@ class Physics:
         self.rho0 = positive(self.rho0, "physics.rho0", "kg/m^3")
         self.viscosity = in_range(self.viscosity, "physics.viscosity", 0.0, 1.0, "m^2/s")
         self.boundary_viscosity = in_range(self.boundary_viscosity, "physics.boundary_viscosity", 0.0, 1.0, "m^2/s")
-        self.gravity = tuple(vec3(self.gravity, "physics.gravity"))
+        self.gravity = floats(vec3(self.gravity, "physics.gravity"))
         self.eta = in_range(self.eta, "physics.eta", 0.0, 0.5, "fraction of rho0, e.g. 0.001", lo_open=True)
         for key in ("max_iterations", "min_iterations"):
             v = getattr(self, key)

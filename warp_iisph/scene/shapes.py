@@ -7,7 +7,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, flag, in_range, position, positive, vec3
+from .checks import MAX_COORDINATE, flag, floats, in_range, position, positive, vec3
 from .motion import Motion
 
 
@@ -38,8 +38,8 @@ class Box:
         lo = position(self.lower, f"{name}.lower")
         hi = position(self.upper, f"{name}.upper")
         if np.any(hi <= lo):
-            raise ValueError(f"{name}: upper {tuple(hi)} must exceed lower {tuple(lo)} on every axis")
-        self.lower, self.upper = tuple(lo), tuple(hi)
+            raise ValueError(f"{name}: upper {floats(hi)} must exceed lower {floats(lo)} on every axis")
+        self.lower, self.upper = floats(lo), floats(hi)
         _check_motion(self, name)
 
     @property
@@ -56,7 +56,7 @@ class Sphere:
     motion: Optional[Motion] = None
 
     def validate(self, name: str) -> None:
-        self.center = tuple(position(self.center, f"{name}.center"))
+        self.center = floats(position(self.center, f"{name}.center"))
         self.radius = in_range(self.radius, f"{name}.radius", 0.0, MAX_COORDINATE, "metres", lo_open=True)
         _check_motion(self, name)
 
@@ -85,13 +85,13 @@ class MeshShape:
     def validate(self, name: str) -> None:
         if not isinstance(self.path, str) or not self.path:
             raise ValueError(f"{name}.path = {self.path!r}: must be a mesh file path")
-        self.translate = tuple(position(self.translate, f"{name}.translate"))
-        self.rotate = tuple(vec3(self.rotate, f"{name}.rotate"))
+        self.translate = floats(position(self.translate, f"{name}.translate"))
+        self.rotate = floats(vec3(self.rotate, f"{name}.rotate"))
         if isinstance(self.scale, (list, tuple, np.ndarray)):
             sc = vec3(self.scale, f"{name}.scale")
             if np.any(sc <= 0):
                 raise ValueError(f"{name}.scale = {list(self.scale)}: every factor must be > 0")
-            self.scale = tuple(sc)
+            self.scale = floats(sc)
         else:
             self.scale = positive(self.scale, f"{name}.scale", "a factor, or three")
         self.shell = flag(self.shell, f"{name}.shell")

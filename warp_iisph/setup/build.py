@@ -21,15 +21,16 @@ from .sampling import sample_fluid, sample_tank_walls
 INITIAL_COMPRESSION = 0.005
 
 
-def build_model(scene: Scene, device) -> tuple[Model, State]:
-    """Sample a validated scene into particles and upload them to ``device``."""
+def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model, State]:
+    """Sample a validated scene into particles and upload them to ``device``, with room for what
+    its emitters inject until ``until`` seconds (default: ``output.duration``)."""
     device = wp.get_device(device)
     h = scene.spacing
     ph = scene.physics
     meshes = _shape_meshes(scene)
     _check_memory(*(int(c) for c in scene.particle_estimate()), device)  # before sampling allocates anything
     xf, xb, bodies = sample_scene(scene, device, meshes)
-    if len(xf) == 0:
+    if len(xf) == 0 and not scene.emitters:
         raise ValueError(f"fluids: no particle fits at spacing = {h} m; make the blocks larger or the spacing smaller")
     n_moving = sum(len(rest) for _, rest in bodies)
     _check_memory(len(xf), len(xb) + n_moving, device)
@@ -55,6 +56,8 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
     # A box tank's walls start h/2 outside its faces; a mesh container's cells reach h outside.
     margin = 0.5 * h if isinstance(scene.tank, Box) else 2.0 * h
     n = len(xf)
+    capacity = max(n, int(np.ceil(scene.capacity_estimate(h, n, until))), 1)
+    _check_memory(capacity, len(xb) + n_moving, device)
     model = Model(
         device=device,
         physics=ph,
@@ -69,13 +72,19 @@ def build_model(scene: Scene, device) -> tuple[Model, State]:
         containment=_containment(scene, meshes, h, moving, device),
         domain_lower=lo - margin,
         domain_upper=hi + margin,
+        capacity=capacity,
     )
+    x = np.zeros((capacity, 3), dtype=np.float32)
+    x[:n] = xf
+    ids = np.arange(capacity, dtype=np.int32)
     state = State(
-        x=wp.array(xf.astype(np.float32), dtype=wp.vec3, device=device),
-        v=wp.zeros(n, dtype=wp.vec3, device=device),
-        rho=wp.full(n, ph.rho0, dtype=float, device=device),
-        p=wp.zeros(n, dtype=float, device=device),
-        id=wp.array(np.arange(n, dtype=np.int32), dtype=wp.int32, device=device),
+        x=wp.array(x, dtype=wp.vec3, device=device),
+        v=wp.zeros(capacity, dtype=wp.vec3, device=device),
+        rho=wp.full(capacity, ph.rho0, dtype=float, device=device),
+        p=wp.zeros(capacity, dtype=float, device=device),
+        id=wp.array(ids, dtype=wp.int32, device=device),
+        count=n,
+        next_id=n,
     )
     return model, state
 
@@ -95,7 +104,12 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, device) -> Contai
             k, body = body, body + 1
         if m.is_watertight and not getattr(o, "shell", False):
             solids.append((m.vertices, m.faces, k, False))
-    box = scene.tank.bounds if isinstance(scene.tank, Box) else None
+    # a box tank's wall is its inner layer of boundary particles, h/2 beyond the faces (the fluid's
+    # first layer rests h/2 inside them): a particle past that layer has gone through the wall
+    box = None
+    if isinstance(scene.tank, Box):
+        lo, hi = scene.tank.bounds
+        box = (lo - 0.5 * h, hi + 0.5 * h)
     return Containment(device, box, solids, h, moving.keys if moving is not None else None)
 
 

@@ -26,7 +26,7 @@ class Model:
 
     device: object
     physics: Physics
-    n_fluid: int
+    n_fluid: int  # at the start; the state's count changes with emitters and sinks
     spacing: float
     support_radius: float
     mass: float
@@ -37,6 +37,7 @@ class Model:
     boundary_v: wp.array = None  # zero for still walls; moving obstacles' particles carry their velocity
     bodies: Optional[MovingBodies] = None  # the moving obstacles: the last boundary particles
     containment: Optional[Containment] = None  # the walls no particle may be beyond after a step
+    capacity: int = 0  # fluid particles the arrays hold at most (more than n_fluid with emitters)
 
     @property
     def n_boundary(self) -> int:
@@ -72,18 +73,44 @@ _GATHER = {wp.vec3: gather_vec3, wp.float32: gather_float, wp.int32: gather_int}
 @dataclass
 class State:
     """Per-particle fluid data: position ``x``, velocity ``v``, density ``rho``, pressure ``p``
-    and the particle's original index ``id`` (particles are reordered in memory by grid cell)."""
+    and the particle's identity ``id`` (particles are reordered in memory by grid cell). The
+    arrays hold ``capacity`` particles, the first ``count`` of which are the liquid (emitters add
+    particles, sinks remove them; ``next_id`` names the next one emitted)."""
 
     x: wp.array
     v: wp.array
     rho: wp.array
     p: wp.array
     id: wp.array
+    count: int = -1
+    next_id: int = -1
     _scratch: dict = field(default_factory=dict, repr=False)  # reorder's buffers, one per dtype
+
+    def __post_init__(self):
+        if self.count < 0:
+            self.count = self.capacity
+        if self.next_id < 0:
+            self.next_id = self.count
 
     @property
     def n(self) -> int:
+        return self.count
+
+    @property
+    def capacity(self) -> int:
         return int(self.x.shape[0])
+
+    def keep(self, indices: np.ndarray) -> None:
+        """Keep only the particles at ``indices`` (in that order): the others leave the liquid."""
+        k = len(indices)
+        if k:
+            order = self._scratch.get("keep")
+            if order is None:
+                order = self._scratch["keep"] = wp.zeros(self.capacity, dtype=wp.int32, device=self.x.device)
+            order[:k].assign(np.asarray(indices, dtype=np.int32))
+            self.count = k
+            self.reorder(order)
+        self.count = k
 
     def reorder(self, order: wp.array) -> None:
         """Permute every per-particle array in place so that particle i becomes ``order[i]``
@@ -100,11 +127,9 @@ class State:
             wp.copy(src, tmp)
 
     def numpy_by_id(self, name: str) -> np.ndarray:
-        """Host copy of a per-particle array in original particle order."""
-        values = self._host(name)
-        out = np.empty_like(values)
-        out[self._host("id")] = values
-        return out
+        """Host copy of a per-particle array of the liquid, in the order of the particles' ids."""
+        values = self._host(name)[: self.count]
+        return values[np.argsort(self._host("id")[: self.count], kind="stable")]
 
     def _host(self, name: str) -> np.ndarray:
         """``name`` on the host. From a GPU it comes through a page-locked buffer kept for it

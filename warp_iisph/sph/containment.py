@@ -1,7 +1,8 @@
 """The last line: after each step, no fluid particle is beyond a wall. A particle past a box
-tank's face, inside a closed obstacle (still or moving) or outside a mesh container is put back
-on the surface it crossed and loses the velocity that carried it through (relative to the wall);
-every such correction is counted in the step's statistics. The pressure solver is meant to do
+tank's wall (its inner layer of boundary particles, h/2 beyond the faces), inside a closed obstacle
+(still or moving) or outside a mesh container is put back on the surface it crossed and loses the
+velocity that carried it through (relative to the wall); every such correction is counted in the
+step's statistics. The pressure solver is meant to do
 nearly all of this work: the count says how much it left.
 
 Obstacles are queried as ``wp.Mesh`` signed distances, in their own frame (a moving body's

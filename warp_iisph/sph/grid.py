@@ -99,25 +99,31 @@ def cell_starts(g: CellGrid):
 
 
 class ParticleGrid:
-    """The hash grid of ``n`` moving points, rebuilt every step into the same storage."""
+    """The hash grid of up to ``capacity`` moving points, rebuilt every step into the same storage."""
 
-    def __init__(self, n: int, device):
+    def __init__(self, capacity: int, device):
         self.device = device
-        self.n = int(n)
+        self.capacity = int(capacity)
         self.grid = CellGrid()
-        self.grid.n = self.n
+        self.grid.n = self.capacity
         self.grid.inv_cell = 1.0
         # radix_sort_pairs uses the second half of keys and ids as scratch
-        self.grid.keys = wp.zeros(2 * max(self.n, 1), dtype=wp.int32, device=device)
-        self.grid.ids = wp.zeros(2 * max(self.n, 1), dtype=wp.int32, device=device)
+        self.grid.keys = wp.zeros(2 * max(self.capacity, 1), dtype=wp.int32, device=device)
+        self.grid.ids = wp.zeros(2 * max(self.capacity, 1), dtype=wp.int32, device=device)
         self.grid.starts = wp.full(GRID_DIM * GRID_DIM * GRID_DIM, -1, dtype=wp.int32, device=device)
 
-    def build(self, points: wp.array, cell: float) -> None:
-        """Sort the first ``n`` points by cell (cells of size ``cell``); allocation-free."""
+    @property
+    def n(self) -> int:
+        return self.grid.n
+
+    def build(self, points: wp.array, cell: float, n: int | None = None) -> None:
+        """Sort the first ``n`` points (default: all it holds) by cell (cells of size ``cell``);
+        allocation-free."""
         g = self.grid
+        g.n = self.capacity if n is None else int(n)
         g.inv_cell = float(np.float32(1.0) / np.float32(cell))  # in float32, as wp.HashGrid computes it
-        if self.n == 0:
+        if g.n == 0:
             return
-        wp.launch(cell_keys, dim=self.n, inputs=[points, g.inv_cell, g.keys, g.ids], device=self.device)
-        wp.utils.radix_sort_pairs(g.keys, g.ids, self.n)
-        wp.launch(cell_starts, dim=self.n, inputs=[g], device=self.device)
+        wp.launch(cell_keys, dim=g.n, inputs=[points, g.inv_cell, g.keys, g.ids], device=self.device)
+        wp.utils.radix_sort_pairs(g.keys, g.ids, g.n)
+        wp.launch(cell_starts, dim=g.n, inputs=[g], device=self.device)

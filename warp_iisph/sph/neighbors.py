@@ -327,6 +327,7 @@ class NeighborSearch:
     them); the rest belong to moving obstacles, whose grid is rebuilt every step."""
 
     def __init__(self, n_fluid: int, boundary_x: wp.array, radius: float, device, n_still: int | None = None):
+        """``n_fluid``: the most fluid particles the lists serve (the state's capacity)."""
         self.device = device
         self.n = n_fluid
         self.radius = float(radius)
@@ -345,21 +346,26 @@ class NeighborSearch:
         self.boundary = NeighborListBuffer(n_fluid, device)
         self._order = wp.zeros(max(n_fluid, 1), dtype=wp.int32, device=device)
 
-    def cell_order(self, x: wp.array) -> wp.array:
-        """Permutation that sorts particles by hash-grid cell (cache-friendly order)."""
-        self.grid.build(x, self.radius)
-        wp.launch(sorted_order, dim=self.n, inputs=[self.grid.grid, self._order], device=self.device)
+    def cell_order(self, x: wp.array, n: int | None = None) -> wp.array:
+        """Permutation that sorts the first ``n`` particles (default: all it serves) by hash-grid
+        cell (cache-friendly order)."""
+        n = self.n if n is None else n
+        self.grid.build(x, self.radius, n)
+        if n:
+            wp.launch(sorted_order, dim=n, inputs=[self.grid.grid, self._order], device=self.device)
         return self._order
 
-    def build(self, x: wp.array, sync: bool = True) -> None:
-        if self.n == 0:
+    def build(self, x: wp.array, n: int | None = None, sync: bool = True) -> None:
+        """The lists of the first ``n`` particles of ``x`` (default: all it serves)."""
+        n = self.n if n is None else n
+        if n == 0:
             return
-        self.grid.build(x, self.radius)
-        self.fluid.build(self.grid, x, self.n, self.radius, sync=sync)
+        self.grid.build(x, self.radius, n)
+        self.fluid.build(self.grid, x, n, self.radius, sync=sync)
         if self.boundary_grid is not None:
             if self.moving_grid.n:  # moving obstacles: where they are this step
                 self.moving_grid.build(self.boundary_x[self.n_still :], self.radius)
-            self.boundary.build(self.boundary_grid, self.boundary_x, x, self.n, self.radius, self.boundary_mask, self.moving_grid,
+            self.boundary.build(self.boundary_grid, self.boundary_x, x, n, self.radius, self.boundary_mask, self.moving_grid,
                                 self.n_still, sync=sync)
         else:
             self.boundary.lists.count.zero_()

@@ -37,8 +37,10 @@ class LoopGraph:
         return [s.x, s.v, s.rho, s.p, s.id, self.loop.max_speed2]
 
     def _generations(self) -> tuple:
+        """What a recorded graph depends on: the neighbour storage, and the particle count (an
+        emitter or a sink changes it between replays)."""
         search = self.loop.solver.search
-        return (search.fluid.generation, search.boundary.generation)
+        return (search.fluid.generation, search.boundary.generation, self.loop.state.n)
 
     def _record(self) -> None:
         with recording(), wp.ScopedCapture(device=self.device, force_module_load=False) as capture:

@@ -12,6 +12,7 @@ from ..engine.devices import init_warp
 from ..scene import Scene
 from ..setup import build_model
 from ..sph.solvers import make_solver
+from .flows import Flows
 from .graph import LoopGraph
 from .time_loop import TimeLoop
 
@@ -38,13 +39,15 @@ class Simulation:
         print(sim.stats[-1]["density_error"])
     """
 
-    def __init__(self, scene: Scene, device: str = "cpu", graph: bool = False, history: Optional[int] = None):
+    def __init__(self, scene: Scene, device: str = "cpu", graph: bool = False, history: Optional[int] = None,
+                 until: Optional[float] = None):
         """``history``: how many step records ``stats`` keeps (``None``: every one; a long run that
-        writes them to disk keeps the last few, so memory stays flat)."""
+        writes them to disk keeps the last few, so memory stays flat). ``until``: how long it will
+        run (s), for the room emitters need (default: the scene's ``output.duration``)."""
         init_warp()
         self.scene = scene.validate()
         self.physics = scene.physics
-        self.model, self.state = build_model(self.scene, device)
+        self.model, self.state = build_model(self.scene, device, until)
         self.device = self.model.device
         self.solver = make_solver(self.model)
         self.time = 0.0
@@ -56,16 +59,23 @@ class Simulation:
         # Gravity-driven flows reach about sqrt(2 g y_top) (y_top: the liquid's top above the floor). The
         # CFL rule uses at least that speed, so the first steps, taken from rest, are not so long
         # that IISPH's linearised density prediction breaks down near the walls.
-        x = self.state.x.numpy()
-        fall = float(x[:, 1].max() - self.model.domain_lower[1]) if len(x) else 0.0
-        self.loop = TimeLoop(self.model, self.state, self.solver, math.sqrt(2.0 * g * max(fall, 0.0)), velocity_limit)
+        x = self.state.x.numpy()[: self.state.n]
+        floor = float(self.model.domain_lower[1])
+        fall = float(x[:, 1].max()) - floor if len(x) else 0.0
+        speed = math.sqrt(2.0 * g * max(fall, 0.0))
+        for e in self.scene.emitters:  # an emitted stream falls from its nozzle
+            speed = max(speed, math.sqrt(e.speed**2 + 2.0 * g * max(e.center[1] - floor, 0.0)))
+        self.flows = Flows(self.scene, self.state, self.device)
+        self.flows.emit(self.time)  # the layers due at the start are there from the start
+        self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)
         # graph=True replays the recorded loop over steps (see .graph); the plain path launches the
         # same step body from Python, times every stage, and is the reference the graph is tested against
         self.graph = LoopGraph(self.loop) if graph else None
 
     @property
     def n_particles(self) -> int:
-        return self.model.n_fluid
+        """Fluid particles now (emitters add, sinks remove)."""
+        return self.state.n
 
     def step(self, dt: Optional[float] = None) -> dict:
         """Advance one time step (``dt``: seconds, or ``None`` for the CFL rule); returns its
@@ -87,11 +97,15 @@ class Simulation:
             for record in self._steps(end):
                 if callback is not None:
                     callback(record)
+        self.flows.drain()  # sinks act once per call: a run's frame
 
     def _steps(self, end: float, dt: Optional[float] = None, limit: Optional[int] = None):
         """The next steps towards ``end``: one plain step, or one replay of the graph (up to the
         log's capacity of steps). Yields each step's record; raises DivergenceError at the step
         that diverged (the loop on the device stopped there too)."""
+        self.flows.emit(self.time)  # layers due now; steps land on the next one, so both paths emit alike
+        end = min(end, self.flows.next_emission())
+
         def restart():
             self.loop.start(self.time, self.step_count, end, dt, limit)
 
@@ -127,20 +141,24 @@ class Simulation:
         A simulation restored from it continues bitwise as this one would."""
         s = self.state
         # copies: on the CPU .numpy() is a view of the live arrays
-        out = {name: getattr(s, name).numpy().copy() for name in ("x", "v", "rho", "p", "id")}
+        out = {name: getattr(s, name).numpy()[: s.n].copy() for name in ("x", "v", "rho", "p", "id")}
         out.update(max_speed2=self.loop.max_speed2.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
-                   method=np.array(self.physics.method))
+                   method=np.array(self.physics.method), next_id=np.int64(s.next_id), **self.flows.checkpoint())
         return out
 
     def restore(self, checkpoint: dict) -> None:
         """Continue from :meth:`checkpoint`'s arrays (``ValueError`` when they are not of this scene)."""
         s = self.state
-        if checkpoint["x"].shape != (s.n, 3):
-            raise ValueError(f"checkpoint: holds {len(checkpoint['x'])} particles, the scene makes {s.n}; its geometry changed")
+        n = len(checkpoint["x"])
+        if n > s.capacity or (not self.scene.emitters and not self.scene.sinks and n != s.n):
+            raise ValueError(f"checkpoint: holds {n} particles, the scene makes {s.n}; its geometry changed")
         if str(checkpoint["method"]) != self.physics.method:
             raise ValueError(f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}")
         for name in ("x", "v", "rho", "p", "id"):
-            getattr(s, name).assign(checkpoint[name])
+            getattr(s, name)[:n].assign(checkpoint[name])
+        s.count = n
+        s.next_id = int(checkpoint.get("next_id", n))
+        self.flows.restore(checkpoint)
         self.loop.max_speed2.assign(checkpoint["max_speed2"])
         self.time = float(checkpoint["time"])
         self.step_count = int(checkpoint["step_count"])

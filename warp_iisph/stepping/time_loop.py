@@ -202,18 +202,18 @@ class TimeLoop:
             model.bodies.place(model.boundary_x, model.boundary_v, self.time, self.dt64)
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
-            wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x)))
+            wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x, state.n)))
         solver.launch_step(model, state, timer, sync=sync)
         search = solver.search
         with timer("integration") if timer else nullcontext():
             # the last line: nothing beyond a wall, every correction counted; then the checks
-            model.containment.apply(state.x, state.v, search.boundary.lists, model.n_fluid, self.time, self.dt64)
+            model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.time, self.dt64)
             self.max_speed2.zero_()
             self.counts.zero_()
-            wp.launch(check_state, dim=model.n_fluid, device=dev, inputs=[
+            wp.launch(check_state, dim=state.n, device=dev, inputs=[
                 state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self.max_speed2, self.counts])
         wp.launch(record_step, dim=1, device=dev, inputs=[
-            model.n_fluid, f64(self.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
+            max(state.n, 1), f64(self.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
             self.max_speed2, self.counts, model.containment.corrections, self.needed, search.fluid.needed,
             search.boundary.needed if search.boundary_grid is not None else self._zero_total,
             self.time, self.end, self.steps, self.slot, self.step_limit, self.log, self.keep_going])

@@ -96,7 +96,7 @@ class SPHSolver:
     def __init__(self, model):
         self.physics = model.physics
         self.device = model.device
-        n = model.n_fluid
+        n = model.capacity  # arrays for the most particles the liquid holds; launches over its current count
         self.search = NeighborSearch(n, model.boundary_x, model.support_radius, model.device, model.n_still)
         self.v_adv = wp.zeros(n, dtype=wp.vec3, device=model.device)
         self.compression = wp.zeros(n, dtype=wp.float64, device=model.device)
@@ -113,9 +113,9 @@ class SPHSolver:
         """Every launch of a step (after the reorder, which the time loop schedules), reading
         nothing back unless ``sync``: what a graph records. ``self.dt`` holds the step."""
         timer = timer or nullcontext  # timer(name) -> a context that does nothing
-        n = model.n_fluid
+        n = state.n
         with timer("neighbours"):
-            self.search.build(state.x, sync=sync)
+            self.search.build(state.x, n, sync=sync)
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         with timer("density"):
             launch_particles(

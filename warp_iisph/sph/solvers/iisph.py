@@ -229,7 +229,7 @@ class IISPHSolver(SPHSolver):
 
     def __init__(self, model):
         super().__init__(model)
-        n, dev = model.n_fluid, model.device
+        n, dev = model.capacity, model.device
         self.d_ii = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.a_ii = wp.zeros(n, dtype=float, device=dev)
         self.rho_adv = wp.zeros(n, dtype=float, device=dev)
@@ -243,7 +243,7 @@ class IISPHSolver(SPHSolver):
     def predict_advection(self, model, state) -> None:
         ph = self.physics
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        n, dev = model.n_fluid, model.device
+        n, dev = state.n, model.device
         launch_particles(
             predict_advection_velocity,
             n,
@@ -269,7 +269,7 @@ class IISPHSolver(SPHSolver):
     def jacobi_iteration(self, model, state) -> None:
         ph = self.physics
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        n, dev = model.n_fluid, model.device
+        n, dev = state.n, model.device
         launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, self.dt, self.sum_dij_pj], dev)
         launch_particles(
             pressure_jacobi,
@@ -280,7 +280,7 @@ class IISPHSolver(SPHSolver):
         )
         wp.copy(state.p, self.p_next, count=n)
         sum_into(self.density_error, n, self._error_sum)
-        wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, n, wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
+        wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
                                                      self._iterations, self.keep_going], device=dev)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:

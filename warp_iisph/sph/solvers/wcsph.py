@@ -36,7 +36,7 @@ class WCSPHSolver(SPHSolver):
         ph = self.physics
         launch_particles(
             predict_velocity,
-            model.n_fluid,
+            state.n,
             [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
              model.boundary_x, model.boundary_v, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt,
              self.v_adv],
@@ -44,4 +44,4 @@ class WCSPHSolver(SPHSolver):
         )
 
     def pressure_solve(self, model, state) -> None:
-        launch_particles(state_equation, model.n_fluid, [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p], model.device)
+        launch_particles(state_equation, state.n, [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p], model.device)

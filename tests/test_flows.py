@@ -1,0 +1,126 @@
+"""Emitters and sinks: a stream that keeps the spacing, sinks that remove, the particle count
+changing between frames through the outputs, the surface and the viewers."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from warp_iisph import Box, Scene, Simulation
+from warp_iisph.cli import main
+from warp_iisph.scene import Emitter, Sink
+from warp_iisph.run.formats import read_particles
+from warp_iisph.run.runner import run_scene
+
+H = 0.02
+
+
+def jet_scene(duration=0.5, **physics) -> Scene:
+    """A horizontal jet (disc, 3 cm, 1 m/s) into a 0.8 m tank, a sink box at its far floor."""
+    scene = Scene(spacing=H, tank=Box((0, 0, 0), (0.8, 0.5, 0.3)), name="jet")
+    scene.physics.__dict__.update(physics)
+    scene.add_emitter(Emitter(center=(0.1, 0.3, 0.15), direction=(1.0, 0.0, 0.0), speed=1.0, radius=0.03, end=0.4))
+    scene.add_sink(Sink((0.6, 0.0, 0.0), (0.8, 0.1, 0.3)))
+    scene.output.duration = duration
+    return scene
+
+
+def test_an_emitter_keeps_the_spacing_without_a_pressure_shock():
+    # inviscid: the report's viscosity turns the layers' different fall speeds into forces along
+    # their pairs; without it nothing but pressure could change a layer's speed along the jet
+    sim = Simulation(jet_scene(viscosity=0.0), "cpu")
+    layer = len(jet_scene().emitters[0].layer(H))
+    sim.advance(0.1)
+    # one layer per spacing travelled (every 0.02 s at 1 m/s): at 0, 0.02, ..., 0.08 s; the one due
+    # at 0.1 s comes when the run goes on
+    assert sim.n_particles == 5 * layer
+    x = sim.positions
+    d, _ = cKDTree(x).query(x, k=2)
+    assert d[:, 1].min() > 0.9 * H  # no overlap where a new layer meets the last
+    # the new particles join at rest density: no particle compressed, no pressure kick
+    assert max(s["compression"] for s in sim.stats) < 1e-3 and sim.densities.max() < 1.01 * 1000
+    assert np.all(np.abs(sim.velocities[:, 0] - 1.0) < 0.01)  # still flying at the nozzle speed: no pressure kick
+    ids = sim.state.id.numpy()[: sim.n_particles]
+    assert len(np.unique(ids)) == len(ids)
+
+
+def test_sinks_remove_and_ids_stay_unique():
+    sim = Simulation(jet_scene(duration=1.5), "cpu")
+    counts = []
+    for _ in range(15):
+        sim.advance(0.1)
+        counts.append(sim.n_particles)
+    assert sim.flows.removed > 0 and counts[-1] < max(counts)  # the stream stopped at 0.4 s; the sink drains
+    x = sim.positions
+    assert not np.any(np.all((x >= (0.6, 0.0, 0.0)) & (x <= (0.8, 0.1, 0.3)), axis=1))
+    ids = sim.state.id.numpy()[: sim.n_particles]
+    assert len(np.unique(ids)) == len(ids) and ids.max() < sim.state.next_id
+
+
+def test_a_run_with_a_changing_count_writes_meshes_and_previews(tmp_path):
+    out = tmp_path / "jet"
+    scene = jet_scene(duration=0.5)
+    scene.output.mesh = True
+    record = run_scene(scene, out, progress=False)
+    assert record["ended"] == "completed" and record["totals"]["emitted"] > 0
+    counts = [len(read_particles(f)["x"]) for f in sorted((out / "particles").glob("*.ply"))]
+    assert counts[0] == len(scene.emitters[0].layer(H)) and counts[-1] > counts[0]
+    assert all(f.stat().st_size > 0 for f in (out / "mesh").glob("*.obj"))
+    assert main(["preview", str(out), "--no-progress", "--resolution", "64x36"]) == 0
+    assert main(["preview", str(out), "--source", "mesh", "--no-progress", "--resolution", "64x36"]) == 0
+
+
+def test_a_full_liquid_refuses_more_with_a_warning(tmp_path, capsys):
+    path = tmp_path / "jet.toml"
+    path.write_text("""
+spacing = 0.02
+max_particles = 40
+[tank]
+lower = [0, 0, 0]
+upper = [0.8, 0.5, 0.3]
+[[emitters]]
+center = [0.1, 0.3, 0.15]
+direction = [1, 0, 0]
+speed = 1.0
+radius = 0.03
+""")
+    assert main(["run", str(path), "--duration", "0.2", "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "could not add" in err and "capacity of 40" in err
+    totals = json.loads((tmp_path / "out" / "run.json").read_text())["totals"]
+    assert totals["particles"] <= 40 and totals["not_emitted"] > 0
+
+
+def test_graph_and_plain_emit_alike():
+    plain, graph = Simulation(jet_scene(), "cpu"), Simulation(jet_scene(), "cpu", graph=True)
+    for sim in (plain, graph):
+        sim.advance(0.15)
+    assert graph.n_particles == plain.n_particles
+    np.testing.assert_array_equal(graph.positions, plain.positions)
+
+
+def test_a_run_with_emitters_resumes_bitwise(tmp_path):
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    run_scene(jet_scene(duration=0.6), whole, progress=False)
+    run_scene(jet_scene(duration=0.6), cut, duration=0.2, progress=False)
+    assert main(["run", "--resume", str(cut), "--duration", "0.6", "--no-progress"]) == 0
+    a, b = (read_particles(r / "particles" / "frame_00018.ply") for r in (whole, cut))
+    assert len(a["x"]) == len(b["x"]) and np.array_equal(a["x"], b["x"]) and np.array_equal(a["id"], b["id"])
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"speed": 0.0}, "emitters[0].speed = 0.0"),
+    ({"direction": [0, 0, 0]}, "emitters[0].direction = [0.0, 0.0, 0.0]: must not be zero"),
+    ({"shape": "rectangle"}, "emitters[0].size: required"),
+    ({"center": [5, 0.3, 0.15]}, "emitters[0].center = [5.0, 0.3, 0.15]: must lie inside the tank"),
+    ({"end": -1.0}, "emitters[0].end = -1.0"),
+])
+def test_emitter_errors_are_one_line(bad, message):
+    scene = jet_scene()
+    e = scene.emitters[0]
+    for k, v in bad.items():
+        setattr(e, k, v)
+    with pytest.raises(ValueError) as err:
+        scene.validate()
+    assert message in str(err.value)

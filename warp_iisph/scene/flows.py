@@ -1,0 +1,108 @@
+"""Where liquid enters and leaves a scene: emitters (a nozzle, a disc or a rectangle, that injects
+particles at a speed) and sinks (boxes that remove the particles entering them)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .checks import MAX_COORDINATE, floats, in_range, position, vec3
+
+NOZZLES = ("disc", "rectangle")
+
+
+@dataclass
+class Emitter:
+    """A nozzle at ``center`` facing ``direction`` that injects liquid at ``speed`` (m/s) from
+    ``start`` to ``end`` (s): a disc of ``radius``, or a rectangle of ``size`` [width, height]
+    (width along ``direction x up``, ``up`` the world's y, or x for a vertical nozzle). It emits
+    one layer of particles on a lattice of the scene's spacing each time the last layer has moved
+    one spacing, so the stream keeps the spacing of the liquid it joins."""
+
+    center: tuple
+    direction: tuple
+    speed: float
+    shape: str = "disc"
+    radius: Optional[float] = None
+    size: Optional[tuple] = None
+    start: float = 0.0
+    end: Optional[float] = None  # seconds; None: it never stops
+
+    def validate(self, name: str) -> None:
+        self.center = floats(position(self.center, f"{name}.center"))
+        d = vec3(self.direction, f"{name}.direction")
+        if np.linalg.norm(d) == 0.0:
+            raise ValueError(f"{name}.direction = {list(floats(d))}: must not be zero")
+        self.direction = tuple(float(c) for c in d / np.linalg.norm(d))
+        self.speed = in_range(self.speed, f"{name}.speed", 0.0, 100.0, "m/s", lo_open=True)
+        if self.shape not in NOZZLES:
+            raise ValueError(f"{name}.shape = {self.shape!r}: must be one of {', '.join(NOZZLES)}")
+        if self.shape == "disc":
+            if self.radius is None:
+                raise ValueError(f"{name}.radius: required for shape = 'disc' (metres)")
+            self.radius = in_range(self.radius, f"{name}.radius", 0.0, MAX_COORDINATE, "metres", lo_open=True)
+        else:
+            if self.size is None:
+                raise ValueError(f"{name}.size: required for shape = 'rectangle' ([width, height], metres)")
+            try:
+                w, h = (float(v) for v in self.size)
+            except (TypeError, ValueError):
+                raise ValueError(f"{name}.size = {self.size!r}: must be [width, height] in metres") from None
+            for v in (w, h):
+                in_range(v, f"{name}.size", 0.0, MAX_COORDINATE, "metres", lo_open=True)
+            self.size = (w, h)
+        self.start = in_range(self.start, f"{name}.start", 0.0, 1.0e6, "seconds")
+        if self.end is not None:
+            self.end = in_range(self.end, f"{name}.end", self.start, 1.0e6, "seconds, > start", lo_open=True)
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Two unit vectors spanning the nozzle: along its width and its height."""
+        d = np.asarray(self.direction)
+        up = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        u = np.cross(d, up)
+        u /= np.linalg.norm(u)
+        return u, np.cross(u, d)
+
+    def layer(self, h: float) -> np.ndarray:
+        """The points of one layer, relative to the centre: a square lattice of spacing ``h`` over
+        the nozzle (centred, so a nozzle narrower than ``h`` still emits one particle)."""
+        u, v = self.axes()
+        if self.shape == "disc":
+            n = int(np.ceil(self.radius / h)) + 1
+            k = np.arange(-n, n + 1) * h
+            a, b = (g.ravel() for g in np.meshgrid(k, k, indexing="ij"))
+            keep = a**2 + b**2 <= max(self.radius, 0.5 * h) ** 2 + 1e-12
+        else:
+            w, ht = self.size
+            na, nb = max(1, int(np.floor(w / h + 1e-9))), max(1, int(np.floor(ht / h + 1e-9)))
+            a, b = (g.ravel() for g in np.meshgrid((np.arange(na) - 0.5 * (na - 1)) * h, (np.arange(nb) - 0.5 * (nb - 1)) * h,
+                                                  indexing="ij"))
+            keep = np.ones(len(a), dtype=bool)
+        return np.outer(a[keep], u) + np.outer(b[keep], v)
+
+    def particles(self, h: float, until: float) -> int:
+        """How many particles it emits from ``start`` to ``until`` (s)."""
+        t = max(0.0, min(math.inf if self.end is None else self.end, until) - self.start)
+        return len(self.layer(h)) * (int(np.floor(t * self.speed / h)) + 1) if until >= self.start else 0
+
+
+@dataclass
+class Sink:
+    """A box from ``lower`` to ``upper`` (metres): particles that enter it leave the scene."""
+
+    lower: tuple
+    upper: tuple
+
+    def validate(self, name: str) -> None:
+        lo = position(self.lower, f"{name}.lower")
+        hi = position(self.upper, f"{name}.upper")
+        if np.any(hi <= lo):
+            raise ValueError(f"{name}: upper {floats(hi)} must exceed lower {floats(lo)} on every axis")
+        self.lower, self.upper = floats(lo), floats(hi)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(self.lower, dtype=np.float64), np.asarray(self.upper, dtype=np.float64)

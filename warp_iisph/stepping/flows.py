@@ -1,0 +1,110 @@
+"""Liquid entering and leaving during a run: emitters add a layer of particles at their nozzle
+each time the last layer has moved one spacing; sinks remove the particles inside them.
+
+Emission happens between steps, so a step (or a replayed graph of steps) always sees one
+particle count; the time loop is told when the next layer is due, and a graph is recorded again
+for the new count. Removal happens between frames (``Simulation.advance``), through one host copy
+of the positions.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+
+@wp.kernel
+def emit_layer(
+    first: int,
+    centre: wp.vec3,
+    offsets: wp.array(dtype=wp.vec3),
+    velocity: wp.vec3,
+    rho0: float,
+    first_id: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    ids: wp.array(dtype=wp.int32),
+):
+    k = wp.tid()
+    i = first + k
+    x[i] = centre + offsets[k]
+    v[i] = velocity
+    rho[i] = rho0
+    p[i] = 0.0
+    ids[i] = first_id + k
+
+
+class Flows:
+    """The scene's emitters and sinks acting on a :class:`~warp_iisph.setup.model.State`."""
+
+    def __init__(self, scene, state, device):
+        h = scene.spacing
+        self.emitters = scene.emitters
+        self.sinks = [s.bounds for s in scene.sinks]
+        self.rho0 = float(scene.physics.rho0)
+        self.state = state
+        self.device = device
+        self.layers = [wp.array(e.layer(h).astype(np.float32), dtype=wp.vec3, device=device) for e in self.emitters]
+        self.period = [h / e.speed for e in self.emitters]  # a layer moves one spacing in this time
+        self.next_time = [e.start for e in self.emitters]
+        self.emitted = 0
+        self.refused = 0  # particles an emitter could not add: the state was full
+        self.removed = 0
+
+    def __bool__(self) -> bool:
+        return bool(self.emitters or self.sinks)
+
+    def next_emission(self) -> float:
+        """When the next layer is due (inf: never again)."""
+        times = [t for t, e in zip(self.next_time, self.emitters) if e.end is None or t < e.end]
+        return min(times, default=math.inf)
+
+    def emit(self, time: float) -> int:
+        """Add every layer due by ``time`` (1 ns of slack for the float clock); returns how many
+        particles came in."""
+        s = self.state
+        added = 0
+        for k, e in enumerate(self.emitters):
+            while self.next_time[k] <= time + 1e-9 and (e.end is None or self.next_time[k] < e.end):
+                layer = self.layers[k]
+                m = layer.shape[0]
+                if s.count + m > s.capacity:
+                    self.refused += m
+                else:
+                    velocity = wp.vec3(*(e.speed * np.asarray(e.direction)))
+                    wp.launch(emit_layer, dim=m, device=self.device, inputs=[
+                        s.count, wp.vec3(*e.center), layer, velocity, self.rho0, s.next_id, s.x, s.v, s.rho, s.p, s.id])
+                    s.count += m
+                    s.next_id += m
+                    added += m
+                self.next_time[k] += self.period[k]
+        self.emitted += added
+        return added
+
+    def drain(self) -> int:
+        """Remove the particles inside a sink; returns how many left."""
+        s = self.state
+        if not self.sinks or s.count == 0:
+            return 0
+        x = s.x.numpy()[: s.count]
+        inside = np.zeros(len(x), dtype=bool)
+        for lo, hi in self.sinks:
+            inside |= np.all((x >= lo) & (x <= hi), axis=1)
+        gone = int(inside.sum())
+        if gone:
+            s.keep(np.nonzero(~inside)[0])
+            self.removed += gone
+        return gone
+
+    def checkpoint(self) -> dict:
+        return {"flows_next_time": np.asarray(self.next_time, dtype=np.float64),
+                "flows_counts": np.asarray([self.emitted, self.refused, self.removed], dtype=np.int64)}
+
+    def restore(self, checkpoint: dict) -> None:
+        if "flows_next_time" in checkpoint:
+            self.next_time = [float(t) for t in checkpoint["flows_next_time"]]
+            self.emitted, self.refused, self.removed = (int(c) for c in checkpoint["flows_counts"])
