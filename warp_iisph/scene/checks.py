@@ -41,6 +41,15 @@ def vec3(value, name: str) -> np.ndarray:
     return arr
 
 
+def box_corners(lower, upper, name: str) -> tuple[tuple, tuple]:
+    """A box's ``lower`` and ``upper`` corners (points; upper above lower on every axis)."""
+    lo = position(lower, f"{name}.lower")
+    hi = position(upper, f"{name}.upper")
+    if np.any(hi <= lo):
+        raise ValueError(f"{name}: upper {floats(hi)} must exceed lower {floats(lo)} on every axis")
+    return floats(lo), floats(hi)
+
+
 def position(value, name: str) -> np.ndarray:
     """A point in the scene (metres): three finite numbers within ``MAX_COORDINATE`` of the origin."""
     arr = vec3(value, name)

@@ -9,7 +9,7 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, floats, in_range, position, vec3
+from .checks import MAX_COORDINATE, box_corners, floats, in_range, position, vec3
 
 NOZZLES = ("disc", "rectangle")
 
@@ -97,11 +97,7 @@ class Sink:
     upper: tuple
 
     def validate(self, name: str) -> None:
-        lo = position(self.lower, f"{name}.lower")
-        hi = position(self.upper, f"{name}.upper")
-        if np.any(hi <= lo):
-            raise ValueError(f"{name}: upper {floats(hi)} must exceed lower {floats(lo)} on every axis")
-        self.lower, self.upper = floats(lo), floats(hi)
+        self.lower, self.upper = box_corners(self.lower, self.upper, name)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:

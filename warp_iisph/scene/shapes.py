@@ -7,7 +7,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, flag, floats, in_range, position, positive, vec3
+from .checks import MAX_COORDINATE, box_corners, flag, floats, in_range, position, positive, vec3
 from .motion import Motion
 
 
@@ -35,11 +35,7 @@ class Box:
     motion: Optional[Motion] = None
 
     def validate(self, name: str) -> None:
-        lo = position(self.lower, f"{name}.lower")
-        hi = position(self.upper, f"{name}.upper")
-        if np.any(hi <= lo):
-            raise ValueError(f"{name}: upper {floats(hi)} must exceed lower {floats(lo)} on every axis")
-        self.lower, self.upper = floats(lo), floats(hi)
+        self.lower, self.upper = box_corners(self.lower, self.upper, name)
         _check_motion(self, name)
 
     @property
