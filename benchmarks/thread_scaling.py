@@ -1,8 +1,11 @@
 """Thread scaling of the CPU path (the report's Figure 5): the 32,768-particle dam break
 (IISPH, eta 0.1 %, CFL 0.5, dt <= 5 ms) with 1, 2, ... threads; wall time per simulated second
-and ms per stage for each count. Writes benchmarks/results/thread_scaling.json and .png.
+and ms per stage for each count, and its mean actual compression. Beside it, in the same run on
+the same cores, SPlisHSPlasH's IISPH and DFSPH on the same dam break with 2 threads
+(benchmarks/peer_splishsplash.py; the `bench` extra, skipped when not installed). Writes
+benchmarks/results/thread_scaling.json and .png.
 
-    python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--quick]
+    python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer] [--quick]
 """
 
 import argparse
@@ -10,11 +13,10 @@ import time
 
 import numpy as np
 
+import peer_splishsplash
 from common import RESULTS, header, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import available_cores, set_threads
-
-SPLISHSPLASH_S_PER_S = {"IISPH, volume maps": 66.0, "DFSPH": 38.6}
 
 
 def run(threads: int, spacing: float, duration: float) -> dict:
@@ -37,15 +39,15 @@ def run(threads: int, spacing: float, duration: float) -> dict:
     }
 
 
-def chart(results: list, path, spacing: float) -> None:
+def chart(results: list, peers: list, path) -> None:
     plt = pyplot()
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     th = [r["threads"] for r in results]
     a.plot(th, [r["wall_seconds_per_simulated_second"] for r in results], "o-", label="warp_iisph IISPH")
-    if spacing == 0.03:
-        for (name, v), style in zip(SPLISHSPLASH_S_PER_S.items(), ("--", ":")):
-            a.axhline(v, color="gray", ls=style, label=f"SPlisHSPlasH {name}, 2 threads")
+    for p, style in zip(peers, ("--", ":")):
+        a.axhline(p["wall_seconds_per_simulated_second"], color="gray", ls=style,
+                  label=f"SPlisHSPlasH {p['method'].upper()}, {p['threads']} threads ({100 * p['mean_compression']:.3f} %)")
     a.set_xlabel("threads")
     a.set_ylabel("wall s per simulated s")
     a.set_xticks(th)
@@ -71,11 +73,13 @@ def main():
     ap.add_argument("--duration", type=float, default=1.0)
     ap.add_argument("--spacing", type=float, default=0.03)
     ap.add_argument("--threads", default=",".join(str(t) for t in sorted({1, 2, available_cores()})))
+    ap.add_argument("--no-peer", action="store_true", help="skip SPlisHSPlasH")
     ap.add_argument("--quick", action="store_true", help="a coarse, short run (under a minute)")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
     if args.quick:
         args.duration = 0.01  # a few steps of the full-size scene
+        args.no_peer = True
     warm_up()  # compile outside the timing
     results = [run(int(t), args.spacing, args.duration) for t in args.threads.split(",")]
     print(f"{results[0]['particles']} particles, {args.duration} s simulated, CPU")
@@ -84,9 +88,20 @@ def main():
         ms = ", ".join(f"{k} {v:.1f}" for k, v in r["median_ms_per_step"].items())
         print(f"{r['threads']:>7} {r['wall_seconds_per_simulated_second']:>8.1f} "
               f"{results[0]['wall_seconds'] / r['wall_seconds']:>8.2f} {r['steps']:>6} {r['mean_iterations']:>6.2f}  {ms}")
+    peers = []
+    if not args.no_peer and peer_splishsplash.available():
+        for method in ("iisph", "dfsph"):
+            p = peer_splishsplash.run(args.duration, threads=2, method=method, spacing=args.spacing)
+            peers.append(p)
+            print(f"{p['tool']} {method.upper()}, 2 threads: {p['wall_seconds_per_simulated_second']:.1f} s/sim s, {p['steps']} steps, "
+                  f"{p['mean_iterations']:.2f} iterations, mean compression {100 * p['mean_compression']:.3f} %")
+    elif not args.no_peer:
+        print("SPlisHSPlasH: not installed (pip install 'warp_iisph[bench]'), skipped")
+    for r in results:
+        print(f"warp_iisph, {r['threads']} threads: mean compression {100 * r['mean_density_error']:.3f} %")
     record = header("thread_scaling", scene="dam_break_cube", spacing=args.spacing, duration=args.duration,
-                    available_cores=available_cores(), results=results)
-    chart(results, save(record, args.out, "thread_scaling", args.quick), args.spacing)
+                    available_cores=available_cores(), results=results, peers=peers)
+    chart(results, peers, save(record, args.out, "thread_scaling", args.quick))
 
 
 if __name__ == "__main__":

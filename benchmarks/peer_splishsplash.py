@@ -1,0 +1,110 @@
+"""SPlisHSPlasH (pysplishsplash, the `bench` extra) on the benchmark dam break, for a side-by-side
+in the same run as ours: a 0.96 m cube of water (32^3 particles at 3 cm) in a 4 x 3 x 1.5 m tank,
+IISPH or DFSPH, eta 0.1 %, CFL 0.5, dt <= 5 ms, Akinci boundary particles (its boundary handling
+0: one layer sampled on the tank mesh, which sits 0.6 spacings outside the faces, where its fluid
+starts at rest density), the fluid block sampled as ours (the first particle half a spacing
+inside), its own viscosity 0.01 ("Standard", = our default 0.05), z-sorted. Prints one JSON record: wall
+seconds per simulated second (between the first and the last step), steps, mean iterations and
+the mean actual compression mean(max(rho/rho0 - 1, 0)) sampled every 20 steps.
+
+Run it through :func:`run` (it sets the environment the wheel needs), or:
+
+    LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0 OMP_NUM_THREADS=2 python benchmarks/peer_splishsplash.py --duration 1
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+PRELOAD = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
+BOX = "\n".join(["v -0.5 -0.5 -0.5", "v 0.5 -0.5 -0.5", "v 0.5 0.5 -0.5", "v -0.5 0.5 -0.5", "v -0.5 -0.5 0.5", "v 0.5 -0.5 0.5",
+                 "v 0.5 0.5 0.5", "v -0.5 0.5 0.5", "f 1 3 2", "f 1 4 3", "f 5 6 7", "f 5 7 8", "f 1 2 6", "f 1 6 5", "f 4 8 7",
+                 "f 4 7 3", "f 1 5 8", "f 1 8 4", "f 2 3 7", "f 2 7 6"]) + "\n"
+
+
+def available() -> bool:
+    """Whether pysplishsplash is installed (the `bench` extra)."""
+    try:
+        import importlib.util
+
+        return importlib.util.find_spec("pysplishsplash") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def run(duration: float = 1.0, threads: int = 2, method: str = "iisph", spacing: float = 0.03, timeout: float = 3600) -> dict | None:
+    """The peer's record (see the module), in a subprocess; ``None`` when it is not installed."""
+    if not available():
+        return None
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
+    if Path(PRELOAD).exists():
+        env["LD_PRELOAD"] = PRELOAD
+    p = subprocess.run([sys.executable, __file__, "--duration", str(duration), "--method", method, "--spacing", str(spacing)],
+                       capture_output=True, text=True, env=env, timeout=timeout)
+    if p.returncode != 0:
+        raise RuntimeError(f"SPlisHSPlasH failed: {p.stderr.strip()[-500:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=1.0)
+    ap.add_argument("--method", choices=("iisph", "dfsph"), default="iisph")
+    ap.add_argument("--spacing", type=float, default=0.03)
+    args = ap.parse_args()
+    import pysplishsplash as sph
+
+    h = args.spacing
+    side = 32 * 0.03
+    folder = tempfile.mkdtemp(prefix="peer_db_")
+    (Path(folder) / "box.obj").write_text(BOX)
+    lo, hi = np.zeros(3) - 0.6 * h, np.array([4.0, 3.0, 1.5]) + 0.6 * h
+    conf = {"particleRadius": 0.5 * h, "simulationMethod": {"iisph": 3, "dfsph": 4}[args.method], "gravitation": [0, -9.81, 0],
+            "timeStepSize": 0.001, "cflMethod": 1, "cflFactor": 0.5, "cflMaxTimeStepSize": 0.005, "boundaryHandlingMethod": 0,
+            "stopAt": args.duration, "enableZSort": True, "maxIterations": 100, "minIterations": 2, "maxError": 0.1,
+            "DFSPH": {"maxError": 0.1, "maxErrorV": 0.1, "enableDivergenceSolver": True}}
+    scene = {"Configuration": conf, "Materials": [{"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "viscosity": 0.01}],
+             "RigidBodies": [{"geometryFile": "box.obj", "translation": ((lo + hi) / 2).tolist(), "scale": (hi - lo).tolist(),
+                              "isDynamic": False, "isWall": True, "mapInvert": True}],
+             "FluidBlocks": [{"denseMode": 0, "start": [-0.5 * h] * 3, "end": [side + 0.5 * h] * 3}]}
+    path = Path(folder) / "scene.json"
+    path.write_text(json.dumps(scene))
+    state = {"steps": 0, "iterations": [], "compression": [], "t0": None, "t1": None, "n": 0}
+
+    def on_step():
+        sim = sph.Simulation.getCurrent()
+        now = time.perf_counter()
+        state["t0"] = state["t0"] or now
+        state["t1"] = now
+        state["steps"] += 1
+        state["iterations"].append(sim.getTimeStep().getNumIterations())
+        if state["steps"] % 20 == 0:
+            fm = sim.getFluidModel(0)
+            n = fm.numActiveParticles()
+            rho = np.array([fm.getDensity(i) for i in range(n)])
+            state["compression"].append(float(np.mean(np.maximum(rho / fm.getDensity0() - 1.0, 0.0))))
+            state["n"] = n
+            state["t0"] += time.perf_counter() - now  # the sampling is not the peer's time
+
+    base = sph.Exec.SimulatorBase()
+    base.init(useGui=False, sceneFile=str(path), outputDir=str(Path(folder) / "out"))
+    base.setTimeStepCB(on_step)
+    base.setValueFloat(base.STOP_AT, float(args.duration))
+    base.run()
+    wall = state["t1"] - state["t0"]
+    print(json.dumps({"tool": f"SPlisHSPlasH {sph.__version__ if hasattr(sph, '__version__') else '2.19'}", "method": args.method,
+                      "particles": state["n"], "steps": state["steps"], "wall_seconds": wall,
+                      "wall_seconds_per_simulated_second": wall / args.duration, "mean_iterations": float(np.mean(state["iterations"])),
+                      "mean_compression": float(np.mean(state["compression"])) if state["compression"] else None,
+                      "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0)}))
+
+
+if __name__ == "__main__":
+    main()
