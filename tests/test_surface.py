@@ -273,29 +273,40 @@ def per_node_signed_distance(
 
 
 @pytest.mark.parametrize("settings", [{}, {"cell": 0.3, "radius": 2.5}])
-def test_node_cubes_equal_the_per_node_field(settings, monkeypatch):
-    """signed_distance serves 2x2x2 nodes with one query and one narrow-band test where they
-    share a coarse cell: bitwise the field of one node per thread."""
+def test_splat_equals_the_per_node_field(settings, monkeypatch):
+    """splat_blocks (each block's nearby particles splatted onto its nodes, a row of 8 at a
+    time) gives the one-node-per-thread gather of the definition to float rounding: exactly R
+    where that gather's narrow-band test finds no particle near, inside where it says "deep
+    inside", the same sums elsewhere. The second settings put blocks across coarse cells."""
     launched = {}
     plain = surface.launch_particles
 
-    def spy(kernel, n, inputs, device):
-        if kernel is surface.signed_distance:
+    def spy(kernel, n, inputs, device, **kw):
+        if kernel is surface.splat_blocks:
             launched["inputs"] = inputs
-        return plain(kernel, n, inputs, device)
+        return plain(kernel, n, inputs, device, **kw)
 
     monkeypatch.setattr(surface, "launch_particles", spy)
     rec = SurfaceReconstructor(H, Surface(**settings))
     pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)  # deep enough for FULL nodes
-    field = rec.distance_field(np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(1).normal(0, 0.1 * H, pool.shape)]))
-    f = launched["inputs"][0]
+    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(1).normal(0, 0.1 * H, pool.shape)]).astype(np.float32)
+    field = rec.distance_field(x)
+    _, f, _, start, cd, R, r0, _ = launched["inputs"]
+    counts = wp.array(np.diff(start.numpy()).astype(np.int32), dtype=wp.int32)  # particles per coarse cell
+    xd = wp.array(x, dtype=wp.vec3)
+    grid = wp.HashGrid(128, 128, 128, device="cpu")
+    grid.build(xd, R)
     reference = wp.empty_like(f.phi)
-    wp.launch(per_node_signed_distance, dim=reference.shape[0], inputs=[*launched["inputs"], reference])
+    full = max(1, int(0.75 * (R / H) ** 3))
+    wp.launch(per_node_signed_distance, dim=reference.shape[0], inputs=[f, grid.id, xd, R, r0, counts, cd, full, reference])
     got, want = f.phi.numpy(), reference.numpy()
-    assert field.n_stored > 50 and np.array_equal(got, want), np.abs(got - want).max()
+    outside, deep = want == np.float32(R), want == np.float32(-r0)
+    summed = ~outside & ~deep
     # every path is exercised: outside, deep inside, summed
-    assert (want == np.float32(f.outside)).sum() > 1000 and (want == np.float32(f.inside)).sum() > 1000
-    assert ((want != np.float32(f.outside)) & (want != np.float32(f.inside))).sum() > 1000
+    assert field.n_stored > 50 and outside.sum() > 1000 and deep.sum() > 1000 and summed.sum() > 1000
+    assert np.array_equal(got[outside], want[outside])
+    assert np.all(got[deep] < 0.0)
+    assert np.abs(got[summed] - want[summed]).max() < 2e-6  # float32 rounding of sums of positions of size ~0.5
 
 
 def test_bounds_and_non_finite_count_on_the_device(ball):

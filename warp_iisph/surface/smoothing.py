@@ -9,23 +9,22 @@ from ..engine.launch import launch_particles
 
 
 @wp.kernel
-def count_incident(indices: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32)):
-    # atomics: one launch, never split
-    wp.atomic_add(count, indices[wp.tid()], 1)
+def count_incident(indices: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32)):
+    # atomics: one launch, never split (on the CPU the ranks follow the triangle order)
+    rank[wp.tid()] = wp.atomic_add(count, indices[wp.tid()], 1)
 
 
 @wp.kernel
 def fill_incident(
+    offset: int,
     indices: wp.array(dtype=wp.int32),
     start: wp.array(dtype=wp.int32),
-    cursor: wp.array(dtype=wp.int32),
+    rank: wp.array(dtype=wp.int32),
     tris: wp.array(dtype=wp.int32),
 ):
-    # a scatter with an atomic cursor: one launch, never split
-    c = wp.tid()
-    v = indices[c]
-    slot = wp.atomic_add(cursor, v, 1)
-    tris[start[v] + slot] = c / 3
+    # a scatter to the slots that count_incident handed out: each corner writes its own
+    c = wp.tid() + offset
+    tris[start[indices[c]] + rank[c]] = c / 3
 
 
 @wp.func
@@ -89,28 +88,34 @@ def flip_winding(offset: int, indices: wp.array(dtype=wp.int32)):
     indices[3 * t + 2] = a
 
 
-def adjacency(indices: wp.array, nv: int, device):
-    """Each vertex's incident triangles: ``tris[start[v] : start[v] + count[v]]``."""
-    count = wp.zeros(nv, dtype=wp.int32, device=device)
-    wp.launch(count_incident, dim=indices.shape[0], inputs=[indices, count], device=device)
-    start = wp.zeros(nv, dtype=wp.int32, device=device)
+def adjacency(indices: wp.array, nv: int, device, work=None):
+    """Each vertex's incident triangles: ``tris[start[v] : start[v] + count[v]]`` (arrays from
+    ``work``, a surface ``Workspace``, when given)."""
+    get = work.get if work is not None else (lambda name, n, dtype: wp.empty(n, dtype=dtype, device=device))
+    count = get("incident_count", nv, wp.int32)
+    count.zero_()
+    rank = get("incident_rank", indices.shape[0], wp.int32)
+    wp.launch(count_incident, dim=indices.shape[0], inputs=[indices, count, rank], device=device)
+    start = get("incident_start", nv, wp.int32)
     wp.utils.array_scan(count, start, inclusive=False)
-    cursor = wp.zeros(nv, dtype=wp.int32, device=device)
-    tris = wp.empty(indices.shape[0], dtype=wp.int32, device=device)
-    wp.launch(fill_incident, dim=indices.shape[0], inputs=[indices, start, cursor, tris], device=device)
+    tris = get("incident", indices.shape[0], wp.int32)
+    launch_particles(fill_incident, indices.shape[0], [indices, start, rank, tris], device)
     return start, count, tris
 
 
-def smooth(verts, indices, start, count, tris, params, device):
-    """``params.passes`` passes of Laplacian smoothing, or of Taubin's lambda/mu pairs."""
+def smooth(verts, indices, start, count, tris, params, device, work=None):
+    """``params.passes`` passes of Laplacian smoothing, or of Taubin's lambda/mu pairs. The
+    result is in ``verts``, overwritten (one more array from ``work`` when given)."""
     p = params
     if p.smoothing == "none" or p.passes == 0:
         return verts
     factors = [p.lam] if p.smoothing == "laplacian" else [p.lam, p.mu]
-    a = wp.clone(verts)
-    b = wp.empty_like(verts)
+    a = verts
+    b = work.get("smoothed", verts.shape[0], wp.vec3) if work is not None else wp.empty_like(verts)
     for _ in range(p.passes):
         for f in factors:
             launch_particles(smooth_vertices, a.shape[0], [a, indices, start, count, tris, float(f), b], device)
             a, b = b, a
-    return a
+    if a is not verts:
+        wp.copy(verts, a)
+    return verts
