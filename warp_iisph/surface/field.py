@@ -208,17 +208,18 @@ def sort_by_coarse_cell(
 def splat_particle(acc: wp.array(dtype=Float8), ab: int, p: wp.vec3, c: float, R: float, kz: Float8):
     """Add particle ``p`` (relative to the block's first node) to the sums of the block's nodes
     within ``R``: per row of 8 nodes along z, the weights ``(1 - d^2/R^2)^3`` of all 8 at once
-    (zero beyond R), times 1 and p. Rows the particle's ball misses are skipped."""
+    (zero beyond R), times 1 and p. Only the rows the particle's ball reaches are visited."""
     inv_c = 1.0 / c
     R2 = R * R
     top = float(BLOCK - 1) * c
-    i0 = wp.max(0, int(wp.ceil((p[0] - R) * inv_c)))
-    i1 = wp.min(BLOCK - 1, int(wp.floor((p[0] + R) * inv_c)))
-    j0 = wp.max(0, int(wp.ceil((p[1] - R) * inv_c)))
-    j1 = wp.min(BLOCK - 1, int(wp.floor((p[1] + R) * inv_c)))
     # squared distance from p to the nearest node of a row, along z
     gz = wp.max(0.0, wp.max(-p[2], p[2] - top))
-    gz2 = gz * gz
+    r2 = R2 - gz * gz  # what is left for the row's distance in x and y
+    if r2 <= 0.0:
+        return
+    ri = wp.sqrt(r2)
+    i0 = wp.max(0, int(wp.ceil((p[0] - ri) * inv_c)))
+    i1 = wp.min(BLOCK - 1, int(wp.floor((p[0] + ri) * inv_c)))
     pz = Float8(p[2], p[2], p[2], p[2], p[2], p[2], p[2], p[2])
     dz = kz - pz
     dz2 = wp.cw_mul(dz, dz)
@@ -226,20 +227,21 @@ def splat_particle(acc: wp.array(dtype=Float8), ab: int, p: wp.vec3, c: float, R
     inv_R2 = 1.0 / R2
     for i in range(i0, i1 + 1):
         dx = float(i) * c - p[0]
-        rx = R2 - dx * dx - gz2
+        rx = r2 - dx * dx
         if rx > 0.0:
+            rj = wp.sqrt(rx)
+            j0 = wp.max(0, int(wp.ceil((p[1] - rj) * inv_c)))
+            j1 = wp.min(BLOCK - 1, int(wp.floor((p[1] + rj) * inv_c)))
             for j in range(j0, j1 + 1):
                 dy = float(j) * c - p[1]
-                ry = rx - dy * dy
-                if ry > 0.0:
-                    q = ry + gz2
-                    t = wp.max(Float8(q, q, q, q, q, q, q, q) - dz2, zero) * inv_R2
-                    w = wp.cw_mul(wp.cw_mul(t, t), t)
-                    row = ab + 4 * (i * BLOCK + j)
-                    acc[row] = acc[row] + w * p[0]
-                    acc[row + 1] = acc[row + 1] + w * p[1]
-                    acc[row + 2] = acc[row + 2] + w * p[2]
-                    acc[row + 3] = acc[row + 3] + w
+                q = R2 - dx * dx - dy * dy
+                t = wp.max(Float8(q, q, q, q, q, q, q, q) - dz2, zero) * inv_R2
+                w = wp.cw_mul(wp.cw_mul(t, t), t)
+                row = ab + 4 * (i * BLOCK + j)
+                acc[row] = acc[row] + w * p[0]
+                acc[row + 1] = acc[row + 1] + w * p[1]
+                acc[row + 2] = acc[row + 2] + w * p[2]
+                acc[row + 3] = acc[row + 3] + w
 
 
 @wp.kernel

@@ -22,7 +22,11 @@ import warp as wp
 import warp.geometry
 
 from ..engine.launch import launch_particles
-from .field import (BLOCK, CELLS3, BlockField, SparseField, Workspace, block_coords, local_node, local_slot, node_phi,
+
+# Warp unrolls loops of constant trip count up to max_unroll (16): the nested loops over a block's
+# rows and nodes here would unroll into thousands of copies and take minutes to compile
+wp.set_module_options({"max_unroll": 1})
+from .field import (BLOCK, CELLS3, FULL, BlockField, SparseField, Workspace, block_coords, local_node, local_slot, node_phi,
                     node_position, owner_block, scan_with_total, splat_workers, substage)
 
 # warp.geometry's corner numbering: corner c of a cell sits at its lowest node + CUBE_CORNER_OFFSETS[c]
@@ -48,22 +52,6 @@ def inside_bit(phi: float, c: int) -> int:
 
 
 @wp.func
-def cell_case(f: BlockField, kb: int, bc: wp.vec3i, m: int, corners: wp.array(dtype=wp.vec3i)) -> int:
-    """The case of the cell whose lowest corner is node ``m`` of stored block ``kb``."""
-    l = local_node(m)
-    code = int(0)
-    if l[0] < BLOCK - 1 and l[1] < BLOCK - 1 and l[2] < BLOCK - 1:  # all 8 corners in this block
-        p = kb * CELLS3 + m
-        code = (inside_bit(f.phi[p], 0) | inside_bit(f.phi[p + S1], 1) | inside_bit(f.phi[p + S2], 2)
-                | inside_bit(f.phi[p + S3], 3) | inside_bit(f.phi[p + 1], 4) | inside_bit(f.phi[p + S5], 5)
-                | inside_bit(f.phi[p + S6], 6) | inside_bit(f.phi[p + S7], 7))
-    else:
-        for c in range(8):
-            code = code | inside_bit(node_phi(f, kb, bc, l + corners[c]), c)
-    return code
-
-
-@wp.func
 def own_edges(code: int) -> int:
     """Which of the three edges leaving a cell's lowest corner (bit a: along axis a) its case
     crosses: corners 1, 3, 4 are the +x, +y, +z neighbours of corner 0."""
@@ -77,29 +65,97 @@ def popcount3(bits: int) -> int:
     return (bits & 1) + ((bits >> 1) & 1) + ((bits >> 2) & 1)
 
 
+NODES1 = wp.constant(BLOCK + 1)  # nodes per side of a block with its upper faces
+FULL_ROW = wp.constant((1 << (BLOCK + 1)) - 1)
+
+
+@wp.func
+def upper_neighbours(f: BlockField, bc: wp.vec3i) -> wp.vec4i:
+    """For the 7 blocks above block ``bc`` (bit e: the one at bc + (e >> 2, (e >> 1) & 1, e & 1)):
+    in x which are stored, in y which are FULL (inside); the rest are EMPTY or beyond the
+    lattice (outside). z and w are unused."""
+    stored = int(0)
+    full = int(0)
+    for e in range(1, 8):
+        g = bc + wp.vec3i((e >> 2) & 1, (e >> 1) & 1, e & 1)
+        if g[0] < f.block_dims[0] and g[1] < f.block_dims[1] and g[2] < f.block_dims[2]:
+            b = (g[0] * f.block_dims[1] + g[1]) * f.block_dims[2] + g[2]
+            if f.block_map[b] >= 0:
+                stored = stored | (1 << e)
+            elif f.kind[b] == FULL:
+                full = full | (1 << e)
+    return wp.vec4i(stored, full, 0, 0)
+
+
+@wp.func
+def upper_phi(f: BlockField, bc: wp.vec3i, l: wp.vec3i, e: int, nb: wp.vec4i) -> float:
+    """phi at node ``l`` on the upper faces of block ``bc``, owned by its neighbour ``e``."""
+    if (nb[0] >> e) & 1:
+        b = owner_block(f, bc, l)
+        return f.phi[f.block_map[b] * CELLS3 + local_slot(l)]
+    if (nb[1] >> e) & 1:
+        return f.inside
+    return f.outside
+
+
 @wp.kernel
 def block_cases(
     offset: int,
     workers: int,
     f: BlockField,
-    corners: wp.array(dtype=wp.vec3i),
     tri_range: wp.array(dtype=wp.int32),
+    signs: wp.array(dtype=wp.int32),
     cases: wp.array(dtype=wp.uint8),
     cell_vertex: wp.array(dtype=wp.uint16),
     totals: wp.array(dtype=wp.vec2i),
 ):
-    """Pass 1 (see the module): cases, vertices before each cell in its block, block totals."""
+    """Pass 1 (see the module): cases, vertices before each cell in its block, block totals.
+    First the signs of the block's (BLOCK + 1)^3 nodes, its upper faces included, as one bit
+    mask per row along z (in ``signs``, the worker's own 81 rows); then each cell's case is
+    8 bits of 4 rows, and a row of cells whose 4 rows are all in or all out is skipped."""
     wk = wp.tid() + offset
+    sb = wk * NODES1 * NODES1
     for kb in range(wk, f.blocks.shape[0], workers):
         bc = block_coords(f, kb)
+        nb = upper_neighbours(f, bc)
+        base = kb * CELLS3
+        for i in range(NODES1):
+            for j in range(NODES1):
+                bits = int(0)
+                if i < BLOCK and j < BLOCK:
+                    p = base + (i * BLOCK + j) * BLOCK
+                    for k in range(BLOCK):
+                        bits = bits | wp.where(f.phi[p + k] >= 0.0, 1 << k, 0)
+                    bits = bits | wp.where(upper_phi(f, bc, wp.vec3i(i, j, BLOCK), 1, nb) >= 0.0, 1 << BLOCK, 0)
+                else:
+                    e0 = wp.where(i == BLOCK, 4, 0) | wp.where(j == BLOCK, 2, 0)
+                    for k in range(NODES1):
+                        e = e0 | wp.where(k == BLOCK, 1, 0)
+                        bits = bits | wp.where(upper_phi(f, bc, wp.vec3i(i, j, k), e, nb) >= 0.0, 1 << k, 0)
+                signs[sb + i * NODES1 + j] = bits
         nv = int(0)
         nt = int(0)
-        for m in range(CELLS3):
-            code = cell_case(f, kb, bc, m, corners)
-            cases[kb * CELLS3 + m] = wp.uint8(code)
-            cell_vertex[kb * CELLS3 + m] = wp.uint16(nv)
-            nv += popcount3(own_edges(code))
-            nt += (tri_range[code + 1] - tri_range[code]) // 3
+        for i in range(BLOCK):
+            for j in range(BLOCK):
+                r00 = signs[sb + i * NODES1 + j]
+                r10 = signs[sb + (i + 1) * NODES1 + j]
+                r11 = signs[sb + (i + 1) * NODES1 + j + 1]
+                r01 = signs[sb + i * NODES1 + j + 1]
+                m0 = base + (i * BLOCK + j) * BLOCK
+                if r00 == r10 and r00 == r11 and r00 == r01 and (r00 == 0 or r00 == FULL_ROW):
+                    for k in range(BLOCK):  # no crossing in this row of cells
+                        cases[m0 + k] = wp.uint8(wp.where(r00 == 0, 0, 255))
+                        cell_vertex[m0 + k] = wp.uint16(nv)
+                else:
+                    for k in range(BLOCK):
+                        # warp.geometry's corners 0-3 at z = k, 4-7 at z = k + 1
+                        code = (((r00 >> k) & 1) | (((r10 >> k) & 1) << 1) | (((r11 >> k) & 1) << 2)
+                                | (((r01 >> k) & 1) << 3) | (((r00 >> (k + 1)) & 1) << 4) | (((r10 >> (k + 1)) & 1) << 5)
+                                | (((r11 >> (k + 1)) & 1) << 6) | (((r01 >> (k + 1)) & 1) << 7))
+                        cases[m0 + k] = wp.uint8(code)
+                        cell_vertex[m0 + k] = wp.uint16(nv)
+                        nv += popcount3(own_edges(code))
+                        nt += (tri_range[code + 1] - tri_range[code]) // 3
         totals[kb] = wp.vec2i(nv, nt)
 
 
@@ -189,7 +245,8 @@ def marching_cubes(field: SparseField, tables: dict, device, work: Workspace | N
         cases = work.get("cases", nb * CELLS3, wp.uint8)
         cell_vertex = work.get("cell_vertex", nb * CELLS3, wp.uint16)
         totals = work.get("totals", nb, wp.vec2i)
-        launch_particles(block_cases, workers, [workers, f, tb["corners"], tb["tri_range"], cases, cell_vertex, totals],
+        signs = work.get("signs", workers * (BLOCK + 1) ** 2, wp.int32)
+        launch_particles(block_cases, workers, [workers, f, tb["tri_range"], signs, cases, cell_vertex, totals],
                          device, min_chunk=1)
         first = scan_with_total(totals, work.get("first", nb + 1, wp.vec2i))
         nv, nt = (int(v) for v in first[nb:].numpy()[0])

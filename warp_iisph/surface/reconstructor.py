@@ -90,11 +90,11 @@ class SurfaceReconstructor:
             normals = wp.empty(nv, dtype=wp.vec3, device=self.device)
             if nt > 0:
                 with substage(detail, "adjacency"):
-                    start, count, tris = adjacency(indices, nv, self.device, self.work)
+                    start, count, ring = adjacency(indices, nv, self.device, self.work)
                 with substage(detail, "smooth"):
-                    verts = smooth(verts, indices, start, count, tris, self.params, self.device, self.work)
+                    verts = smooth(verts, start, count, ring, self.params, self.device, self.work)
                 with substage(detail, "normals"):
-                    launch_particles(vertex_normals, nv, [verts, indices, start, count, tris, normals], self.device)
+                    launch_particles(vertex_normals, nv, [verts, start, count, ring, normals], self.device)
         return SurfaceMesh(verts.numpy(), indices.numpy().reshape(-1, 3), normals.numpy(), times.seconds,
                            field.n_stored * CELLS3, int(np.prod(field.node_dims)), detail.seconds if detail else {})
 

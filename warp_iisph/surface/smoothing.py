@@ -1,5 +1,9 @@
-"""Mesh smoothing over a vertex-triangle adjacency built on the device: Laplacian (the report's) or
-Taubin's lambda/mu (no shrinking), and area-weighted vertex normals."""
+"""Mesh smoothing over a vertex adjacency built on the device: Laplacian (the report's) or Taubin's
+lambda/mu (no shrinking), and area-weighted vertex normals.
+
+The adjacency lists, for each vertex, its incident triangles by their other two corners in
+winding order (``ring[start[v] + k] = (next, prev)``), so a pass reads two positions per
+triangle and no triangle indices."""
 
 from __future__ import annotations
 
@@ -20,26 +24,22 @@ def fill_incident(
     indices: wp.array(dtype=wp.int32),
     start: wp.array(dtype=wp.int32),
     rank: wp.array(dtype=wp.int32),
-    tris: wp.array(dtype=wp.int32),
+    ring: wp.array(dtype=wp.vec2i),
 ):
     # a scatter to the slots that count_incident handed out: each corner writes its own
     c = wp.tid() + offset
-    tris[start[indices[c]] + rank[c]] = c / 3
-
-
-@wp.func
-def triangle_corners(verts: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), t: int):
-    return verts[indices[3 * t]], verts[indices[3 * t + 1]], verts[indices[3 * t + 2]]
+    t = 3 * (c / 3)
+    k = c - t
+    ring[start[indices[c]] + rank[c]] = wp.vec2i(indices[t + (k + 1) % 3], indices[t + (k + 2) % 3])
 
 
 @wp.kernel
 def smooth_vertices(
     offset: int,
     verts: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
     start: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
-    tris: wp.array(dtype=wp.int32),
+    ring: wp.array(dtype=wp.vec2i),
     factor: float,
     out: wp.array(dtype=wp.vec3),
 ):
@@ -50,8 +50,8 @@ def smooth_vertices(
     s = wp.vec3(0.0)
     m = count[v]
     for k in range(start[v], start[v] + m):
-        a, b, c = triangle_corners(verts, indices, tris[k])
-        s += a + b + c - p
+        r = ring[k]
+        s += verts[r[0]] + verts[r[1]]
     if m > 0:
         out[v] = p + factor * (s / float(2 * m) - p)
     else:
@@ -62,17 +62,17 @@ def smooth_vertices(
 def vertex_normals(
     offset: int,
     verts: wp.array(dtype=wp.vec3),
-    indices: wp.array(dtype=wp.int32),
     start: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
-    tris: wp.array(dtype=wp.int32),
+    ring: wp.array(dtype=wp.vec2i),
     normals: wp.array(dtype=wp.vec3),
 ):
     v = wp.tid() + offset
+    p = verts[v]
     n = wp.vec3(0.0)
     for k in range(start[v], start[v] + count[v]):
-        a, b, c = triangle_corners(verts, indices, tris[k])
-        n += wp.cross(b - a, c - a)  # area-weighted
+        r = ring[k]
+        n += wp.cross(verts[r[0]] - p, verts[r[1]] - p)  # area-weighted
     ln = wp.length(n)
     if ln > 0.0:
         normals[v] = n / ln
@@ -89,8 +89,8 @@ def flip_winding(offset: int, indices: wp.array(dtype=wp.int32)):
 
 
 def adjacency(indices: wp.array, nv: int, device, work=None):
-    """Each vertex's incident triangles: ``tris[start[v] : start[v] + count[v]]`` (arrays from
-    ``work``, a surface ``Workspace``, when given)."""
+    """Each vertex's incident triangles by their other corners: ``ring[start[v] : start[v] +
+    count[v]]`` (arrays from ``work``, a surface ``Workspace``, when given)."""
     get = work.get if work is not None else (lambda name, n, dtype: wp.empty(n, dtype=dtype, device=device))
     count = get("incident_count", nv, wp.int32)
     count.zero_()
@@ -98,12 +98,12 @@ def adjacency(indices: wp.array, nv: int, device, work=None):
     wp.launch(count_incident, dim=indices.shape[0], inputs=[indices, count, rank], device=device)
     start = get("incident_start", nv, wp.int32)
     wp.utils.array_scan(count, start, inclusive=False)
-    tris = get("incident", indices.shape[0], wp.int32)
-    launch_particles(fill_incident, indices.shape[0], [indices, start, rank, tris], device)
-    return start, count, tris
+    ring = get("ring", indices.shape[0], wp.vec2i)
+    launch_particles(fill_incident, indices.shape[0], [indices, start, rank, ring], device)
+    return start, count, ring
 
 
-def smooth(verts, indices, start, count, tris, params, device, work=None):
+def smooth(verts, start, count, ring, params, device, work=None):
     """``params.passes`` passes of Laplacian smoothing, or of Taubin's lambda/mu pairs. The
     result is in ``verts``, overwritten (one more array from ``work`` when given)."""
     p = params
@@ -114,7 +114,7 @@ def smooth(verts, indices, start, count, tris, params, device, work=None):
     b = work.get("smoothed", verts.shape[0], wp.vec3) if work is not None else wp.empty_like(verts)
     for _ in range(p.passes):
         for f in factors:
-            launch_particles(smooth_vertices, a.shape[0], [a, indices, start, count, tris, float(f), b], device)
+            launch_particles(smooth_vertices, a.shape[0], [a, start, count, ring, float(f), b], device)
             a, b = b, a
     if a is not verts:
         wp.copy(verts, a)
