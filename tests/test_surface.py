@@ -88,6 +88,36 @@ def test_obj_round_trip(tmp_path, ball):
     assert np.allclose(back.vertices, m.vertices, atol=1e-5)
 
 
+def test_ply_round_trip(tmp_path, ball):
+    """Binary PLY: meshio and trimesh read back the same vertices, normals and faces."""
+    import meshio
+
+    from warp_iisph.run.formats import write_mesh
+
+    m, t = _mesh(ball)
+    path = write_mesh(tmp_path / "a.obj", m.vertices, m.faces, m.normals, "ply")
+    assert path == tmp_path / "a.ply" and not (tmp_path / "a.obj").exists()
+    back = meshio.read(path)
+    assert np.array_equal(back.points, m.vertices) and np.array_equal(back.cells_dict["triangle"], m.faces)
+    assert np.array_equal(np.stack([back.point_data[k] for k in ("nx", "ny", "nz")], 1), m.normals)
+    tm = trimesh.load(path, process=False)
+    assert tm.is_watertight and np.isclose(tm.volume, t.volume)
+    with pytest.raises(ValueError, match="outside 0.."):
+        write_mesh(tmp_path / "b.ply", m.vertices, m.faces + len(m.vertices), None, "ply")
+    with pytest.raises(ValueError, match="surface.format = 'stl'"):
+        Surface(format="stl").validate()
+
+
+def test_frame_mesher_writes_the_chosen_format(tmp_path, ball):
+    from warp_iisph.run.meshing import FrameMesher
+
+    for fmt in ("obj", "ply"):
+        mesher = FrameMesher(H, Surface(format=fmt))
+        mesher.write(ball, tmp_path / "frame_00000.obj")
+        assert (tmp_path / f"frame_00000.{fmt}").is_file()
+        assert trimesh.load(tmp_path / f"frame_00000.{fmt}", process=False).is_watertight
+
+
 def test_obj_text_is_printf_formatting(tmp_path):
     """The kernel-formatted OBJ says what printf's %.6f / %.4f / %d say (up to padding)."""
     from warp_iisph.run.obj_text import obj_bytes

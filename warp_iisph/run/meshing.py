@@ -1,4 +1,5 @@
-"""Surface meshes for a run's frames: one OBJ per particle frame (``mesh/frame_00000.obj`` ...)."""
+"""Surface meshes for a run's frames: one OBJ (or binary PLY, ``surface.format``) per particle frame
+(``mesh/frame_00000.obj`` ...)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from ..engine.timing import StageTimes
 from ..scene import SurfaceSettings
 from ..surface import SurfaceMesh, SurfaceReconstructor
 from .folder import PARTICLES, RunError, RunFolder, frame_index
-from .formats import read_particles, write_obj
+from .formats import read_particles, write_mesh
 from .progress import frame_bar
 
 MESH_STAGES = ("distance_field", "marching_cubes", "smoothing", "export")
@@ -20,6 +21,7 @@ class FrameMesher:
 
     def __init__(self, h: float, params: SurfaceSettings, device="cpu"):
         self.reconstructor = SurfaceReconstructor(h, params, device)
+        self.format = self.reconstructor.params.format
         self.times = StageTimes(None, MESH_STAGES)
 
     def mesh(self, positions) -> SurfaceMesh:
@@ -28,20 +30,26 @@ class FrameMesher:
         self.times.merge(mesh.seconds)
         return mesh
 
-    def export(self, mesh: SurfaceMesh, path: Path) -> None:
-        """Write ``mesh`` as OBJ (host work only, so it may run on a writer thread)."""
+    def target(self, path: Path) -> Path:
+        """``path`` with the suffix of this mesher's format."""
+        return Path(path).with_suffix(f".{self.format}")
+
+    def export(self, mesh: SurfaceMesh, path: Path) -> Path:
+        """Write ``mesh`` in the settings' format at ``path`` (its suffix made ``.obj`` or
+        ``.ply``); host work only, so it may run on a writer thread. Returns the path written."""
         with self.times("export"):
-            write_obj(path, mesh.vertices, mesh.faces, mesh.normals)
+            return write_mesh(path, mesh.vertices, mesh.faces, mesh.normals, self.format)
 
     def write(self, positions, path: Path) -> SurfaceMesh:
-        """Mesh ``positions`` and write the OBJ at ``path``."""
+        """Mesh ``positions`` and write the mesh at ``path`` (suffix per the format)."""
         mesh = self.mesh(positions)
         self.export(mesh, path)
         return mesh
 
 
 def mesh_run(run_dir, overrides: dict | None = None, device="cpu", overwrite: bool = False, progress: bool = True) -> dict:
-    """Mesh every ``particles/frame_*.ply`` of a run folder into ``mesh/frame_*.obj`` with the
+    """Mesh every ``particles/frame_*.ply`` of a run folder into ``mesh/frame_*.obj`` (``.ply``
+    with ``{"format": "ply"}``) with the
     run's ``surface`` settings, changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``).
     Frames already meshed are kept unless ``overwrite``. Returns counts and seconds per stage."""
     run = RunFolder.existing(run_dir)
@@ -60,7 +68,7 @@ def mesh_run(run_dir, overrides: dict | None = None, device="cpu", overwrite: bo
     written = skipped = 0
     try:
         for f in frames:
-            target = run.mesh_frame(frame_index(f))
+            target = mesher.target(run.mesh_frame(frame_index(f)))
             if target.exists() and not overwrite:
                 skipped += 1
             else:

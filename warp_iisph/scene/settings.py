@@ -12,6 +12,7 @@ from .checks import in_range, positive, vec3
 METHODS = ("iisph", "wcsph")
 
 SMOOTHING = ("laplacian", "taubin", "none")
+MESH_FORMATS = ("obj", "ply")
 
 
 @dataclass
@@ -19,7 +20,8 @@ class SurfaceSettings:
     """Surface reconstruction settings, in particle spacings ``h``: ``cell`` the distance-field
     grid's cell (h/2), ``r0`` the particle radius of Zhu & Bridson's distance (h/2), ``radius``
     their kernel radius R (2h); ``smoothing`` ``laplacian`` (the report's), ``taubin`` (keeps
-    droplets' volume) or ``none``, over ``passes`` passes with factors ``lam`` and ``mu``."""
+    droplets' volume) or ``none``, over ``passes`` passes with factors ``lam`` and ``mu``;
+    ``format`` the mesh files a run writes: ``obj`` (text, with normals) or ``ply`` (binary)."""
 
     cell: float = 0.5
     r0: float = 0.5
@@ -28,6 +30,7 @@ class SurfaceSettings:
     passes: int = 3
     lam: float = 0.5
     mu: float = -0.53
+    format: str = "obj"
 
     def validate(self) -> "SurfaceSettings":
         self.cell = in_range(self.cell, "surface.cell", 0.05, 4.0, "particle spacings")
@@ -39,6 +42,8 @@ class SurfaceSettings:
             raise ValueError(f"surface.passes = {self.passes!r}: must be an integer in [0, 100]")
         self.lam = in_range(self.lam, "surface.lam", 0.0, 1.0, "smoothing factor", lo_open=True)
         self.mu = in_range(self.mu, "surface.mu", -1.0, 0.0, "Taubin's inflation factor", hi_open=True)
+        if self.format not in MESH_FORMATS:
+            raise ValueError(f"surface.format = {self.format!r}: must be one of {', '.join(MESH_FORMATS)}")
         return self
 
 
