@@ -204,46 +204,6 @@ def sort_by_coarse_cell(
     xs[start[(c[0] * cdims[1] + c[1]) * cdims[2] + c[2]] + rank[i]] = x[i]
 
 
-@wp.func
-def splat_particle(acc: wp.array(dtype=Float8), ab: int, p: wp.vec3, c: float, R: float, kz: Float8):
-    """Add particle ``p`` (relative to the block's first node) to the sums of the block's nodes
-    within ``R``: per row of 8 nodes along z, the weights ``(1 - d^2/R^2)^3`` of all 8 at once
-    (zero beyond R), times 1 and p. Only the rows the particle's ball reaches are visited."""
-    inv_c = 1.0 / c
-    R2 = R * R
-    top = float(BLOCK - 1) * c
-    # squared distance from p to the nearest node of a row, along z
-    gz = wp.max(0.0, wp.max(-p[2], p[2] - top))
-    r2 = R2 - gz * gz  # what is left for the row's distance in x and y
-    if r2 <= 0.0:
-        return
-    ri = wp.sqrt(r2)
-    i0 = wp.max(0, int(wp.ceil((p[0] - ri) * inv_c)))
-    i1 = wp.min(BLOCK - 1, int(wp.floor((p[0] + ri) * inv_c)))
-    pz = Float8(p[2], p[2], p[2], p[2], p[2], p[2], p[2], p[2])
-    dz = kz - pz
-    dz2 = wp.cw_mul(dz, dz)
-    zero = Float8()
-    inv_R2 = 1.0 / R2
-    for i in range(i0, i1 + 1):
-        dx = float(i) * c - p[0]
-        rx = r2 - dx * dx
-        if rx > 0.0:
-            rj = wp.sqrt(rx)
-            j0 = wp.max(0, int(wp.ceil((p[1] - rj) * inv_c)))
-            j1 = wp.min(BLOCK - 1, int(wp.floor((p[1] + rj) * inv_c)))
-            for j in range(j0, j1 + 1):
-                dy = float(j) * c - p[1]
-                q = R2 - dx * dx - dy * dy
-                t = wp.max(Float8(q, q, q, q, q, q, q, q) - dz2, zero) * inv_R2
-                w = wp.cw_mul(wp.cw_mul(t, t), t)
-                row = ab + 4 * (i * BLOCK + j)
-                acc[row] = acc[row] + w * p[0]
-                acc[row + 1] = acc[row + 1] + w * p[1]
-                acc[row + 2] = acc[row + 2] + w * p[2]
-                acc[row + 3] = acc[row + 3] + w
-
-
 @wp.kernel
 def splat_blocks(
     offset: int,
@@ -264,24 +224,54 @@ def splat_blocks(
     wk = wp.tid() + offset
     ab = wk * ROWS * 4
     c = f.cell
+    inv_c = 1.0 / c
+    R2 = R * R
+    inv_R2 = 1.0 / R2
     top = float(BLOCK - 1) * c
     kz = Float8()
     for k in range(BLOCK):
         kz[k] = float(k) * c
+    zero = Float8()
     for kb in range(wk, f.blocks.shape[0], workers):
         bc = block_coords(f, kb)
         lo = node_position(f, bc, wp.vec3i(0, 0, 0))
         for m in range(ROWS * 4):
-            acc[ab + m] = Float8()
+            acc[ab + m] = zero
         c0 = _coarse_index(lo - wp.vec3(R), f.lower, R, cdims)
         c1 = _coarse_index(lo + wp.vec3(top + R), f.lower, R, cdims)
         for cx in range(c0[0], c1[0] + 1):
             for cy in range(c0[1], c1[1] + 1):
                 col = (cx * cdims[1] + cy) * cdims[2]
                 for q in range(start[col + c0[2]], start[col + c1[2] + 1]):
+                    # particle q relative to the block's first node, splatted onto the nodes within
+                    # R, a row of 8 along z at a time (weights zero beyond R): only the rows its
+                    # ball reaches are visited
                     p = xs[q] - lo
-                    if wp.max(p) < top + R and wp.min(p) > -R:
-                        splat_particle(acc, ab, p, c, R, kz)
+                    gz = wp.max(0.0, wp.max(-p[2], p[2] - top))  # to the nearest node of a row, along z
+                    r2 = R2 - gz * gz  # what is left for the row's distance in x and y
+                    if r2 > 0.0 and wp.max(p) < top + R and wp.min(p) > -R:
+                        ri = wp.sqrt(r2)
+                        i0 = wp.max(0, int(wp.ceil((p[0] - ri) * inv_c)))
+                        i1 = wp.min(BLOCK - 1, int(wp.floor((p[0] + ri) * inv_c)))
+                        dz = kz - Float8(p[2], p[2], p[2], p[2], p[2], p[2], p[2], p[2])
+                        dz2 = wp.cw_mul(dz, dz)
+                        for i in range(i0, i1 + 1):
+                            dx = float(i) * c - p[0]
+                            rx = r2 - dx * dx
+                            if rx > 0.0:
+                                rj = wp.sqrt(rx)
+                                j0 = wp.max(0, int(wp.ceil((p[1] - rj) * inv_c)))
+                                j1 = wp.min(BLOCK - 1, int(wp.floor((p[1] + rj) * inv_c)))
+                                for j in range(j0, j1 + 1):
+                                    dy = float(j) * c - p[1]
+                                    e = R2 - dx * dx - dy * dy
+                                    t = wp.max(Float8(e, e, e, e, e, e, e, e) - dz2, zero) * inv_R2
+                                    w = wp.cw_mul(wp.cw_mul(t, t), t)
+                                    row = ab + 4 * (i * BLOCK + j)
+                                    acc[row] = acc[row] + w * p[0]
+                                    acc[row + 1] = acc[row + 1] + w * p[1]
+                                    acc[row + 2] = acc[row + 2] + w * p[2]
+                                    acc[row + 3] = acc[row + 3] + w
         # the FULL blocks below this one (bit e: the block at bc - (e >> 2, (e >> 1) & 1, e & 1)):
         # the nodes on the faces they share hold -r0, as every node of a FULL block does, so
         # that the cells of those unstored blocks have no crossing (EMPTY neighbours need no
