@@ -34,6 +34,7 @@ def _parser() -> argparse.ArgumentParser:
     mesh.add_argument("--radius", type=float, default=None, help="kernel radius R, in spacings (default 2)")
     mesh.add_argument("--smoothing", choices=("laplacian", "taubin", "none"), default=None, help="default laplacian")
     mesh.add_argument("--passes", type=int, default=None, help="smoothing passes (default 3)")
+    mesh.add_argument("--format", choices=("obj", "ply"), default=None, help="mesh files: obj (default) or binary ply")
     mesh.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     mesh.add_argument("--threads", default=None, help="CPU threads (default: all available cores)")
     mesh.add_argument("--overwrite", action="store_true", help="re-mesh frames that already have a mesh")
@@ -109,7 +110,7 @@ def _mesh_command(args) -> int:
     from .run.meshing import mesh_run
 
     try:
-        overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes") if getattr(args, k) is not None}
+        overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes", "format") if getattr(args, k) is not None}
         device = checked_device(args.device)
         result = mesh_run(args.run_dir, overrides, device, overwrite=args.overwrite, progress=not args.no_progress)
     except ValueError as e:

@@ -313,12 +313,17 @@ class SparseField:
     ``BLOCK * block_dims + 1`` nodes per axis. ``device.phi`` holds the ``BLOCK``^3 nodes at the
     lower corner of each stored block (flat block numbers in ``device.blocks``); ``device.kind``
     says for every block whether it is EMPTY (phi = R everywhere), FULL (phi = -r0) or SURFACE
-    (stored)."""
+    (stored). ``coarse_start`` holds where each coarse cell's particles start in the grouped
+    order (cells of size ``coarse_cell`` = R from ``lower``, ``coarse_dims`` of them, x-major,
+    one more entry for the end): their differences are the particle counts per cell."""
 
     device: BlockField
     block_dims: tuple
     lower: np.ndarray
     cell: float
+    coarse_start: wp.array | None = None
+    coarse_dims: tuple = ()
+    coarse_cell: float = 0.0
 
     @property
     def node_dims(self) -> tuple:
@@ -478,4 +483,4 @@ def sparse_distance_field(x: np.ndarray | wp.array, h: float, params, device, wo
         workers = splat_workers(n_surface, device)
         acc = work.get("sums", workers * ROWS * 4, Float8)
         launch_particles(splat_blocks, workers, [workers, f, xs, start, cd, float(R), float(r0), acc], device, min_chunk=1)
-    return SparseField(f, tuple(int(b) for b in block_dims), lower, cell)
+    return SparseField(f, tuple(int(b) for b in block_dims), lower, cell, start, tuple(int(c) for c in cdims), float(R))

@@ -21,7 +21,7 @@ from ..engine.timing import StageTimes
 from ..scene import SurfaceSettings
 from .field import CELLS3, SparseField, Workspace, sparse_distance_field, substage
 from .marching import case_tables, marching_cubes
-from .smoothing import adjacency, flip_winding, smooth, vertex_normals
+from .smoothing import adjacency, flip_winding, smooth, vertex_normals, vertex_weights
 
 STAGES = ("distance_field", "marching_cubes", "smoothing")
 
@@ -92,7 +92,10 @@ class SurfaceReconstructor:
                 with substage(detail, "adjacency"):
                     start, count, ring = adjacency(indices, nv, self.device, self.work)
                 with substage(detail, "smooth"):
-                    verts = smooth(verts, start, count, ring, self.params, self.device, self.work)
+                    weights = None
+                    if self.params.feature_weights and self.params.smoothing != "none" and self.params.passes > 0:
+                        weights = vertex_weights(verts, field, self.h, self.device, self.work)
+                    verts = smooth(verts, start, count, ring, self.params, self.device, self.work, weights)
                 with substage(detail, "normals"):
                     launch_particles(vertex_normals, nv, [verts, start, count, ring, normals], self.device)
         return SurfaceMesh(verts.numpy(), indices.numpy().reshape(-1, 3), normals.numpy(), times.seconds,

@@ -1,6 +1,12 @@
 """Mesh smoothing over a vertex adjacency built on the device: Laplacian (the report's) or Taubin's
 lambda/mu (no shrinking), and area-weighted vertex normals.
 
+Feature weights (on by default, ``SurfaceSettings.feature_weights``) scale each vertex's step by
+how many particles are near it, as splashsurf's do (it counts each particle's neighbours and
+interpolates them to the vertices), so that lone droplets keep their shape while the bulk
+surface is smoothed; here the count is the coarse cells' particle count interpolated at the
+vertex, which the field has already made.
+
 The adjacency lists, for each vertex, its incident triangles by their other two corners in
 winding order (``ring[start[v] + k] = (next, prev)``), so a pass reads two positions per
 triangle and no triangle indices."""
@@ -34,6 +40,40 @@ def fill_incident(
 
 
 @wp.kernel
+def feature_weights(
+    offset: int,
+    verts: wp.array(dtype=wp.vec3),
+    lower: wp.vec3,
+    C: float,
+    cdims: wp.vec3i,
+    start: wp.array(dtype=wp.int32),
+    full: float,
+    weights: wp.array(dtype=float),
+):
+    """Each vertex's weight: the particle count of the coarse cells (size C, from ``lower``;
+    ``start`` their ranges in the grouped order) interpolated trilinearly at the vertex,
+    over ``full``, clamped to 1 and put through the smoothstep 6x^5 - 15x^4 + 10x^3."""
+    v = wp.tid() + offset
+    q = (verts[v] - lower) / C - wp.vec3(0.5)  # cell centres at integer q
+    i0 = int(wp.floor(q[0]))
+    j0 = int(wp.floor(q[1]))
+    k0 = int(wp.floor(q[2]))
+    f = q - wp.vec3(float(i0), float(j0), float(k0))
+    n = float(0.0)
+    for a in range(2):
+        for b in range(2):
+            for e in range(2):
+                i = wp.clamp(i0 + a, 0, cdims[0] - 1)
+                j = wp.clamp(j0 + b, 0, cdims[1] - 1)
+                k = wp.clamp(k0 + e, 0, cdims[2] - 1)
+                cell = (i * cdims[1] + j) * cdims[2] + k
+                w = wp.where(a == 1, f[0], 1.0 - f[0]) * wp.where(b == 1, f[1], 1.0 - f[1]) * wp.where(e == 1, f[2], 1.0 - f[2])
+                n += w * float(start[cell + 1] - start[cell])
+    x = wp.min(1.0, n / full)
+    weights[v] = x * x * x * (x * (x * 6.0 - 15.0) + 10.0)
+
+
+@wp.kernel
 def smooth_vertices(
     offset: int,
     verts: wp.array(dtype=wp.vec3),
@@ -41,10 +81,13 @@ def smooth_vertices(
     count: wp.array(dtype=wp.int32),
     ring: wp.array(dtype=wp.vec2i),
     factor: float,
+    weights: wp.array(dtype=float),
+    weighted: int,
     out: wp.array(dtype=wp.vec3),
 ):
-    """One umbrella pass: move each vertex by ``factor`` towards the mean of its neighbours (each
-    incident triangle's two other corners, so every edge of a closed mesh counts twice)."""
+    """One umbrella pass: move each vertex by ``factor`` (times its weight when ``weighted``)
+    towards the mean of its neighbours (each incident triangle's two other corners, so every
+    edge of a closed mesh counts twice)."""
     v = wp.tid() + offset
     p = verts[v]
     s = wp.vec3(0.0)
@@ -52,8 +95,11 @@ def smooth_vertices(
     for k in range(start[v], start[v] + m):
         r = ring[k]
         s += verts[r[0]] + verts[r[1]]
+    step = factor
+    if weighted != 0:
+        step = factor * weights[v]
     if m > 0:
-        out[v] = p + factor * (s / float(2 * m) - p)
+        out[v] = p + step * (s / float(2 * m) - p)
     else:
         out[v] = p
 
@@ -103,18 +149,33 @@ def adjacency(indices: wp.array, nv: int, device, work=None):
     return start, count, ring
 
 
-def smooth(verts, start, count, ring, params, device, work=None):
-    """``params.passes`` passes of Laplacian smoothing, or of Taubin's lambda/mu pairs. The
-    result is in ``verts``, overwritten (one more array from ``work`` when given)."""
+def vertex_weights(verts, field, h: float, device, work=None) -> wp.array:
+    """The feature weight of each vertex (see :func:`feature_weights`) from the coarse particle
+    counts of ``field`` (a ``SparseField``): 1 where a coarse cell's worth of particles holds a
+    quarter of what a full one does, less towards lone particles."""
+    nv = verts.shape[0]
+    w = work.get("weights", nv, float) if work is not None else wp.empty(nv, dtype=float, device=device)
+    full = 0.25 * (field.coarse_cell / h) ** 3  # a full cell of side R holds about (R / h)^3
+    launch_particles(feature_weights, nv, [verts, wp.vec3(*[float(c) for c in field.lower]), float(field.coarse_cell),
+                                           wp.vec3i(*field.coarse_dims), field.coarse_start, float(full), w], device)
+    return w
+
+
+def smooth(verts, start, count, ring, params, device, work=None, weights=None):
+    """``params.passes`` passes of Laplacian smoothing, or of Taubin's lambda/mu pairs, each
+    vertex's step times its ``weights`` when given. The result is in ``verts``, overwritten
+    (one more array from ``work`` when given)."""
     p = params
     if p.smoothing == "none" or p.passes == 0:
         return verts
     factors = [p.lam] if p.smoothing == "laplacian" else [p.lam, p.mu]
     a = verts
     b = work.get("smoothed", verts.shape[0], wp.vec3) if work is not None else wp.empty_like(verts)
+    w = weights if weights is not None else wp.empty(0, dtype=float, device=device)
     for _ in range(p.passes):
         for f in factors:
-            launch_particles(smooth_vertices, a.shape[0], [a, start, count, ring, float(f), b], device)
+            launch_particles(smooth_vertices, a.shape[0], [a, start, count, ring, float(f), w, int(weights is not None), b],
+                             device)
             a, b = b, a
     if a is not verts:
         wp.copy(verts, a)
