@@ -18,6 +18,8 @@ import warp as wp
 
 from ..engine.launch import get_threads, launch_particles
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.func
 def _coarse_index(p: wp.vec3, lower: wp.vec3, C: float, cdims: wp.vec3i) -> wp.vec3i:

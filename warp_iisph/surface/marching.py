@@ -25,7 +25,7 @@ from ..engine.launch import launch_particles
 
 # Warp unrolls loops of constant trip count up to max_unroll (16): the nested loops over a block's
 # rows and nodes here would unroll into thousands of copies and take minutes to compile
-wp.set_module_options({"max_unroll": 1})
+wp.set_module_options({"max_unroll": 1, "enable_backward": False})  # never differentiated either
 from .field import (BLOCK, CELLS3, FULL, BlockField, SparseField, Workspace, block_coords, local_node, local_slot, node_phi,
                     node_position, owner_block, scan_with_total, splat_workers, substage)
 

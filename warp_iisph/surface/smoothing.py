@@ -17,6 +17,8 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.kernel
 def count_incident(indices: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), rank: wp.array(dtype=wp.int32)):
