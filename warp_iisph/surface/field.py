@@ -257,23 +257,27 @@ def splat_blocks(
                         i1 = wp.min(BLOCK - 1, int(wp.floor((p[0] + ri) * inv_c)))
                         dz = kz - Float8(p[2], p[2], p[2], p[2], p[2], p[2], p[2], p[2])
                         dz2 = wp.cw_mul(dz, dz)
-                        for i in range(i0, i1 + 1):
+                        i = i0
+                        while i <= i1:
                             dx = float(i) * c - p[0]
                             rx = r2 - dx * dx
                             if rx > 0.0:
                                 rj = wp.sqrt(rx)
-                                j0 = wp.max(0, int(wp.ceil((p[1] - rj) * inv_c)))
+                                j = wp.max(0, int(wp.ceil((p[1] - rj) * inv_c)))
                                 j1 = wp.min(BLOCK - 1, int(wp.floor((p[1] + rj) * inv_c)))
-                                for j in range(j0, j1 + 1):
+                                row = ab + 4 * (i * BLOCK + j)
+                                while j <= j1:
                                     dy = float(j) * c - p[1]
                                     e = R2 - dx * dx - dy * dy
                                     t = wp.max(Float8(e, e, e, e, e, e, e, e) - dz2, zero) * inv_R2
                                     w = wp.cw_mul(wp.cw_mul(t, t), t)
-                                    row = ab + 4 * (i * BLOCK + j)
                                     acc[row] = acc[row] + w * p[0]
                                     acc[row + 1] = acc[row + 1] + w * p[1]
                                     acc[row + 2] = acc[row + 2] + w * p[2]
                                     acc[row + 3] = acc[row + 3] + w
+                                    row += 4
+                                    j += 1
+                            i += 1
         # the FULL blocks below this one (bit e: the block at bc - (e >> 2, (e >> 1) & 1, e & 1)):
         # the nodes on the faces they share hold -r0, as every node of a FULL block does, so
         # that the cells of those unstored blocks have no crossing (EMPTY neighbours need no
