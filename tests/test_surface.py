@@ -228,18 +228,22 @@ def _jittered_ball(radius=0.12, seed=0):
     return (x + np.random.default_rng(seed).normal(0.0, 0.1 * H, x.shape)).astype(np.float32)
 
 
-def test_block_marching_cubes_equals_warps_dense_marching_cubes():
+@pytest.mark.parametrize("deep", [False, True])
+def test_block_marching_cubes_equals_warps_dense_marching_cubes(deep):
     """Same vertices and triangles as warp.geometry's marching cubes on the densified field, for
     a ball and a slab whose surface crosses many block faces (positions agree to float rounding:
-    warp derives its cell from the corners)."""
+    warp derives its cell from the corners); and for a pool deep enough for FULL blocks, whose
+    unstored cells must not cross."""
     import warp as wp
     import warp.geometry
 
-    slab = sample_box(Box((-0.2, -0.1, 0.0), (0.4, 0.0, 0.3)), H)
+    top = -0.4 if deep else -0.1
+    slab = sample_box(Box((-0.2, top, 0.0), (0.4, 0.0, 0.3)), H)
     x = np.concatenate([_jittered_ball(), slab + np.random.default_rng(1).normal(0.0, 0.1 * H, slab.shape)])
     r = SurfaceReconstructor(H, Surface(smoothing="none"))
     field = r.distance_field(x)
     assert 0 < field.n_stored < np.prod(field.block_dims)
+    assert (field.device.kind.numpy() == surface.FULL).sum() > (0 if deep else -1)
     verts, indices = (a.numpy() for a in r.marching_cubes(field))
     dense = field.dense()
     upper = field.lower + field.cell * (np.array(dense.shape) - 1)

@@ -6,6 +6,12 @@ particles' bounding box plus a margin. A node with no particle within ``R`` is o
 (``phi = R``). The lattice is cut into blocks of ``BLOCK``^3 cells; a coarse count of particles
 marks blocks that are all air (EMPTY) or all deep liquid (FULL), and only the rest (SURFACE)
 are stored and computed, so memory and work follow the surface's area, not the tank's volume.
+
+The particles are grouped by coarse cell (size R, a counting sort), and each stored block
+splats the particles of the coarse cells within R of it onto its nodes (``splat_blocks``):
+per particle only the rows of 8 nodes along z that its ball reaches, all 8 weights of a row at
+once, into sums that stay in cache; then ``phi`` per node. Nodes on a face shared with a FULL
+block take -r0, as that block's nodes do, so the cells of unstored blocks never cross.
 """
 
 from __future__ import annotations
