@@ -1,6 +1,7 @@
 """The benchmark scripts' --quick modes run and write their table, JSON and chart."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,6 +20,22 @@ def test_benchmark_quick_mode(script, stem, tmp_path):
     assert [r["threads"] for r in record["results"]][:2] == [1, 2]
     assert record["versions"]["warp"] and record["date"]
     assert (tmp_path / f"{stem}.png").stat().st_size > 10_000
+
+
+def test_surface_benchmark_without_splashsurf(tmp_path):
+    """splashsurf is an optional benchmark dependency: without it the surface benchmark measures
+    ours alone and says so."""
+    hide = tmp_path / "hide"
+    hide.mkdir()
+    (hide / "pysplashsurf.py").write_text("raise ImportError('hidden for this test')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hide), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "surface.py"), "--quick", "--threads", "1", "--out",
+                           str(tmp_path)], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "pysplashsurf is not installed" in proc.stdout
+    record = json.loads((tmp_path / "surface_quick.json").read_text())
+    assert record["splashsurf"] is None and "splashsurf_ms" not in record["results"][0]
+    assert set(record["quality"]["synthetic_20k"]) == {"ours", "ours_taubin", "ours_none"}
 
 
 @pytest.mark.parametrize("script,stem", [("validation.py", "validation_quick"), ("stability.py", "stability_quick")])

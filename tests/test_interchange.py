@@ -301,7 +301,7 @@ def test_usd_refuses_a_run_without_meshes_and_bad_outputs(runs, tiny_run, tmp_pa
     assert main(["usd", str(tiny_run), "--frames", "7:9", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 4 and all(line.startswith("warp-iisph: error:") for line in err)
-    assert "no frame_*.obj files (run with --mesh, or `warp-iisph mesh RUN_DIR`)" in err[0]
+    assert "no frame_*.obj or frame_*.ply files (run with --mesh, or `warp-iisph mesh RUN_DIR`)" in err[0]
     assert ".usdc, .usda, .usd" in err[1] and "is a folder" in err[2] and "0..3" in err[3]
     assert not list(tmp_path.iterdir())
 

@@ -55,6 +55,51 @@ def test_smoothing_smooths(ball):
     assert lap < 0.75 * raw and tau < 0.95 * raw, (raw, lap, tau)  # measured: 0.65 and 0.89
 
 
+def test_feature_weights_keep_lone_droplets():
+    """Feature-weighted smoothing leaves a lone particle's blob nearly as it was (weight ~0: no
+    particle near it) where plain Laplacian smoothing shrinks it to a fraction, and smooths the
+    bulk ball as plain smoothing does (weight 1 there)."""
+    ball = sample_sphere(Sphere(tuple(CENTRE), 0.12), H)
+    ball = ball + np.random.default_rng(0).normal(0.0, 0.1 * H, ball.shape)
+    x = np.concatenate([ball, [[0.5, 0.2, 0.3]]]).astype(np.float32)
+
+    def bodies(**params):
+        t = _mesh(x, **params)[1]
+        return sorted(abs(c.volume) for c in t.split(only_watertight=False))
+
+    raw, plain, weighted = bodies(smoothing="none"), bodies(feature_weights=False), bodies(feature_weights=True)
+    assert len(raw) == len(plain) == len(weighted) == 2
+    assert weighted[0] > 0.9 * raw[0] and plain[0] < 0.5 * raw[0], (raw[0], plain[0], weighted[0])
+    assert abs(weighted[1] / plain[1] - 1.0) < 5e-4 and plain[1] < raw[1]
+
+
+def test_feature_weights_are_the_interpolated_coarse_counts():
+    """The weight kernel against NumPy: trilinear interpolation of the particles per coarse cell
+    (cell centres at (i + 1/2) R from the field's lower corner), over a quarter of (R/h)^3,
+    through the smoothstep."""
+    from warp_iisph.surface.smoothing import vertex_weights
+
+    x = _jittered_ball(0.1)
+    r = SurfaceReconstructor(H, Surface(smoothing="none"))
+    field = r.distance_field(x)
+    verts, _ = r.marching_cubes(field)
+    got = vertex_weights(verts, field, H, "cpu").numpy()
+    dims = np.array(field.coarse_dims)
+    counts = np.diff(field.coarse_start.numpy()).reshape(dims)
+    assert counts.sum() == len(x)
+    q = (verts.numpy().astype(np.float64) - field.lower) / field.coarse_cell - 0.5
+    i0 = np.floor(q).astype(int)
+    f = q - i0
+    n = np.zeros(len(q))
+    for corner in np.ndindex(2, 2, 2):
+        idx = np.clip(i0 + corner, 0, dims - 1)
+        w = np.prod(np.where(np.array(corner) == 1, f, 1.0 - f), axis=1)
+        n += w * counts[idx[:, 0], idx[:, 1], idx[:, 2]]
+    t = np.minimum(1.0, n / (0.25 * (field.coarse_cell / H) ** 3))
+    want = t**3 * (t * (6.0 * t - 15.0) + 10.0)
+    assert np.abs(got - want).max() < 1e-5 and 0.0 < got.min() and got.max() == 1.0
+
+
 def test_no_particles_gives_an_empty_mesh():
     m = SurfaceReconstructor(H).reconstruct(np.zeros((0, 3)))
     assert m.vertices.shape == (0, 3) and m.faces.shape == (0, 3)
@@ -86,6 +131,36 @@ def test_obj_round_trip(tmp_path, ball):
     back = trimesh.load(tmp_path / "a.obj", process=False)
     assert len(back.faces) == len(m.faces)
     assert np.allclose(back.vertices, m.vertices, atol=1e-5)
+
+
+def test_ply_round_trip(tmp_path, ball):
+    """Binary PLY: meshio and trimesh read back the same vertices, normals and faces."""
+    import meshio
+
+    from warp_iisph.run.formats import write_mesh
+
+    m, t = _mesh(ball)
+    path = write_mesh(tmp_path / "a.obj", m.vertices, m.faces, m.normals, "ply")
+    assert path == tmp_path / "a.ply" and not (tmp_path / "a.obj").exists()
+    back = meshio.read(path)
+    assert np.array_equal(back.points, m.vertices) and np.array_equal(back.cells_dict["triangle"], m.faces)
+    assert np.array_equal(np.stack([back.point_data[k] for k in ("nx", "ny", "nz")], 1), m.normals)
+    tm = trimesh.load(path, process=False)
+    assert tm.is_watertight and np.isclose(tm.volume, t.volume)
+    with pytest.raises(ValueError, match="outside 0.."):
+        write_mesh(tmp_path / "b.ply", m.vertices, m.faces + len(m.vertices), None, "ply")
+    with pytest.raises(ValueError, match="surface.format = 'stl'"):
+        Surface(format="stl").validate()
+
+
+def test_frame_mesher_writes_the_chosen_format(tmp_path, ball):
+    from warp_iisph.run.meshing import FrameMesher
+
+    for fmt in ("obj", "ply"):
+        mesher = FrameMesher(H, Surface(format=fmt))
+        mesher.write(ball, tmp_path / "frame_00000.obj")
+        assert (tmp_path / f"frame_00000.{fmt}").is_file()
+        assert trimesh.load(tmp_path / f"frame_00000.{fmt}", process=False).is_watertight
 
 
 def test_obj_text_is_printf_formatting(tmp_path):
@@ -126,6 +201,20 @@ def test_run_with_mesh_and_mesh_command(tmp_path, capsys):
     # re-meshing an existing run with other settings
     assert main(["mesh", str(out), "--smoothing", "taubin", "--overwrite", "--no-progress"]) == 0
     assert "meshed 3 frames" in capsys.readouterr().out
+    # another format is other settings: refused, then replaced with --overwrite (no mix of both)
+    assert main(["mesh", str(out), "--format", "ply", "--no-progress"]) == 2
+    assert "holds meshes made from other settings; pass --overwrite" in capsys.readouterr().err
+    assert main(["mesh", str(out), "--format", "ply", "--overwrite", "--no-progress"]) == 0
+    assert "meshed 3 frames (0 already there)" in capsys.readouterr().out
+    assert not list((out / "mesh").glob("*.obj"))
+    assert trimesh.load(out / "mesh" / "frame_00000.ply").is_watertight
+    # the viewers find the PLY meshes
+    from warp_iisph.run.folder import MESHES, RunFolder
+
+    run = RunFolder(out)
+    assert run.mesh_format == "ply" and [f.suffix for f in run.frames(MESHES)] == [".ply"] * 3
+    assert main(["preview", str(out), "--source", "mesh", "--frames", "2:", "--out", str(tmp_path / "still.png"), "--no-progress"]) == 0
+    assert (tmp_path / "still.png").stat().st_size > 0
     assert main(["mesh", str(tmp_path / "nothing"), "--no-progress"]) == 2
     assert "no such run folder" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
@@ -150,18 +239,22 @@ def _jittered_ball(radius=0.12, seed=0):
     return (x + np.random.default_rng(seed).normal(0.0, 0.1 * H, x.shape)).astype(np.float32)
 
 
-def test_block_marching_cubes_equals_warps_dense_marching_cubes():
+@pytest.mark.parametrize("deep", [False, True])
+def test_block_marching_cubes_equals_warps_dense_marching_cubes(deep):
     """Same vertices and triangles as warp.geometry's marching cubes on the densified field, for
     a ball and a slab whose surface crosses many block faces (positions agree to float rounding:
-    warp derives its cell from the corners)."""
+    warp derives its cell from the corners); and for a pool deep enough for FULL blocks, whose
+    unstored cells must not cross."""
     import warp as wp
     import warp.geometry
 
-    slab = sample_box(Box((-0.2, -0.1, 0.0), (0.4, 0.0, 0.3)), H)
+    top = -0.4 if deep else -0.1
+    slab = sample_box(Box((-0.2, top, 0.0), (0.4, 0.0, 0.3)), H)
     x = np.concatenate([_jittered_ball(), slab + np.random.default_rng(1).normal(0.0, 0.1 * H, slab.shape)])
     r = SurfaceReconstructor(H, Surface(smoothing="none"))
     field = r.distance_field(x)
     assert 0 < field.n_stored < np.prod(field.block_dims)
+    assert (field.device.kind.numpy() == surface.FULL).sum() > (0 if deep else -1)
     verts, indices = (a.numpy() for a in r.marching_cubes(field))
     dense = field.dense()
     upper = field.lower + field.cell * (np.array(dense.shape) - 1)
@@ -273,29 +366,40 @@ def per_node_signed_distance(
 
 
 @pytest.mark.parametrize("settings", [{}, {"cell": 0.3, "radius": 2.5}])
-def test_node_cubes_equal_the_per_node_field(settings, monkeypatch):
-    """signed_distance serves 2x2x2 nodes with one query and one narrow-band test where they
-    share a coarse cell: bitwise the field of one node per thread."""
+def test_splat_equals_the_per_node_field(settings, monkeypatch):
+    """splat_blocks (each block's nearby particles splatted onto its nodes, a row of 8 at a
+    time) gives the one-node-per-thread gather of the definition to float rounding: exactly R
+    where that gather's narrow-band test finds no particle near, inside where it says "deep
+    inside", the same sums elsewhere. The second settings put blocks across coarse cells."""
     launched = {}
     plain = surface.launch_particles
 
-    def spy(kernel, n, inputs, device):
-        if kernel is surface.signed_distance:
+    def spy(kernel, n, inputs, device, **kw):
+        if kernel is surface.splat_blocks:
             launched["inputs"] = inputs
-        return plain(kernel, n, inputs, device)
+        return plain(kernel, n, inputs, device, **kw)
 
     monkeypatch.setattr(surface, "launch_particles", spy)
     rec = SurfaceReconstructor(H, Surface(**settings))
     pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)  # deep enough for FULL nodes
-    field = rec.distance_field(np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(1).normal(0, 0.1 * H, pool.shape)]))
-    f = launched["inputs"][0]
+    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(1).normal(0, 0.1 * H, pool.shape)]).astype(np.float32)
+    field = rec.distance_field(x)
+    _, f, _, start, cd, R, r0, _ = launched["inputs"]
+    counts = wp.array(np.diff(start.numpy()).astype(np.int32), dtype=wp.int32)  # particles per coarse cell
+    xd = wp.array(x, dtype=wp.vec3)
+    grid = wp.HashGrid(128, 128, 128, device="cpu")
+    grid.build(xd, R)
     reference = wp.empty_like(f.phi)
-    wp.launch(per_node_signed_distance, dim=reference.shape[0], inputs=[*launched["inputs"], reference])
+    full = max(1, int(0.75 * (R / H) ** 3))
+    wp.launch(per_node_signed_distance, dim=reference.shape[0], inputs=[f, grid.id, xd, R, r0, counts, cd, full, reference])
     got, want = f.phi.numpy(), reference.numpy()
-    assert field.n_stored > 50 and np.array_equal(got, want), np.abs(got - want).max()
+    outside, deep = want == np.float32(R), want == np.float32(-r0)
+    summed = ~outside & ~deep
     # every path is exercised: outside, deep inside, summed
-    assert (want == np.float32(f.outside)).sum() > 1000 and (want == np.float32(f.inside)).sum() > 1000
-    assert ((want != np.float32(f.outside)) & (want != np.float32(f.inside))).sum() > 1000
+    assert field.n_stored > 50 and outside.sum() > 1000 and deep.sum() > 1000 and summed.sum() > 1000
+    assert np.array_equal(got[outside], want[outside])
+    assert np.all(got[deep] < 0.0)
+    assert np.abs(got[summed] - want[summed]).max() < 2e-6  # float32 rounding of sums of positions of size ~0.5
 
 
 def test_bounds_and_non_finite_count_on_the_device(ball):

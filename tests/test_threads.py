@@ -46,17 +46,17 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
     original = launch.launch_particles
     seen = set()
 
-    def checked(kernel, n, inputs, device):
+    def checked(kernel, n, inputs, device, **kw):
         arrays = _arrays(inputs)
         before = [a.numpy().copy() for a in arrays]
         wp.launch(kernel, dim=n, inputs=[0, *inputs], device=device)
         single = [_bytes(a) for a in arrays]
         for a, b in zip(arrays, before):
             a.assign(b)
-        original(kernel, n, inputs, device)  # a kernel's first launch is never split
+        original(kernel, n, inputs, device, **kw)  # a kernel's first launch is never split
         for a, b in zip(arrays, before):
             a.assign(b)
-        original(kernel, n, inputs, device)
+        original(kernel, n, inputs, device, **kw)
         split = [_bytes(a) for a in arrays]
         assert single == split, kernel.key
         seen.add((kernel.key, n))
@@ -73,7 +73,7 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
 
     SurfaceReconstructor(0.03).reconstruct(sim.positions)
     keys = {k for k, _ in seen}
-    for expected in ("signed_distance", "smooth_vertices", "vertex_normals", "count_neighbors", "fill_neighbors", "compute_density", "predict_advection_velocity",
+    for expected in ("splat_blocks", "block_cases", "block_emit", "fill_incident", "smooth_vertices", "vertex_normals", "count_neighbors", "fill_neighbors", "compute_density", "predict_advection_velocity",
                      "predict_advection_density", "pressure_sum_dij_pj", "pressure_jacobi", "integrate",
                      "predict_velocity", "state_equation", "boundary_psi", "initial_density"):
         assert any(expected in k for k in keys), (expected, keys)

@@ -60,6 +60,7 @@ def _parser() -> argparse.ArgumentParser:
     mesh.add_argument("--radius", type=float, default=None, help="kernel radius R, in spacings (default 2)")
     mesh.add_argument("--smoothing", choices=("laplacian", "taubin", "none"), default=None, help="default laplacian")
     mesh.add_argument("--passes", type=int, default=None, help="smoothing passes (default 3)")
+    mesh.add_argument("--format", choices=("obj", "ply"), default=None, help="mesh files: obj (default) or binary ply")
     mesh.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     mesh.add_argument("--threads", default=None, help="CPU threads (default: all available cores)")
     mesh.add_argument("--overwrite", action="store_true", help="re-mesh frames that already have a mesh, also with other settings")
@@ -88,14 +89,14 @@ def _parser() -> argparse.ArgumentParser:
     preview.add_argument("--out", default=None, help="video path (default RUN_DIR/preview.mp4), or a .png for one frame's still")
     preview.add_argument("--no-progress", action="store_true", help="no progress bar")
     usd = sub.add_parser("usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)")
-    usd.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
+    usd.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj (or .ply)")
     usd.add_argument("--out", default=None, help="the stage's file: .usdc (binary), .usda (text) or .usd (default RUN_DIR/run.usdc)")
     usd.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
     usd.add_argument("--particles", action="store_true", help="also the particles, as points with velocities, ids, density, pressure")
     usd.add_argument("--material", default="water", help="the liquid's preview colour: water, wine, whisky, or r,g,b")
     usd.add_argument("--no-progress", action="store_true", help="no progress bar")
     blend = sub.add_parser("blender-script", help="write a script that loads a run into Blender as one liquid object")
-    blend.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj")
+    blend.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj (or .ply)")
     blend.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b")
     blend.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
     blend.add_argument("--usd", action="store_true", help="import the run's USD stage (`warp-iisph usd RUN_DIR`) instead of its OBJ files")
@@ -172,7 +173,7 @@ def _mesh(args) -> int:
     from .run.meshing import mesh_path
 
     _start_warp(args.threads)
-    overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes") if getattr(args, k) is not None}
+    overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes", "format") if getattr(args, k) is not None}
     result = mesh_path(args.run_dir, overrides, checked_device(args.device), overwrite=args.overwrite,
                        progress=not args.no_progress, spacing=args.spacing, out=args.out)
     secs = ", ".join(f"{k} {v:.2f} s" for k, v in result["stage_seconds"].items())

@@ -114,13 +114,16 @@ def _launch_chunk(kernel, start: int, count: int, inputs: list, device) -> None:
     wp.launch(kernel, dim=count, inputs=[start, *inputs], device=device)
 
 
-def launch_particles(kernel, n: int, inputs: list, device) -> None:
+def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None = None) -> None:
     """Launch ``kernel`` over elements ``0 .. n-1`` (``offset`` prepended to ``inputs``), split
-    into one chunk per thread on the CPU."""
+    into one chunk per thread on the CPU. ``min_chunk`` (default ``MIN_CHUNK``) is the fewest
+    elements worth a thread: kernels whose element is a large piece of work (a block of the
+    surface's lattice) pass a smaller one."""
     if n <= 0:
         return
     device = wp.get_device(device)
-    parts = min(get_threads(), n // MIN_CHUNK) if device.is_cpu and not _recording else 1
+    least = MIN_CHUNK if min_chunk is None else max(1, min(int(min_chunk), MIN_CHUNK))
+    parts = min(get_threads(), n // least) if device.is_cpu and not _recording else 1
     key = (kernel.key, kernel.module.name, device.alias)
     if parts <= 1 or key not in _loaded:
         # the first launch loads (and maybe compiles) the module: never from several threads

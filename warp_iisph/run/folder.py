@@ -3,7 +3,8 @@
 ```
 RUN/particles/frame_00000.ply   particle frames (.vtu    RUN/stats.jsonl  one record per step
                                 with output.format vtu)  RUN/run.json     scene, device, totals, how it ended
-RUN/mesh/frame_00000.obj        surface meshes           RUN/run.usdc     the whole run as one USD stage
+RUN/mesh/frame_00000.obj        surface meshes (.ply     RUN/run.usdc     the whole run as one USD stage
+                                with surface.format ply)
 RUN/obstacles.obj               the obstacles (at t = 0; RUN/obstacles/frame_00000.obj ... when some move)
 RUN/checkpoint.npz              the state at the last checkpoint
 RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
@@ -18,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene.settings import PARTICLE_FORMATS  # the extensions of particle frames, as output.format names them
+# the extensions of particle frames and meshes, as output.format and surface.format name them
+from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from .atomic import write_json
 
 PARTICLES = "particles"
@@ -33,7 +35,6 @@ SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what th
 USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
 USD_NAMES = (USD, "run.usda", "run.usd")
 DEFAULT_FPS = 30.0
-MESH_FORMAT = "obj"
 
 
 class RunError(ValueError):
@@ -88,14 +89,35 @@ class RunFolder:
         return self._particle_format
 
     def frame_path(self, kind: str, k: int) -> Path:
-        """Frame ``k`` of ``kind`` (``particles``, in the run's particle format, or ``mesh``)."""
-        return self.path / kind / f"frame_{k:05d}.{self.particle_format if kind == PARTICLES else MESH_FORMAT}"
+        """Frame ``k`` of ``kind`` (``particles``, in the run's particle format, or ``mesh``, in
+        the format of the meshes there)."""
+        return self.path / kind / f"frame_{k:05d}.{self.particle_format if kind == PARTICLES else self.mesh_format}"
 
     def particle_frame(self, k: int) -> Path:
         return self.frame_path(PARTICLES, k)
 
     def mesh_frame(self, k: int) -> Path:
         return self.frame_path(MESHES, k)
+
+    @property
+    def mesh_format(self) -> str:
+        """The extension of this run's meshes: what ``mesh/source.json`` records, else the
+        run's ``surface.format``, else that of the meshes on disk, else OBJ."""
+        made = (self.provenance(MESHES) or {}).get("settings") or {}
+        fmt = made.get("format")
+        if fmt not in MESH_FORMATS:
+            try:
+                fmt = ((self.record().get("scene") or {}).get("surface") or {}).get("format")
+            except RunError:
+                fmt = None
+        if fmt not in MESH_FORMATS:
+            on_disk = [e for e in MESH_FORMATS if any((self.path / MESHES).glob(f"frame_*.{e}"))]
+            fmt = on_disk[0] if on_disk else MESH_FORMATS[0]
+        return fmt
+
+    def all_mesh_frames(self) -> list[Path]:
+        """Every ``mesh/frame_*`` file of either mesh format (what an overwrite replaces)."""
+        return sorted(p for e in MESH_FORMATS for p in (self.path / MESHES).glob(f"frame_*.{e}"))
 
     @property
     def stats(self) -> Path:
@@ -125,7 +147,11 @@ class RunFolder:
 
     def _frame_files(self, kind: str) -> list[Path]:
         if kind == MESHES:
-            return sorted((self.path / kind).glob(f"frame_*.{MESH_FORMAT}"))
+            for ext in dict.fromkeys((self.mesh_format, *MESH_FORMATS)):
+                files = sorted((self.path / kind).glob(f"frame_*.{ext}"))
+                if files:
+                    return files
+            return []
         # the run's own format first; a folder of the other format (copied in, or an older run) is read too
         for ext in dict.fromkeys((self.particle_format, *PARTICLE_FORMATS)):
             files = sorted((self.path / kind).glob(f"frame_*.{ext}"))
@@ -138,12 +164,12 @@ class RunFolder:
         return bool(self._frame_files(kind))
 
     def frames(self, kind: str) -> list[Path]:
-        """``particles/frame_*.ply`` (or ``.vtu``) or ``mesh/frame_*.obj``, in frame order
+        """``particles/frame_*.ply`` (or ``.vtu``) or ``mesh/frame_*.obj`` (or ``.ply``), in frame order
         (``RunError`` for none)."""
         files = self._frame_files(kind)
         if not files:
             if kind == MESHES:
-                raise RunError(f"{self.path / kind}: no frame_*.{MESH_FORMAT} files (run with --mesh, or `warp-iisph mesh RUN_DIR`)")
+                raise RunError(f"{self.path / kind}: no frame_*.{' or frame_*.'.join(MESH_FORMATS)} files (run with --mesh, or `warp-iisph mesh RUN_DIR`)")
             raise RunError(f"{self.path / kind}: no frame_*.{' or frame_*.'.join(PARTICLE_FORMATS)} files "
                            "(was the run written with output.particles = false?)")
         return files

@@ -1,4 +1,5 @@
-"""Surface meshes of particle frames: a run's (``mesh/frame_00000.obj`` ...), or any particle files."""
+"""Surface meshes of particle frames, one OBJ (or binary PLY, ``surface.format``) per frame: a
+run's (``mesh/frame_00000.obj`` ...), or any particle files."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from ..scene import SurfaceSettings
 from ..scene.checks import positive
 from ..surface import SurfaceMesh, SurfaceReconstructor
 from .folder import MESHES, PARTICLES, RECORD, RunError, RunFolder, frame_index
-from .formats import read_particles, write_obj
+from .formats import read_particles, write_mesh
 from .progress import frame_bar
 
 MESH_STAGES = ("distance_field", "marching_cubes", "smoothing", "export")
@@ -23,6 +24,7 @@ class FrameMesher:
 
     def __init__(self, h: float, params: SurfaceSettings, device="cpu"):
         self.reconstructor = SurfaceReconstructor(h, params, device)
+        self.format = self.reconstructor.params.format
         self.times = StageTimes(None, MESH_STAGES)
 
     def mesh(self, positions) -> SurfaceMesh:
@@ -31,13 +33,18 @@ class FrameMesher:
         self.times.merge(mesh.seconds)
         return mesh
 
-    def export(self, mesh: SurfaceMesh, path: Path) -> None:
-        """Write ``mesh`` as OBJ (host work only, so it may run on a writer thread)."""
+    def target(self, path: Path) -> Path:
+        """``path`` with the suffix of this mesher's format."""
+        return Path(path).with_suffix(f".{self.format}")
+
+    def export(self, mesh: SurfaceMesh, path: Path) -> Path:
+        """Write ``mesh`` in the settings' format at ``path`` (its suffix made ``.obj`` or
+        ``.ply``); host work only, so it may run on a writer thread. Returns the path written."""
         with self.times("export"):
-            write_obj(path, mesh.vertices, mesh.faces, mesh.normals)
+            return write_mesh(path, mesh.vertices, mesh.faces, mesh.normals, self.format)
 
     def write(self, positions, path: Path) -> SurfaceMesh:
-        """Mesh ``positions`` and write the OBJ at ``path``."""
+        """Mesh ``positions`` and write the mesh at ``path`` (suffix per the format)."""
         mesh = self.mesh(positions)
         self.export(mesh, path)
         return mesh
@@ -74,7 +81,7 @@ def _jobs_of_run(run: RunFolder, overrides, spacing, overwrite: bool):
         what = "another run" if made and made.get("run_id") != mine["run_id"] else "other settings"
         raise RunError(f"{run.path / MESHES}: holds meshes made from {what}; pass --overwrite to replace them")
     if overwrite:  # the old meshes go, and the USD stage made of them (`warp-iisph usd` writes it anew)
-        for old in [*(run.path / MESHES).glob("frame_*.obj"), *run.usd_files()]:
+        for old in [*run.all_mesh_frames(), *run.usd_files()]:
             old.unlink()
     run.write_provenance(MESHES, record.get("run_id"), settings)
     return [(f, run.mesh_frame(frame_index(f))) for f in frames], spacing, params, run.path / MESHES
@@ -117,6 +124,7 @@ def mesh_path(path, overrides: dict | None = None, device="cpu", overwrite: bool
     written = skipped = 0
     try:
         for source, mesh_file in jobs:
+            mesh_file = mesher.target(mesh_file)
             if mesh_file.exists() and not overwrite:
                 skipped += 1
             else:

@@ -118,6 +118,12 @@ def obj_bytes(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | Non
     """The OBJ text of a mesh: ``v`` as ``%.6f``, ``vn`` as ``%.4f``, ``f a//a b//b c//c``
     (1-based), formatted by a kernel on the CPU: Python's own formatting took about half a
     second per 200k-triangle frame, as long as meshing it."""
+    return b"".join(obj_chunks(vertices, faces, normals))
+
+
+def obj_chunks(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> list:
+    """:func:`obj_bytes` as a list of byte buffers (the header and the kernel's text, not
+    copied into one): write them one after the other."""
     v = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
     f = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
     if not np.all(np.isfinite(v)):
@@ -141,4 +147,4 @@ def obj_bytes(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | Non
               wp.array(f.reshape(-1), dtype=wp.int32, device=cpu), int(has_normals), coord_width, index_width,
               wp.vec3i(v_len, n_len, f_len), buf]
     launch_particles(format_obj, n_lines, inputs, cpu)
-    return header + buf.numpy().tobytes()
+    return [header, memoryview(buf.numpy())]

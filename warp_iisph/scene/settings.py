@@ -12,6 +12,7 @@ from .checks import flag, floats, in_range, position, positive, vec3
 METHODS = ("iisph", "wcsph")
 
 SMOOTHING = ("laplacian", "taubin", "none")
+MESH_FORMATS = ("obj", "ply")
 
 PARTICLE_FORMATS = ("ply", "vtu")  # output.format: binary PLY (splashsurf reads it) or VTU (ParaView)
 
@@ -21,7 +22,11 @@ class SurfaceSettings:
     """Surface reconstruction settings, in particle spacings ``h``: ``cell`` the distance-field
     grid's cell (h/2), ``r0`` the particle radius of Zhu & Bridson's distance (h/2), ``radius``
     their kernel radius R (2h); ``smoothing`` ``laplacian`` (the report's), ``taubin`` (keeps
-    droplets' volume) or ``none``, over ``passes`` passes with factors ``lam`` and ``mu``."""
+    droplets' volume) or ``none``, over ``passes`` passes with factors ``lam`` and ``mu``;
+    ``feature_weights``: scale each vertex's smoothing step by the particles near it (1 on the
+    bulk surface, less towards lone droplets, which then keep their volume), as splashsurf's
+    feature weights do; ``format`` the mesh files a run writes: ``obj`` (text, with normals) or
+    ``ply`` (binary)."""
 
     cell: float = 0.5
     r0: float = 0.5
@@ -30,6 +35,8 @@ class SurfaceSettings:
     passes: int = 3
     lam: float = 0.5
     mu: float = -0.53
+    feature_weights: bool = True
+    format: str = "obj"
 
     def validate(self) -> "SurfaceSettings":
         self.cell = in_range(self.cell, "surface.cell", 0.05, 4.0, "particle spacings")
@@ -41,6 +48,11 @@ class SurfaceSettings:
             raise ValueError(f"surface.passes = {self.passes!r}: must be an integer in [0, 100]")
         self.lam = in_range(self.lam, "surface.lam", 0.0, 1.0, "smoothing factor", lo_open=True)
         self.mu = in_range(self.mu, "surface.mu", -1.0, 0.0, "Taubin's inflation factor", hi_open=True)
+        if not isinstance(self.feature_weights, (bool, np.bool_)):
+            raise ValueError(f"surface.feature_weights = {self.feature_weights!r}: must be true or false")
+        self.feature_weights = bool(self.feature_weights)
+        if self.format not in MESH_FORMATS:
+            raise ValueError(f"surface.format = {self.format!r}: must be one of {', '.join(MESH_FORMATS)}")
         return self
 
 

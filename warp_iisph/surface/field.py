@@ -6,16 +6,25 @@ particles' bounding box plus a margin. A node with no particle within ``R`` is o
 (``phi = R``). The lattice is cut into blocks of ``BLOCK``^3 cells; a coarse count of particles
 marks blocks that are all air (EMPTY) or all deep liquid (FULL), and only the rest (SURFACE)
 are stored and computed, so memory and work follow the surface's area, not the tank's volume.
+
+The particles are grouped by coarse cell (size R, a counting sort), and each stored block
+splats the particles of the coarse cells within R of it onto its nodes (``splat_blocks``):
+per particle only the rows of 8 nodes along z that its ball reaches, all 8 weights of a row at
+once, into sums that stay in cache; then ``phi`` per node. Nodes on a face shared with a FULL
+block take -r0, as that block's nodes do, so the cells of unstored blocks never cross.
 """
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
-from ..engine.launch import launch_particles
+from ..engine.launch import get_threads, launch_particles
+
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
 
 
 @wp.func
@@ -24,13 +33,6 @@ def _coarse_index(p: wp.vec3, lower: wp.vec3, C: float, cdims: wp.vec3i) -> wp.v
     return wp.vec3i(
         wp.clamp(int(q[0]), 0, cdims[0] - 1), wp.clamp(int(q[1]), 0, cdims[1] - 1), wp.clamp(int(q[2]), 0, cdims[2] - 1)
     )
-
-
-@wp.kernel
-def count_coarse(x: wp.array(dtype=wp.vec3), lower: wp.vec3, C: float, cdims: wp.vec3i, counts: wp.array(dtype=wp.int32)):
-    # atomics: one launch, never split
-    c = _coarse_index(x[wp.tid()], lower, C, cdims)
-    wp.atomic_add(counts, (c[0] * cdims[1] + c[1]) * cdims[2] + c[2], 1)
 
 
 BLOCK = wp.constant(8)  # cells per block side: the field and marching cubes live on blocks near the surface
@@ -71,24 +73,19 @@ def coarse_kind(counts: wp.array(dtype=wp.int32), cdims: wp.vec3i, c0: wp.vec3i,
 
 @wp.kernel
 def compact_blocks(
+    offset: int,
     kind: wp.array(dtype=wp.int32),
     slot: wp.array(dtype=wp.int32),
     block_map: wp.array(dtype=wp.int32),
     blocks: wp.array(dtype=wp.int32),
 ):
     # a scatter through an exclusive scan of the SURFACE flags; each thread writes its own slots
-    b = wp.tid()
+    b = wp.tid() + offset
     if kind[b] == SURFACE:
         block_map[b] = slot[b]
         blocks[slot[b]] = b
     else:
         block_map[b] = -1
-
-
-@wp.kernel
-def surface_flags(kind: wp.array(dtype=wp.int32), flag: wp.array(dtype=wp.int32)):
-    b = wp.tid()
-    flag[b] = wp.where(kind[b] == SURFACE, 1, 0)
 
 
 @wp.struct
@@ -169,107 +166,155 @@ def classify_blocks(
     counts: wp.array(dtype=wp.int32),
     cdims: wp.vec3i,
     full: int,
+    flag: wp.array(dtype=wp.int32),
 ):
     """Each block's kind: the narrow-band test over the coarse cells of all its nodes, from its
-    lowest to its highest; only SURFACE blocks are stored and meshed."""
+    lowest to its highest; only SURFACE blocks (``flag`` 1) are stored and meshed."""
     b = wp.tid() + offset
     bc = unflatten_block(f, b)
     c0 = _coarse_index(node_position(f, bc, wp.vec3i(0, 0, 0)), f.lower, R, cdims)
     c1 = _coarse_index(node_position(f, bc, wp.vec3i(BLOCK, BLOCK, BLOCK)), f.lower, R, cdims)
-    f.kind[b] = coarse_kind(counts, cdims, c0, c1, full)
+    kind = coarse_kind(counts, cdims, c0, c1, full)
+    f.kind[b] = kind
+    flag[b] = wp.where(kind == SURFACE, 1, 0)
 
 
-SUB = wp.constant(2)  # signed_distance gives each thread a cube of SUB^3 nodes: one grid query for all
-SUBS = wp.constant(BLOCK // SUB)
-Float8 = wp.types.vector(length=8, dtype=float)  # one value per node of a 2x2x2 cube
-
-
-@wp.func
-def sub_corner(c: int) -> wp.vec3i:
-    return wp.vec3i(c // 4, (c // 2) % 2, c % 2)
+ROWS = wp.constant(BLOCK * BLOCK)  # a block's nodes as rows of BLOCK along z
+Float8 = wp.types.vector(length=8, dtype=float)  # one row of a block's nodes (BLOCK = 8)
+assert BLOCK == 8, "the splat works on rows of 8 nodes"
 
 
 @wp.kernel
-def signed_distance(
+def count_and_rank(
+    x: wp.array(dtype=wp.vec3), lower: wp.vec3, C: float, cdims: wp.vec3i, counts: wp.array(dtype=wp.int32),
+    rank: wp.array(dtype=wp.int32),
+):
+    # atomics: one launch, never split (on the CPU the ranks follow the particle order)
+    c = _coarse_index(x[wp.tid()], lower, C, cdims)
+    rank[wp.tid()] = wp.atomic_add(counts, (c[0] * cdims[1] + c[1]) * cdims[2] + c[2], 1)
+
+
+@wp.kernel
+def sort_by_coarse_cell(
     offset: int,
-    f: BlockField,
-    grid: wp.uint64,
     x: wp.array(dtype=wp.vec3),
+    lower: wp.vec3,
+    C: float,
+    cdims: wp.vec3i,
+    start: wp.array(dtype=wp.int32),
+    rank: wp.array(dtype=wp.int32),
+    xs: wp.array(dtype=wp.vec3),
+):
+    """The positions grouped by coarse cell (cells of size R, x-major): a block finds the
+    particles near it as one contiguous range per (cx, cy) column of coarse cells."""
+    i = wp.tid() + offset
+    c = _coarse_index(x[i], lower, C, cdims)
+    xs[start[(c[0] * cdims[1] + c[1]) * cdims[2] + c[2]] + rank[i]] = x[i]
+
+
+@wp.kernel
+def splat_blocks(
+    offset: int,
+    workers: int,
+    f: BlockField,
+    xs: wp.array(dtype=wp.vec3),
+    start: wp.array(dtype=wp.int32),
+    cdims: wp.vec3i,
     R: float,
     r0: float,
-    counts: wp.array(dtype=wp.int32),
-    cdims: wp.vec3i,
-    full: int,
+    acc: wp.array(dtype=Float8),
 ):
-    """Zhu & Bridson's distance at the 8 nodes of one 2x2x2 cube of a stored block: one grid
-    query (radius R plus the cube's half-diagonal) serves all 8, whose candidates it reads once;
-    each node sums the particles within R in the order its own query would visit them."""
-    n = wp.tid() + offset
-    kb = n // (SUBS * SUBS * SUBS)
-    m = n % (SUBS * SUBS * SUBS)
-    bc = block_coords(f, kb)
-    l0 = SUB * wp.vec3i(m // (SUBS * SUBS), (m // SUBS) % SUBS, m % SUBS)
-    base = kb * CELLS3
-    px = Float8()
-    py = Float8()
-    pz = Float8()
-    for c in range(8):
-        p = node_position(f, bc, l0 + sub_corner(c))
-        px[c] = p[0]
-        py[c] = p[1]
-        pz[c] = p[2]
-    # narrow band, per node: outside (EMPTY) and deep inside (FULL) need no sum; the 8 nodes
-    # share one coarse cell (and so one test) unless the cube straddles a cell boundary
-    ca = _coarse_index(wp.vec3(px[0], py[0], pz[0]), f.lower, R, cdims)
-    cb = _coarse_index(wp.vec3(px[7], py[7], pz[7]), f.lower, R, cdims)
-    shared = int(-1)
-    if ca[0] == cb[0] and ca[1] == cb[1] and ca[2] == cb[2]:
-        shared = coarse_kind(counts, cdims, ca, ca, full)
-    active = int(0)
-    for c in range(8):
-        slot = base + local_slot(l0 + sub_corner(c))
-        kind = shared
-        if kind < 0:
-            cc = _coarse_index(wp.vec3(px[c], py[c], pz[c]), f.lower, R, cdims)
-            kind = coarse_kind(counts, cdims, cc, cc, full)
-        if kind == EMPTY:
-            f.phi[slot] = R
-        elif kind == FULL:
-            f.phi[slot] = -r0
-        else:
-            active = active | (1 << c)
-    if active == 0:
-        return
-    half = 0.5 * f.cell
-    center = wp.vec3(px[0] + half, py[0] + half, pz[0] + half)
-    reach = R + wp.sqrt(3.0) * half
-    reach2 = reach * reach
-    inv_R2 = 1.0 / (R * R)
-    wsum = Float8()
-    sx = Float8()
-    sy = Float8()
-    sz = Float8()
-    for q in wp.hash_grid_query(grid, center, reach):
-        xq = x[q]
-        dc = xq - center
-        if wp.dot(dc, dc) < reach2:
-            for c in range(8):
-                d = xq - wp.vec3(px[c], py[c], pz[c])
-                s2 = wp.dot(d, d) * inv_R2
-                if s2 < 1.0:
-                    t = 1.0 - s2
-                    w = t * t * t
-                    wsum[c] = wsum[c] + w
-                    sx[c] = sx[c] + w * xq[0]
-                    sy[c] = sy[c] + w * xq[1]
-                    sz[c] = sz[c] + w * xq[2]
-    for c in range(8):
-        if (active >> c) & 1:
-            phi = R
-            if wsum[c] > 0.0:
-                xbar = wp.vec3(sx[c], sy[c], sz[c]) / wsum[c]
-                phi = wp.length(wp.vec3(px[c], py[c], pz[c]) - xbar) - r0
-            f.phi[base + local_slot(l0 + sub_corner(c))] = phi
+    """Zhu & Bridson's distance at every node of the stored blocks ``w, w + workers, ...`` of
+    worker ``w``: each block gathers the particles of the coarse cells within ``R`` of it and
+    splats them onto its nodes' sums (in ``acc``, the worker's own 4 x 64 rows), then
+    ``phi = |x - xbar| - r0`` (``R`` where no particle is within R). A block is one worker's
+    whole job, so splitting the workers over threads changes no bit."""
+    wk = wp.tid() + offset
+    ab = wk * ROWS * 4
+    c = f.cell
+    inv_c = 1.0 / c
+    R2 = R * R
+    inv_R2 = 1.0 / R2
+    top = float(BLOCK - 1) * c
+    kz = Float8()
+    for k in range(BLOCK):
+        kz[k] = float(k) * c
+    zero = Float8()
+    for kb in range(wk, f.blocks.shape[0], workers):
+        bc = block_coords(f, kb)
+        lo = node_position(f, bc, wp.vec3i(0, 0, 0))
+        for m in range(ROWS * 4):
+            acc[ab + m] = zero
+        c0 = _coarse_index(lo - wp.vec3(R), f.lower, R, cdims)
+        c1 = _coarse_index(lo + wp.vec3(top + R), f.lower, R, cdims)
+        for cx in range(c0[0], c1[0] + 1):
+            for cy in range(c0[1], c1[1] + 1):
+                col = (cx * cdims[1] + cy) * cdims[2]
+                for q in range(start[col + c0[2]], start[col + c1[2] + 1]):
+                    # particle q relative to the block's first node, splatted onto the nodes within
+                    # R, a row of 8 along z at a time (weights zero beyond R): only the rows its
+                    # ball reaches are visited
+                    p = xs[q] - lo
+                    gz = wp.max(0.0, wp.max(-p[2], p[2] - top))  # to the nearest node of a row, along z
+                    r2 = R2 - gz * gz  # what is left for the row's distance in x and y
+                    if r2 > 0.0 and wp.max(p) < top + R and wp.min(p) > -R:
+                        ri = wp.sqrt(r2)
+                        i0 = wp.max(0, int(wp.ceil((p[0] - ri) * inv_c)))
+                        i1 = wp.min(BLOCK - 1, int(wp.floor((p[0] + ri) * inv_c)))
+                        dz = kz - Float8(p[2], p[2], p[2], p[2], p[2], p[2], p[2], p[2])
+                        dz2 = wp.cw_mul(dz, dz)
+                        i = i0
+                        while i <= i1:
+                            dx = float(i) * c - p[0]
+                            rx = r2 - dx * dx
+                            if rx > 0.0:
+                                rj = wp.sqrt(rx)
+                                j = wp.max(0, int(wp.ceil((p[1] - rj) * inv_c)))
+                                j1 = wp.min(BLOCK - 1, int(wp.floor((p[1] + rj) * inv_c)))
+                                row = ab + 4 * (i * BLOCK + j)
+                                while j <= j1:
+                                    dy = float(j) * c - p[1]
+                                    e = R2 - dx * dx - dy * dy
+                                    t = wp.max(Float8(e, e, e, e, e, e, e, e) - dz2, zero) * inv_R2
+                                    w = wp.cw_mul(wp.cw_mul(t, t), t)
+                                    acc[row] = acc[row] + w * p[0]
+                                    acc[row + 1] = acc[row + 1] + w * p[1]
+                                    acc[row + 2] = acc[row + 2] + w * p[2]
+                                    acc[row + 3] = acc[row + 3] + w
+                                    row += 4
+                                    j += 1
+                            i += 1
+        # the FULL blocks below this one (bit e: the block at bc - (e >> 2, (e >> 1) & 1, e & 1)):
+        # the nodes on the faces they share hold -r0, as every node of a FULL block does, so
+        # that the cells of those unstored blocks have no crossing (EMPTY neighbours need no
+        # such care: no particle is within R of their nodes, so the sums give exactly R)
+        full_below = int(0)
+        for e in range(1, 8):
+            nb = bc - wp.vec3i((e >> 2) & 1, (e >> 1) & 1, e & 1)
+            if nb[0] >= 0 and nb[1] >= 0 and nb[2] >= 0:
+                if f.kind[(nb[0] * f.block_dims[1] + nb[1]) * f.block_dims[2] + nb[2]] == FULL:
+                    full_below = full_below | (1 << e)
+        base = kb * CELLS3
+        for r in range(ROWS):
+            sx = acc[ab + 4 * r]
+            sy = acc[ab + 4 * r + 1]
+            sz = acc[ab + 4 * r + 2]
+            sw = acc[ab + 4 * r + 3]
+            i = r // BLOCK
+            j = r % BLOCK
+            xi = float(i) * c
+            yj = float(j) * c
+            for k in range(BLOCK):
+                phi = R
+                if sw[k] > 0.0:
+                    inv = 1.0 / sw[k]
+                    phi = wp.length(wp.vec3(xi - sx[k] * inv, yj - sy[k] * inv, kz[k] - sz[k] * inv)) - r0
+                if full_below != 0:
+                    faces = wp.where(i == 0, 4, 0) | wp.where(j == 0, 2, 0) | wp.where(k == 0, 1, 0)
+                    for e in range(1, 8):
+                        if (e & faces) == e and ((full_below >> e) & 1) == 1:
+                            phi = -r0
+                f.phi[base + r * BLOCK + k] = phi
 
 
 @dataclass
@@ -280,12 +325,17 @@ class SparseField:
     ``BLOCK * block_dims + 1`` nodes per axis. ``device.phi`` holds the ``BLOCK``^3 nodes at the
     lower corner of each stored block (flat block numbers in ``device.blocks``); ``device.kind``
     says for every block whether it is EMPTY (phi = R everywhere), FULL (phi = -r0) or SURFACE
-    (stored)."""
+    (stored). ``coarse_start`` holds where each coarse cell's particles start in the grouped
+    order (cells of size ``coarse_cell`` = R from ``lower``, ``coarse_dims`` of them, x-major,
+    one more entry for the end): their differences are the particle counts per cell."""
 
     device: BlockField
     block_dims: tuple
     lower: np.ndarray
     cell: float
+    coarse_start: wp.array | None = None
+    coarse_dims: tuple = ()
+    coarse_cell: float = 0.0
 
     @property
     def node_dims(self) -> tuple:
@@ -336,22 +386,76 @@ def exclusive_scan(flags: wp.array) -> tuple[wp.array, int]:
     inclusive sum is written one element on, after a leading zero."""
     n = flags.shape[0]
     sums = wp.empty(n + 1, dtype=flags.dtype, device=flags.device)
-    sums[:1].zero_()
+    starts = scan_with_total(flags, sums)
+    return starts[:n], int(starts[n:].numpy()[0])
+
+
+def scan_with_total(flags: wp.array, out: wp.array) -> wp.array:
+    """``out[: n + 1]`` = 0 followed by the inclusive prefix sums of ``flags`` (n of them): the
+    start of each element's range, and their end. No read back to the host."""
+    n = flags.shape[0]
+    out = out[: n + 1]
+    out[:1].zero_()
     if n:
-        wp.utils.array_scan(flags, sums[1:], inclusive=True)
-    return sums[:n], int(sums[n:].numpy()[0])
+        wp.utils.array_scan(flags, out[1:], inclusive=True)
+    return out
 
 
-def sparse_distance_field(x: np.ndarray | wp.array, h: float, params, grid: wp.HashGrid, device) -> SparseField:
+class Workspace:
+    """Scratch arrays kept from frame to frame, grown by a quarter when too small: on the CPU a
+    fresh array costs a page fault per 4 KiB on first touch (about 0.7 ms per MB here), more
+    than some of the kernels that fill it."""
+
+    def __init__(self, device):
+        self.device = wp.get_device(device)
+        self._arrays: dict = {}
+
+    def get(self, name: str, n: int, dtype) -> wp.array:
+        """An uninitialised array of ``n`` elements of ``dtype`` (valid until the next ``get``
+        of the same name)."""
+        a = self._arrays.get(name)
+        if a is None or a.shape[0] < n or a.dtype is not dtype:
+            a = wp.empty(max(n + n // 4, 1), dtype=dtype, device=self.device)
+            self._arrays[name] = a
+        return a[:n]
+
+    def zeros(self, name: str, n: int, dtype) -> wp.array:
+        a = self.get(name, n, dtype)
+        a.zero_()
+        return a
+
+
+def splat_workers(n_blocks: int, device) -> int:
+    """How many workers share the stored blocks: on the CPU a few per thread (each reuses one
+    8 KiB set of sums, hot in cache, and takes every workers-th block, so the threads get
+    alike shares of the surface); on CUDA one per block."""
+    if wp.get_device(device).is_cpu:
+        return max(1, min(n_blocks, 16 * get_threads()))
+    return max(1, n_blocks)
+
+
+def substage(times, name: str):
+    """``times(name)`` when fine-grained stage times are asked for (a ``StageTimes``), else nothing."""
+    return nullcontext() if times is None else times(name)
+
+
+def sparse_distance_field(x: np.ndarray | wp.array, h: float, params, device, work: Workspace | None = None,
+                          times=None) -> SparseField:
     """The signed distance on the blocks near the surface of particle positions ``x`` (spacing
-    ``h``; ``params``: the scene's surface settings, in spacings; ``grid``: a hash grid to reuse)."""
+    ``h``; ``params``: the scene's surface settings, in spacings). The field's arrays live in
+    ``work`` (a fresh workspace if none): valid until its next use. ``times``: a ``StageTimes``
+    that gets the seconds of each step (upload, bounds, sort, classify, splat), or None."""
     p = params
+    work = work or Workspace(device)
     cell, R, r0 = p.cell * h, p.radius * h, p.r0 * h
-    if isinstance(x, wp.array):
-        xd = x
-    else:
-        xd = wp.array(np.asarray(x, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
-    lo, hi, bad = particle_box(xd)
+    with substage(times, "upload"):
+        if isinstance(x, wp.array):
+            xd = x
+        else:
+            xd = wp.array(np.asarray(x, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    n = xd.shape[0]
+    with substage(times, "bounds"):
+        lo, hi, bad = particle_box(xd)
     if bad:
         raise ValueError(f"{bad} particles have non-finite positions")
     margin = R + 2.0 * cell
@@ -360,27 +464,35 @@ def sparse_distance_field(x: np.ndarray | wp.array, h: float, params, grid: wp.H
     n_blocks = int(np.prod(block_dims))
     if float(np.prod(block_dims.astype(float))) > 2.0**31 / (3 * CELLS3):
         raise ValueError(f"mesh grid of {(BLOCK * block_dims + 1).tolist()} nodes is too large; increase the cell size")
-    grid.build(xd, R)
     cdims = np.ceil(block_dims * BLOCK * cell / R).astype(int) + 1
-    counts = wp.zeros(int(np.prod(cdims)), dtype=wp.int32, device=device)
+    n_coarse = int(np.prod(cdims))
     cd = wp.vec3i(*[int(c) for c in cdims])
     f = BlockField()
     f.block_dims = wp.vec3i(*[int(b) for b in block_dims])
     f.lower = wp.vec3(*lower.tolist())
     f.cell, f.outside, f.inside = float(cell), float(R), float(-r0)
-    wp.launch(count_coarse, dim=xd.shape[0], inputs=[xd, f.lower, float(R), cd, counts], device=device)
-    # a cube of side R = 2h holds about (R/h)^3 = 8 particles; "full" leaves room for jitter
-    full = max(1, int(0.75 * (R / h) ** 3))
-    f.kind = wp.empty(n_blocks, dtype=wp.int32, device=device)
-    launch_particles(classify_blocks, n_blocks, [f, float(R), counts, cd, full], device)
-    flag = wp.empty_like(f.kind)
-    wp.launch(surface_flags, dim=n_blocks, inputs=[f.kind, flag], device=device)
-    slot, n_surface = exclusive_scan(flag)
-    f.block_map = wp.empty_like(f.kind)
-    blocks = wp.empty(max(n_surface, 1), dtype=wp.int32, device=device)
-    wp.launch(compact_blocks, dim=n_blocks, inputs=[f.kind, slot, f.block_map, blocks], device=device)
-    f.blocks = blocks[:n_surface]
-    f.phi = wp.empty(n_surface * CELLS3, dtype=float, device=device)
-    launch_particles(signed_distance, n_surface * SUBS**3,
-                     [f, grid.id, xd, float(R), float(r0), counts, cd, full], device)
-    return SparseField(f, tuple(int(b) for b in block_dims), lower, cell)
+    with substage(times, "sort"):  # particles counted and grouped by coarse cell (size R)
+        counts = work.zeros("counts", n_coarse, wp.int32)
+        rank = work.get("rank", n, wp.int32)
+        wp.launch(count_and_rank, dim=n, inputs=[xd, f.lower, float(R), cd, counts, rank], device=device)
+        start = scan_with_total(counts, work.get("start", n_coarse + 1, wp.int32))
+        xs = work.get("sorted", n, wp.vec3)
+        launch_particles(sort_by_coarse_cell, n, [xd, f.lower, float(R), cd, start, rank, xs], device)
+    with substage(times, "classify"):
+        # a cube of side R = 2h holds about (R/h)^3 = 8 particles; "full" leaves room for jitter
+        full = max(1, int(0.75 * (R / h) ** 3))
+        f.kind = work.get("kind", n_blocks, wp.int32)
+        flag = work.get("flag", n_blocks, wp.int32)
+        launch_particles(classify_blocks, n_blocks, [f, float(R), counts, cd, full, flag], device)
+        slot = scan_with_total(flag, work.get("slot", n_blocks + 1, wp.int32))
+        n_surface = int(slot[n_blocks:].numpy()[0])
+        f.block_map = work.get("block_map", n_blocks, wp.int32)
+        blocks = work.get("blocks", max(n_surface, 1), wp.int32)
+        launch_particles(compact_blocks, n_blocks, [f.kind, slot, f.block_map, blocks], device)
+        f.blocks = blocks[:n_surface]
+    with substage(times, "splat"):
+        f.phi = work.get("phi", n_surface * CELLS3, float)
+        workers = splat_workers(n_surface, device)
+        acc = work.get("sums", workers * ROWS * 4, Float8)
+        launch_particles(splat_blocks, workers, [workers, f, xs, start, cd, float(R), float(r0), acc], device, min_chunk=1)
+    return SparseField(f, tuple(int(b) for b in block_dims), lower, cell, start, tuple(int(c) for c in cdims), float(R))

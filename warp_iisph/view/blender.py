@@ -52,7 +52,7 @@ import sys
 import bpy
 import mathutils
 
-FRAMES = {frames}  # [frame number, OBJ file]
+FRAMES = {frames}  # [frame number, mesh file (OBJ or PLY)]
 USD = {usd!r}  # the run's USD stage, imported instead of the OBJ files when set
 FPS = {fps}
 COLOR = {color}          # colour seen through {thickness_cm:g} cm of the liquid
@@ -108,8 +108,10 @@ def imported(load):
     return [o for o in bpy.data.objects if o not in before]
 
 
-def obj_import(path):
-    return imported(lambda: bpy.ops.wm.obj_import(filepath=path, forward_axis="NEGATIVE_Z", up_axis="Y"))
+def mesh_import(path):
+    # meshes are OBJ or binary PLY (surface.format), both written y-up
+    load = bpy.ops.wm.ply_import if path.lower().endswith(".ply") else bpy.ops.wm.obj_import
+    return imported(lambda: load(filepath=path, forward_axis="NEGATIVE_Z", up_axis="Y"))
 
 
 if USD:
@@ -128,8 +130,8 @@ else:
     # one mesh datablock per frame, kept in the file (fake user); one object shows the current one
     def sequence(name, frames, material, smooth=True):
         for frame, path in frames:
-            objects = obj_import(path)
-            mesh = objects[0].data if objects else bpy.data.meshes.new(name)  # an empty OBJ: an empty mesh
+            objects = mesh_import(path)
+            mesh = objects[0].data if objects else bpy.data.meshes.new(name)  # an empty file: an empty mesh
             for obj in objects:
                 bpy.data.objects.remove(obj, do_unlink=True)
             mesh.name = name + "_%05d" % frame
@@ -144,7 +146,7 @@ else:
     if OBSTACLE_FRAMES:
         sequence("obstacles", OBSTACLE_FRAMES, stone, smooth=False)
     elif OBSTACLES:
-        for obj in obj_import(OBSTACLES):
+        for obj in mesh_import(OBSTACLES):
             obj.name = "obstacles"
             dress(obj.data, stone, smooth=False)
     text = bpy.data.texts.get("warp_iisph_liquid.py") or bpy.data.texts.new("warp_iisph_liquid.py")

@@ -132,7 +132,7 @@ def scene_dict(mesh_path: Path | None, camera, floor_y: float, extent: float, co
     }
     if mesh_path is not None:
         d["liquid"] = {
-            "type": "obj", "filename": str(mesh_path), "face_normals": False,
+            "type": Path(mesh_path).suffix.lstrip(".").lower(), "filename": str(mesh_path), "face_normals": False,
             "bsdf": {"type": "dielectric", "int_ior": IOR, "ext_ior": 1.0},
             "interior": {"type": "homogeneous", "albedo": 0.0, "scale": scale,
                          "sigma_t": {"type": "rgb", "value": [float(s / scale) for s in sigma]}},
