@@ -75,7 +75,9 @@ class State:
     """Per-particle fluid data: position ``x``, velocity ``v``, density ``rho``, pressure ``p``
     and the particle's identity ``id`` (particles are reordered in memory by grid cell). The
     arrays hold ``capacity`` particles, the first ``count`` of which are the liquid (emitters add
-    particles, sinks remove them; ``next_id`` names the next one emitted)."""
+    particles, sinks remove them; ``next_id`` names the next one emitted). ``carried`` holds a
+    solver's own per-particle arrays that outlive a step (DFSPH's warm starts): they move with
+    the particles, start at zero for emitted ones and go into checkpoints (:meth:`carry`)."""
 
     x: wp.array
     v: wp.array
@@ -84,6 +86,7 @@ class State:
     id: wp.array
     count: int = -1
     next_id: int = -1
+    carried: dict = field(default_factory=dict)
     _scratch: dict = field(default_factory=dict, repr=False)  # reorder's buffers, one per dtype
 
     def __post_init__(self):
@@ -99,6 +102,17 @@ class State:
     @property
     def capacity(self) -> int:
         return int(self.x.shape[0])
+
+    def carry(self, name: str, array: wp.array) -> None:
+        """Keep ``array`` (one value per particle, ``capacity`` long) with the particles."""
+        if array.shape[0] != self.capacity or array.dtype not in _GATHER:
+            raise ValueError(f"carry {name!r}: needs {self.capacity} values of float32, int32 or vec3")
+        self.carried[name] = array
+
+    def clear_carried(self, first: int, count: int) -> None:
+        """Zero the carried values of particles ``first .. first + count - 1`` (just emitted)."""
+        for array in self.carried.values():
+            array[first : first + count].zero_()
 
     def keep(self, indices: np.ndarray) -> None:
         """Keep only the particles at ``indices`` (in that order): the others leave the liquid."""
@@ -118,8 +132,7 @@ class State:
         graphs point at)."""
         n = self.n
         scratch = self._scratch
-        for name in ("x", "v", "rho", "p", "id"):
-            src = getattr(self, name)
+        for src in [getattr(self, name) for name in ("x", "v", "rho", "p", "id")] + list(self.carried.values()):
             tmp = scratch.get(src.dtype)
             if tmp is None:
                 tmp = scratch[src.dtype] = wp.empty_like(src)

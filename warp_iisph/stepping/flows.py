@@ -78,6 +78,7 @@ class Flows:
                     velocity = wp.vec3(*(e.speed * np.asarray(e.direction)))
                     wp.launch(emit_layer, dim=m, device=self.device, inputs=[
                         s.count, wp.vec3(*e.center), layer, velocity, self.rho0, s.next_id, s.x, s.v, s.rho, s.p, s.id])
+                    s.clear_carried(s.count, m)  # no warm start from a particle that left
                     s.count += m
                     s.next_id += m
                     added += m

@@ -32,9 +32,10 @@ class LoopGraph:
         self._backup = [wp.empty_like(a) for a in self._sources()]
 
     def _sources(self) -> list:
-        """What a replay changes and a redo restores: the particles and the last step's top speed."""
+        """What a replay changes and a redo restores: the particles (with the solver's warm
+        starts) and the last step's top speed."""
         s = self.loop.state
-        return [s.x, s.v, s.rho, s.p, s.id, self.loop.max_speed2]
+        return [s.x, s.v, s.rho, s.p, s.id, *s.carried.values(), self.loop.max_speed2]
 
     def _generations(self) -> tuple:
         """What a recorded graph depends on: the neighbour storage, and the particle count (an

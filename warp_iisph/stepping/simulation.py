@@ -28,7 +28,7 @@ class DivergenceError(RuntimeError):
 
 
 class Simulation:
-    """Runs a :class:`~warp_iisph.scene.Scene` with IISPH or WCSPH on one Warp device.
+    """Runs a :class:`~warp_iisph.scene.Scene` with IISPH, DFSPH or WCSPH on one Warp device.
 
     Example::
 
@@ -50,6 +50,8 @@ class Simulation:
         self.model, self.state = build_model(self.scene, device, until)
         self.device = self.model.device
         self.solver = make_solver(self.model)
+        for name, array in getattr(self.solver, "carried", {}).items():  # a solver's warm starts move with the particles
+            self.state.carry(name, array)
         self.time = 0.0
         self.step_count = 0
         self.stats: list[dict] | deque = [] if history is None else deque(maxlen=max(1, int(history)))
@@ -137,11 +139,13 @@ class Simulation:
 
     def checkpoint(self) -> dict:
         """Everything the next step depends on, as NumPy arrays: the particles in their memory
-        order, the clock, the step count (the reorder schedule) and the top speed (the CFL rule).
+        order (with the solver's warm starts), the clock, the step count (the reorder schedule)
+        and the top speed (the CFL rule).
         A simulation restored from it continues bitwise as this one would."""
         s = self.state
         # copies: on the CPU .numpy() is a view of the live arrays
         out = {name: getattr(s, name).numpy()[: s.n].copy() for name in ("x", "v", "rho", "p", "id")}
+        out.update({f"carried_{name}": array.numpy()[: s.n].copy() for name, array in s.carried.items()})
         out.update(max_speed2=self.loop.max_speed2.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
                    method=np.array(self.physics.method), next_id=np.int64(s.next_id), **self.flows.checkpoint())
         return out
@@ -156,6 +160,11 @@ class Simulation:
             raise ValueError(f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}")
         for name in ("x", "v", "rho", "p", "id"):
             getattr(s, name)[:n].assign(checkpoint[name])
+        for name, array in s.carried.items():
+            key = f"carried_{name}"
+            if key not in checkpoint:
+                raise ValueError(f"checkpoint: has no {name} (the {self.physics.method} solver's warm start)")
+            array[:n].assign(checkpoint[key])
         s.count = n
         s.next_id = int(checkpoint.get("next_id", n))
         self.flows.restore(checkpoint)

@@ -101,6 +101,18 @@ def reorder_due(steps: wp.array(dtype=wp.int32), interval: int, due: wp.array(dt
 
 
 @wp.kernel
+def record_mean(slot: wp.array(dtype=wp.int32), n: int, total: wp.array(dtype=wp.float64), column: int, log: wp.array2d(dtype=wp.float64)):
+    """A solver's own statistic, a sum over particles, as its mean in the step's log row."""
+    log[slot[0], column] = total[0] / wp.float64(n)
+
+
+@wp.kernel
+def record_count(slot: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), column: int, log: wp.array2d(dtype=wp.float64)):
+    """A solver's own count (iterations) in the step's log row."""
+    log[slot[0], column] = wp.float64(count[0])
+
+
+@wp.kernel
 def record_step(
     n: int,
     velocity_limit: wp.float64,
@@ -150,7 +162,9 @@ class TimeLoop:
     """The device state of the loop over steps of ``solver`` on ``model``/``state``, and its body.
 
     ``velocity_scale`` is the speed the CFL rule assumes at least (sqrt(2 g y_top)), and
-    ``velocity_limit`` the speed beyond which a step counts as diverged."""
+    ``velocity_limit`` the speed beyond which a step counts as diverged. A solver with an
+    ``extra_stats()`` (name: device scalar, a float64 sum over particles logged as its mean, or
+    an int32 count) has those logged too, after :data:`LOG_FIELDS`."""
 
     def __init__(self, model, state, solver, velocity_scale: float, velocity_limit: float, log_capacity: int = 256):
         self.model, self.state, self.solver = model, state, solver
@@ -161,6 +175,8 @@ class TimeLoop:
         # (a fixed dt is the user's choice and left alone)
         self.dt_limit = min(self.physics.dt_max, viscous_dt_limit(model.spacing, self.physics))
         self.capacity = int(log_capacity)
+        self.extra = dict(solver.extra_stats()) if hasattr(solver, "extra_stats") else {}
+        self.fields = LOG_FIELDS + tuple(self.extra)
         dev = model.device
         f64 = wp.float64
         self.time = wp.zeros(1, dtype=f64, device=dev)
@@ -175,7 +191,7 @@ class TimeLoop:
         self.needed = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed2 = wp.zeros(1, dtype=float, device=dev)  # the last step's top speed, squared: the CFL rule's
         self.counts = wp.zeros(2, dtype=wp.int32, device=dev)  # particles out of the domain, non-finite
-        self.log = wp.zeros((self.capacity, len(LOG_FIELDS)), dtype=f64, device=dev)
+        self.log = wp.zeros((self.capacity, len(self.fields)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
 
     def start(self, time: float, steps: int, end: float, dt: float | None = None, step_limit: int | None = None) -> None:
@@ -212,6 +228,11 @@ class TimeLoop:
             self.counts.zero_()
             wp.launch(check_state, dim=state.n, device=dev, inputs=[
                 state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self.max_speed2, self.counts])
+        for column, (name, value) in enumerate(self.extra.items(), len(LOG_FIELDS)):  # before record_step moves the slot on
+            if value.dtype == wp.float64:
+                wp.launch(record_mean, dim=1, device=dev, inputs=[self.slot, max(state.n, 1), value, column, self.log])
+            else:
+                wp.launch(record_count, dim=1, device=dev, inputs=[self.slot, value, column, self.log])
         wp.launch(record_step, dim=1, device=dev, inputs=[
             max(state.n, 1), f64(self.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
             self.max_speed2, self.counts, model.containment.corrections, self.needed, search.fluid.needed,
@@ -239,8 +260,9 @@ class TimeLoop:
         rows = self.log.numpy()[:k]
         out = []
         for row in rows:
-            rec = dict(zip(LOG_FIELDS, (float(v) for v in row)))
-            for key in ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections"):
+            rec = dict(zip(self.fields, (float(v) for v in row)))
+            counts = [k for k, v in self.extra.items() if v.dtype != wp.float64]
+            for key in ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections", *counts):
                 rec[key] = int(rec[key])
             out.append(rec)
         return out
