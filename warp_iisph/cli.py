@@ -11,6 +11,8 @@ import argparse
 import signal
 import sys
 
+from .scene.settings import METHODS
+
 EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 2, 1, 130, 143
 
 
@@ -35,7 +37,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     run.add_argument("--out", default=None, help="output folder (default runs/SCENE_NAME)")
     run.add_argument("--spacing", type=float, default=None, help="particle spacing h in metres (same as --set spacing=H)")
-    run.add_argument("--method", choices=("iisph", "wcsph"), default=None, help="pressure solver (same as --set physics.method=M)")
+    run.add_argument("--method", choices=METHODS, default=None, help="pressure solver (same as --set physics.method=M)")
     run.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
         help="override a scene-file key, e.g. --set spacing=0.01 --set physics.eta=0.0005 --set fluids.0.radius=0.1",

@@ -343,7 +343,7 @@ class StepTotals:
         for k in self.corrections:
             self.corrections[k] += rec.get(k, 0)
         self.corrected_steps += int(any(rec.get(k, 0) for k in self.corrections))
-        if ph.method == "iisph" and rec["iterations"] >= ph.max_iterations and rec["density_error"] > ph.eta:
+        if ph.method in ("iisph", "dfsph") and rec["iterations"] >= ph.max_iterations and rec["density_error"] > ph.eta:
             self.unconverged += 1
             self.worst_unconverged = max(self.worst_unconverged, rec["density_error"])
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from .checks import flag, floats, in_range, position, positive, vec3
 
-METHODS = ("iisph", "wcsph")
+METHODS = ("iisph", "wcsph", "dfsph")
 
 SMOOTHING = ("laplacian", "taubin", "none")
 MESH_FORMATS = ("obj", "ply")
@@ -106,7 +106,8 @@ class Camera:
 class Physics:
     """Physical and numerical parameters.
 
-    - ``method``: ``"iisph"`` or ``"wcsph"``.
+    - ``method``: ``"iisph"``, ``"wcsph"`` or ``"dfsph"`` (divergence-free SPH, Bender & Koschier
+      2017: a divergence solve and a constant-density solve per step).
     - ``rho0``: rest density (kg/m^3).
     - ``viscosity``: the report's viscosity coefficient mu (m^2/s); 0 switches viscosity off.
       The default 0.05 is SPlisHSPlasH's water-scene viscosity (its "Standard" model, 0.01 with
@@ -118,13 +119,16 @@ class Physics:
     - ``boundary_viscosity``: the same coefficient against the walls (wall friction, m^2/s);
       0 leaves the walls free-slip.
     - ``gravity``: (m/s^2).
-    - ``eta``: IISPH's target average density error, a fraction (0.001 = 0.1 %).
-    - ``max_iterations``: cap on IISPH's relaxed Jacobi iterations; ``min_iterations`` its floor.
+    - ``eta``: IISPH's and DFSPH's target average density error, a fraction (0.001 = 0.1 %).
+    - ``eta_divergence``: DFSPH's target average divergence error, the density that the
+      compression rate ``max(D rho/Dt, 0)`` would add in one step, a fraction of rho0.
+    - ``max_iterations``: cap on IISPH's relaxed Jacobi iterations and on each of DFSPH's two
+      solves; ``min_iterations`` the floor of the pressure (constant-density) solve.
     - ``omega``: Jacobi relaxation factor.
     - ``stiffness``: WCSPH's k in p = k((rho/rho0)^7 - 1) (Pa).
     - ``dt``: fixed time step (s); ``None`` selects the CFL rule
       ``dt = cfl * h / (max|v| + c)`` clamped to ``[dt_min, dt_max]`` (``c`` is WCSPH's speed of
-      sound sqrt(7 k / rho0), 0 for IISPH), and to the viscosity's stability limit
+      sound sqrt(7 k / rho0), 0 for IISPH and DFSPH), and to the viscosity's stability limit
       ``0.625 h^2 / max(viscosity, boundary_viscosity)``.
     - ``max_velocity``: a speed (m/s) beyond which the run counts as diverged; ``None`` derives
       one from the domain height (10 x the free-fall speed over it, at least 10 m/s).
@@ -136,6 +140,7 @@ class Physics:
     boundary_viscosity: float = 0.0
     gravity: tuple = (0.0, -9.81, 0.0)
     eta: float = 1.0e-3
+    eta_divergence: float = 1.0e-3
     max_iterations: int = 100
     min_iterations: int = 2
     omega: float = 0.5
@@ -154,6 +159,8 @@ class Physics:
         self.boundary_viscosity = in_range(self.boundary_viscosity, "physics.boundary_viscosity", 0.0, 1.0, "m^2/s")
         self.gravity = floats(vec3(self.gravity, "physics.gravity"))
         self.eta = in_range(self.eta, "physics.eta", 0.0, 0.5, "fraction of rho0, e.g. 0.001", lo_open=True)
+        self.eta_divergence = in_range(self.eta_divergence, "physics.eta_divergence", 0.0, 0.5, "fraction of rho0 per step, e.g. 0.001",
+                                       lo_open=True)
         for key in ("max_iterations", "min_iterations"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 100_000:

@@ -1,11 +1,13 @@
 """Time-step methods. WCSPH and IISPH share neighbours, density, forces and integration
-(:mod:`.base`); each module adds only its pressure computation."""
+(:mod:`.base`); each module adds only its pressure computation. DFSPH shares the neighbours,
+density and forces and runs its own step (two pressure solves, its own integration)."""
 
 from .base import STAGES, SPHSolver
+from .dfsph import DFSPHSolver
 from .iisph import IISPHSolver
 from .wcsph import WCSPHSolver
 
-SOLVERS = {"iisph": IISPHSolver, "wcsph": WCSPHSolver}
+SOLVERS = {"iisph": IISPHSolver, "wcsph": WCSPHSolver, "dfsph": DFSPHSolver}
 
 
 def make_solver(model) -> SPHSolver:
@@ -13,4 +15,4 @@ def make_solver(model) -> SPHSolver:
     return SOLVERS[model.physics.method](model)
 
 
-__all__ = ["STAGES", "SOLVERS", "SPHSolver", "IISPHSolver", "WCSPHSolver", "make_solver"]
+__all__ = ["STAGES", "SOLVERS", "SPHSolver", "DFSPHSolver", "IISPHSolver", "WCSPHSolver", "make_solver"]

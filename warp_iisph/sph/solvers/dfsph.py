@@ -1,0 +1,400 @@
+"""Divergence-free SPH (Bender & Koschier 2017, IEEE TVCG 23(3)), with Akinci boundaries.
+
+Two pressure solves per step, each a Jacobi iteration on the stiffness ``kappa_i / rho_i`` (the
+paper's kappa over density; the pressure is ``p_i = kappa_i rho_i``), whose velocity change is
+``dv_i = -dt sum_j m (kappa_i/rho_i + kappa_j/rho_j) grad W_ij - dt sum_b psi_b (kappa_i/rho_i) grad W_ib``:
+a wall pushes with the fluid particle's own stiffness (one term, as the walls of IISPH and WCSPH
+here). Setting the change of particle i's density rate that its own stiffness causes (through
+its velocity and its neighbours') against the error gives the factor
+``alpha_i / rho_i = 1 / (|sum_j m grad W_ij + sum_b psi_b grad W_ib|^2 + sum_j |m grad W_ij|^2)``.
+
+A step (stages as :data:`~.base.STAGES`):
+
+- density: ``rho_i`` (Akinci), then ``alpha_i / rho_i``.
+- pressure (divergence solve), on the velocity the last step ended with: until the mean of
+  ``max(D rho_i/Dt, 0) dt / rho0`` is at most ``eta_divergence`` (at least one iteration, at most
+  ``max_iterations``), ``kappa_v_i / rho_i += (D rho_i/Dt) / dt * alpha_i / rho_i`` with
+  ``D rho_i/Dt = sum_j m v_ij . grad W_ij + sum_b psi_b (v_i - v_b) . grad W_ib``; a particle with
+  fewer than :data:`MIN_NEIGHBORS` neighbours (fluid and wall) is left out: at a free surface its
+  density rate says nothing about compression.
+- advection: ``v_adv = v + dt a_nonpressure`` (:mod:`.forces`).
+- pressure (constant-density solve), on ``v_adv``: until the mean predicted compression
+  ``max(rho*_i / rho0 - 1, 0)``, ``rho*_i = rho_i + dt D rho_i/Dt``, is at most ``eta`` (at least
+  ``min_iterations``, at most ``max_iterations``), ``kappa_i / rho_i += (rho*_i - rho0) / dt^2
+  * alpha_i / rho_i``.
+- integration: ``v = v_adv``, ``x += dt v``; ``p_i = (kappa_i + kappa_v_i) rho_i`` (the pressure
+  both solves applied this step) for frames, viewers and the hydrostatic check.
+
+Each iteration computes the increments from the velocities so far (a gather), then moves the
+velocities by the increments (a second gather), so the loop's error is that of its input
+velocities. Both solves start from half of the last step's stiffness (a warm start; IISPH here
+starts from half its last pressure): the constant-density solve from ``kappa / rho`` itself
+(``p / rho^2``, which does not depend on dt), the divergence solve from ``kappa_v / rho * dt``
+over this step's dt (the velocity change it made does not depend on dt). The increments are
+the paper's, with the error's sign, but a negative one may only take back what is left of the
+warm start: the iterations never remove pressure they added (the paper clamps the sources at
+zero, which leaves a warm start that proves too much in place; on the 32,768-particle dam break
+at a fixed 10 ms step that diverged within 0.35 s, see benchmarks/dfsph.py).
+"""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+
+import warp as wp
+
+from ...engine.launch import launch_particles
+from ...engine.reduce import sum_into
+from ..neighbors import NeighborList, entry
+from .base import SPHSolver, compute_density
+from .forces import predict_velocity
+
+# Fewer neighbours (fluid and wall, self excluded) than this, and a particle takes no part in
+# the divergence solve (the paper's particle deficiency rule; a resting particle has 26 fluid
+# neighbours within 2h, and more beside a wall).
+MIN_NEIGHBORS = wp.constant(20)
+# Both solves start from this share of the last step's stiffness (see the module's docstring).
+WARM_START = wp.constant(0.5)
+
+
+@wp.kernel
+def dfsph_factor(
+    offset: int,
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    least: float,
+    factor: wp.array(dtype=float),
+):
+    """``alpha_i / rho_i``; zero for a particle too alone to have one (denominator under ``least``)."""
+    i = wp.tid() + offset
+    sum_grad = wp.vec3(0.0, 0.0, 0.0)
+    sum_sq = float(0.0)
+    for m in range(nf.count[i]):
+        g = mass * nf.grad_W[entry(nf, i, m)]
+        sum_grad += g
+        sum_sq += wp.dot(g, g)
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
+        sum_grad += psi[nb.index[k]] * nb.grad_W[k]
+    d = wp.dot(sum_grad, sum_grad) + sum_sq
+    factor[i] = wp.where(d > least, 1.0 / d, 0.0)
+
+
+@wp.func
+def density_rate(i: int, v: wp.array(dtype=wp.vec3), vb: wp.array(dtype=wp.vec3), psi: wp.array(dtype=float), nf: NeighborList,
+                 nb: NeighborList, mass: float) -> float:
+    """``D rho_i/Dt = sum_j m (v_i - v_j) . grad W_ij + sum_b psi_b (v_i - v_b) . grad W_ib``."""
+    v_i = v[i]
+    r = float(0.0)
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
+        r += mass * wp.dot(v_i - v[nf.index[k]], nf.grad_W[k])
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
+        b = nb.index[k]
+        r += psi[b] * wp.dot(v_i - vb[b], nb.grad_W[k])  # a moving wall's velocity: the flow through it compresses
+    return r
+
+
+@wp.func
+def take_part(i: int, nf: NeighborList, nb: NeighborList) -> bool:
+    """Whether particle i has the neighbours to take part in the divergence solve."""
+    return nf.count[i] + nb.count[i] >= MIN_NEIGHBORS
+
+
+@wp.func
+def stiffness_step(i: int, increment: float, warm: wp.array(dtype=float)) -> float:
+    """The Jacobi increment the error asks for, where only the warm start may be taken back:
+    a negative increment removes what is left of it, never more."""
+    if increment < 0.0:
+        increment = wp.max(increment, -warm[i])
+        warm[i] = warm[i] + increment
+    return increment
+
+
+@wp.kernel
+def start_divergence_solve(
+    offset: int,
+    kappa_v_dt: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    dt_step: wp.array(dtype=float),
+    kappa_v: wp.array(dtype=float),
+    warm: wp.array(dtype=float),
+    delta: wp.array(dtype=float),
+):
+    """The warm start: a share of the last step's ``kappa_v / rho * dt`` over this step's dt,
+    for the particles that take part."""
+    i = wp.tid() + offset
+    k = float(0.0)
+    if take_part(i, nf, nb):
+        k = WARM_START * kappa_v_dt[i] / dt_step[0]
+    kappa_v[i] = k
+    warm[i] = k
+    delta[i] = k
+
+
+@wp.kernel
+def start_density_solve(offset: int, kappa: wp.array(dtype=float), warm: wp.array(dtype=float), delta: wp.array(dtype=float)):
+    """The warm start: a share of the last step's ``kappa / rho``, which ``kappa`` holds."""
+    i = wp.tid() + offset
+    k = WARM_START * kappa[i]
+    kappa[i] = k
+    warm[i] = k
+    delta[i] = k
+
+
+@wp.kernel
+def divergence_jacobi(
+    offset: int,
+    v: wp.array(dtype=wp.vec3),
+    factor: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    vb: wp.array(dtype=wp.vec3),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    rho0: float,
+    kappa_v: wp.array(dtype=float),
+    warm: wp.array(dtype=float),
+    delta: wp.array(dtype=float),
+    error: wp.array(dtype=wp.float64),
+):
+    """The stiffness increment that cancels particle i's density rate, and its compression rate
+    as the density it would add in one step, a fraction of rho0."""
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    rate = float(0.0)
+    if take_part(i, nf, nb):
+        rate = density_rate(i, v, vb, psi, nf, nb, mass)
+    dk = stiffness_step(i, rate / dt * factor[i], warm)
+    kappa_v[i] = kappa_v[i] + dk
+    delta[i] = dk
+    error[i] = wp.float64(wp.max(rate, 0.0) * dt / rho0)
+
+
+@wp.kernel
+def density_jacobi(
+    offset: int,
+    v: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    factor: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    vb: wp.array(dtype=wp.vec3),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    rho0: float,
+    kappa: wp.array(dtype=float),
+    warm: wp.array(dtype=float),
+    delta: wp.array(dtype=float),
+    error: wp.array(dtype=wp.float64),
+):
+    """The stiffness increment that brings particle i's predicted density ``rho*_i`` to rho0,
+    and the predicted compression ``max(rho*_i / rho0 - 1, 0)``."""
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    rho_star = rho[i] + dt * density_rate(i, v, vb, psi, nf, nb, mass)
+    dk = stiffness_step(i, (rho_star - rho0) / (dt * dt) * factor[i], warm)
+    kappa[i] = kappa[i] + dk
+    delta[i] = dk
+    error[i] = wp.max(wp.float64(rho_star / rho0) - wp.float64(1.0), wp.float64(0.0))
+
+
+@wp.kernel
+def apply_stiffness(
+    offset: int,
+    delta: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    v: wp.array(dtype=wp.vec3),
+):
+    """``v_i -= dt (sum_j m (d_i + d_j) grad W_ij + sum_b psi_b d_i grad W_ib)`` for the
+    stiffness increments ``d`` (the wall pushes with the particle's own)."""
+    i = wp.tid() + offset
+    d_i = delta[i]
+    a = wp.vec3(0.0, 0.0, 0.0)
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
+        a += mass * (d_i + delta[nf.index[k]]) * nf.grad_W[k]
+    for m in range(nb.count[i]):
+        k = entry(nb, i, m)
+        a += psi[nb.index[k]] * d_i * nb.grad_W[k]
+    v[i] = v[i] - dt_step[0] * a
+
+
+@wp.kernel
+def solve_convergence(
+    error_sum: wp.array(dtype=wp.float64),
+    n: int,
+    eta: wp.float64,
+    min_iterations: int,
+    max_iterations: int,
+    iterations: wp.array(dtype=wp.int32),
+    keep_going: wp.array(dtype=wp.int32),
+):
+    """Count the iteration; stop once the mean error is at most eta (after ``min_iterations``)
+    or at ``max_iterations``."""
+    it = iterations[0] + 1
+    iterations[0] = it
+    converged = it >= min_iterations and error_sum[0] / wp.float64(n) <= eta
+    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
+
+
+@wp.kernel
+def finish_step(
+    offset: int,
+    v_adv: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    kappa: wp.array(dtype=float),
+    kappa_v: wp.array(dtype=float),
+    dt_step: wp.array(dtype=float),
+    v: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=float),
+    kappa_v_dt: wp.array(dtype=float),
+):
+    """``v = v*``, ``x += dt v``; the pressure both solves applied, ``p = (kappa + kappa_v) rho``
+    (the arrays hold kappa / rho); the divergence solve's warm start for the next step."""
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    v_i = v_adv[i]
+    v[i] = v_i
+    x[i] = x[i] + dt * v_i
+    rho_i = rho[i]
+    p[i] = (kappa[i] + kappa_v[i]) * rho_i * rho_i
+    kappa_v_dt[i] = kappa_v[i] * dt
+
+
+class DFSPHSolver(SPHSolver):
+    """Divergence-free SPH. Statistics: ``iterations`` and ``density_error`` are the
+    constant-density solve's (as IISPH's), and :meth:`extra_stats` adds the divergence solve's
+    iterations and final mean divergence error."""
+
+    def __init__(self, model):
+        super().__init__(model)
+        n, dev = model.capacity, model.device
+        self.factor = wp.zeros(n, dtype=float, device=dev)
+        # the warm starts, kept with the particles by the state (Simulation registers `carried`)
+        self.kappa = wp.zeros(n, dtype=float, device=dev)  # kappa / rho of the constant-density solve, its running sum
+        self.kappa_v_dt = wp.zeros(n, dtype=float, device=dev)  # kappa_v / rho * dt of the last divergence solve
+        self.kappa_v = wp.zeros(n, dtype=float, device=dev)  # kappa_v / rho, this step's running sum
+        self.warm = wp.zeros(n, dtype=float, device=dev)  # what is left of the running solve's warm start
+        self.delta = wp.zeros(n, dtype=float, device=dev)  # the iteration's stiffness increments
+        self.error = wp.zeros(n, dtype=wp.float64, device=dev)
+        self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
+        self._iterations = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._divergence_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
+        self._divergence_iterations = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
+        # a denominator of alpha below this is a particle with next to no neighbours: (m / H^4)^2
+        # is the scale of one neighbour's |m grad W|^2, 1e-6 of it a neighbour at the support's edge
+        self.least_denominator = 1.0e-6 * (model.mass / model.support_radius**4) ** 2
+        self.carried = {"dfsph_kappa": self.kappa, "dfsph_kappa_v_dt": self.kappa_v_dt}
+
+    def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
+        timer = timer or nullcontext
+        ph = self.physics
+        n, dev = state.n, model.device
+        with timer("neighbours"):
+            self.search.build(state.x, n, sync=sync)
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        with timer("density"):
+            launch_particles(
+                compute_density,
+                n,
+                [state.x, model.boundary_x, model.boundary_psi, nf, nb, model.mass, model.support_radius, ph.rho0, state.rho,
+                 self.compression],
+                dev,
+            )
+            sum_into(self.compression, n, self._compression_sum)
+            launch_particles(dfsph_factor, n, [model.boundary_psi, nf, nb, model.mass, self.least_denominator, self.factor], dev)
+        with timer("pressure"):
+            self.divergence_solve(model, state)
+        with timer("advection"):
+            self.predict_advection(model, state)
+        with timer("pressure"):
+            self.pressure_solve(model, state)
+        with timer("integration"):
+            launch_particles(finish_step, n, [self.v_adv, state.rho, self.kappa, self.kappa_v, self.dt, state.v, state.x, state.p,
+                                              self.kappa_v_dt], dev)
+
+    def predict_advection(self, model, state) -> None:
+        """``v_adv = v + dt a_nonpressure`` from the divergence-free velocity."""
+        ph = self.physics
+        launch_particles(
+            predict_velocity,
+            state.n,
+            [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
+             model.boundary_x, model.boundary_v, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt,
+             self.v_adv],
+            model.device,
+        )
+
+    def _apply(self, model, state, v) -> None:
+        launch_particles(apply_stiffness, state.n, [self.delta, model.boundary_psi, self.search.fluid.lists, self.search.boundary.lists,
+                                                    model.mass, self.dt, v], model.device)
+
+    def divergence_solve(self, model, state) -> None:
+        """Make the velocity the last step ended with divergence-free (compression rates only);
+        the loop's test runs on the device (``wp.capture_while``), as IISPH's."""
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        launch_particles(start_divergence_solve, state.n, [self.kappa_v_dt, nf, nb, self.dt, self.kappa_v, self.warm, self.delta], model.device)
+        self._apply(model, state, state.v)
+        self._divergence_iterations.zero_()
+        self.keep_going.fill_(1)
+        wp.capture_while(self.keep_going, self.divergence_iteration, model=model, state=state)
+
+    def divergence_iteration(self, model, state) -> None:
+        ph = self.physics
+        n, dev = state.n, model.device
+        launch_particles(
+            divergence_jacobi,
+            n,
+            [state.v, self.factor, model.boundary_psi, model.boundary_v, self.search.fluid.lists, self.search.boundary.lists, model.mass,
+             self.dt, ph.rho0, self.kappa_v, self.warm, self.delta, self.error],
+            dev,
+        )
+        self._apply(model, state, state.v)
+        sum_into(self.error, n, self._divergence_error_sum)
+        wp.launch(solve_convergence, dim=1, device=dev, inputs=[
+            self._divergence_error_sum, max(n, 1), wp.float64(ph.eta_divergence), 1, ph.max_iterations, self._divergence_iterations,
+            self.keep_going])
+
+    def pressure_solve(self, model, state) -> None:
+        """Bring the predicted density of ``v_adv`` to rho0 (the constant-density solve)."""
+        launch_particles(start_density_solve, state.n, [self.kappa, self.warm, self.delta], model.device)
+        self._apply(model, state, self.v_adv)
+        self._iterations.zero_()
+        self.keep_going.fill_(1)
+        wp.capture_while(self.keep_going, self.density_iteration, model=model, state=state)
+
+    def density_iteration(self, model, state) -> None:
+        ph = self.physics
+        n, dev = state.n, model.device
+        launch_particles(
+            density_jacobi,
+            n,
+            [self.v_adv, state.rho, self.factor, model.boundary_psi, model.boundary_v, self.search.fluid.lists,
+             self.search.boundary.lists, model.mass, self.dt, ph.rho0, self.kappa, self.warm, self.delta, self.error],
+            dev,
+        )
+        self._apply(model, state, self.v_adv)
+        sum_into(self.error, n, self._error_sum)
+        wp.launch(solve_convergence, dim=1, device=dev, inputs=[
+            self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations, self._iterations, self.keep_going])
+
+    def solver_stats(self) -> tuple[wp.array, wp.array]:
+        return self._error_sum, self._iterations
+
+    def extra_stats(self) -> dict:
+        """Per-step statistics beyond the shared ones: the divergence solve's final mean error
+        (a float64 sum over particles) and its iteration count."""
+        return {"divergence_error": self._divergence_error_sum, "divergence_iterations": self._divergence_iterations}
