@@ -19,7 +19,7 @@ def run(scene, graph: bool, duration: float = 0.15, device: str = "cpu", shrink_
     return sim
 
 
-@pytest.mark.parametrize("method", ["iisph", "wcsph"])
+@pytest.mark.parametrize("method", ["iisph", "wcsph", "dfsph"])
 def test_captured_step_equals_plain_launches(method):
     scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method, viscosity=1e-4, boundary_viscosity=0.003)  # noqa: E731
     plain, graph = run(scene(), False), run(scene(), True)
@@ -30,8 +30,11 @@ def test_captured_step_equals_plain_launches(method):
     np.testing.assert_array_equal(graph.velocities, plain.velocities)
     for key in ("dt", "iterations", "density_error", "compression", "max_velocity"):
         assert [s[key] for s in graph.stats] == [s[key] for s in plain.stats], key
-    if method == "iisph":
+    if method != "wcsph":
         assert max(s["iterations"] for s in graph.stats) > 2  # the device-side loop ran to convergence
+    if method == "dfsph":
+        assert [s["divergence_iterations"] for s in graph.stats] == [s["divergence_iterations"] for s in plain.stats]
+        assert max(s["divergence_iterations"] for s in graph.stats) > 1
 
 
 def test_neighbour_overflow_inside_the_graph_is_redone():
@@ -83,9 +86,10 @@ def test_cuda_graph_matches_cpu():
     assert np.max(np.abs(cuda.positions - cpu.positions)) < 0.02  # GPU atomics and FMA reorder sums
 
 
-def test_nothing_in_a_conditional_body_allocates(monkeypatch):
+@pytest.mark.parametrize("method", ["iisph", "dfsph"])
+def test_nothing_in_a_conditional_body_allocates(monkeypatch, method):
     """On CUDA, a conditional body of a graph (the loop over steps, the reorder's capture_if, the
-    Jacobi loop) may not allocate: wp.utils.array_sum and array_scan fail there, and so does
+    Jacobi loops of IISPH and of DFSPH's two solves) may not allocate: wp.utils.array_sum and array_scan fail there, and so does
     HashGrid.build. On the CPU they work, so this test makes them fail while a conditional body is
     being recorded: the CPU catches a regression without a GPU."""
     import warp as wp
@@ -122,7 +126,7 @@ def test_nothing_in_a_conditional_body_allocates(monkeypatch):
     # a scene with walls and an obstacle near the fluid: fluid, wall and reorder paths all recorded
     from warp_iisph import Box
 
-    scene = scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1)
+    scene = scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method)
     scene.add_obstacle(Box((0.3, 0.0, 0.0), (0.35, 0.1, 0.1)))
     sim = Simulation(scene, "cpu", graph=True)
     sim.advance(0.05)

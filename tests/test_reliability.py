@@ -24,6 +24,7 @@ from warp_iisph.cli import main
 from warp_iisph.run.folder import RunFolder
 from warp_iisph.run.formats import FileFormatError, read_particles, read_stats
 from warp_iisph.run.runner import run_scene
+from warp_iisph.scene.settings import METHODS
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "spacing=0.04", "--no-progress"]
@@ -169,7 +170,8 @@ INVALID = {
     "physics.cfl": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(min_value=2.01, max_value=1e9)),
     "physics.gravity": st.one_of(NON_FINITE, st.text(max_size=3), st.lists(st.floats(-10, 10), min_size=4, max_size=5),
                                  st.lists(NON_FINITE, min_size=3, max_size=3)),
-    "physics.method": st.text(max_size=8).filter(lambda s: s not in ("iisph", "wcsph")),
+    "physics.method": st.text(max_size=8).filter(lambda s: s not in METHODS),
+    "physics.eta_divergence": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=0.51, max_value=1e9)),
     "output.fps": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(min_value=10_001, max_value=1e300), st.floats(max_value=0.0, allow_nan=False)),
     "output.duration": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False)),
     "output.mesh": st.one_of(st.integers(), st.text(max_size=3), NON_FINITE),

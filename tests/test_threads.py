@@ -10,7 +10,7 @@ from warp_iisph.scene import load_scene
 
 # modules that launch per-particle kernels through the helper
 USERS = ["warp_iisph.setup.model", "warp_iisph.setup.boundary", "warp_iisph.sph.neighbors", "warp_iisph.sph.wall_mask",
-         "warp_iisph.sph.solvers.base", "warp_iisph.sph.solvers.iisph", "warp_iisph.sph.solvers.wcsph",
+         "warp_iisph.sph.solvers.base", "warp_iisph.sph.solvers.iisph", "warp_iisph.sph.solvers.wcsph", "warp_iisph.sph.solvers.dfsph",
          "warp_iisph.surface.field", "warp_iisph.surface.marching", "warp_iisph.surface.smoothing",
          "warp_iisph.surface.reconstructor", "warp_iisph.run.obj_text"]
 
@@ -69,13 +69,17 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
     wc = Simulation(scenes.martin_moyce(spacing=0.04, method="wcsph", dt=2e-4), "cpu")
     for _ in range(3):
         wc.step()
+    df = Simulation(scenes.martin_moyce(spacing=0.04, method="dfsph", viscosity=1e-3), "cpu")
+    for _ in range(3):
+        df.step()
     from warp_iisph.surface import SurfaceReconstructor
 
     SurfaceReconstructor(0.03).reconstruct(sim.positions)
     keys = {k for k, _ in seen}
     for expected in ("splat_blocks", "block_cases", "block_emit", "fill_incident", "smooth_vertices", "vertex_normals", "count_neighbors", "fill_neighbors", "compute_density", "predict_advection_velocity",
                      "predict_advection_density", "pressure_sum_dij_pj", "pressure_jacobi", "integrate",
-                     "predict_velocity", "state_equation", "boundary_psi", "initial_density"):
+                     "predict_velocity", "state_equation", "boundary_psi", "initial_density", "dfsph_factor", "start_divergence_solve",
+                     "divergence_jacobi", "apply_stiffness", "start_density_solve", "density_jacobi", "finish_step"):
         assert any(expected in k for k in keys), (expected, keys)
 
 
