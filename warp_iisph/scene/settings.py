@@ -124,7 +124,7 @@ class Physics:
       compression rate ``max(D rho/Dt, 0)`` would add in one step, a fraction of rho0.
     - ``max_iterations``: cap on IISPH's relaxed Jacobi iterations and on each of DFSPH's two
       solves; ``min_iterations`` the floor of the pressure (constant-density) solve.
-    - ``omega``: Jacobi relaxation factor.
+    - ``omega``: IISPH's Jacobi relaxation factor.
     - ``stiffness``: WCSPH's k in p = k((rho/rho0)^7 - 1) (Pa).
     - ``dt``: fixed time step (s); ``None`` selects the CFL rule
       ``dt = cfl * h / (max|v| + c)`` clamped to ``[dt_min, dt_max]`` (``c`` is WCSPH's speed of
