@@ -130,3 +130,14 @@ def test_soak_quick_mode(tmp_path):
     # every frame opens and closes its files: beyond the few a frame in flight holds, no handle
     # accumulates (a leak of one per frame would add 19)
     assert record["open_files_max"] - record["open_files_min"] <= 3
+
+
+def test_dfsph_benchmark_quick_mode(tmp_path):
+    rows = _quick("dfsph.py", tmp_path, "dfsph_quick")["results"]
+    assert [(r["case"], r["method"]) for r in rows] == [(c, m) for c in ("0.005", "0.01", "cfl") for m in ("iisph", "dfsph")]
+    for r in rows:  # a run's record says how far it got and what it cost
+        assert r["particles"] == 4096 and r["steps"] > 0 and r["wall_seconds_per_simulated_second"] > 0
+        assert (r["diverged"] is None) == (abs(r["reached_s"] - 0.1) < 1e-9)
+        assert (r["mean_divergence_iterations"] or 0) >= (1 if r["method"] == "dfsph" else 0)
+    fixed = [r for r in rows if r["dt"] == 0.01]
+    assert all(r["steps"] == 10 or r["diverged"] for r in fixed)
