@@ -258,10 +258,10 @@ class TimeLoop:
     def records(self, k: int) -> list[dict]:
         """The first ``k`` log rows as records (``t``: the time at the step's end)."""
         rows = self.log.numpy()[:k]
+        counts = [name for name, value in self.extra.items() if value.dtype != wp.float64]
         out = []
         for row in rows:
             rec = dict(zip(self.fields, (float(v) for v in row)))
-            counts = [k for k, v in self.extra.items() if v.dtype != wp.float64]
             for key in ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections", *counts):
                 rec[key] = int(rec[key])
             out.append(rec)
