@@ -103,7 +103,7 @@ def pressure_jacobi_query(
                 g = cubic_grad_W(x_ij, radius)
                 sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
-    jacobi_update(i, sigma, p_i, a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
+    jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
 
 
 def timed(fn, device, repeats: int) -> float:
@@ -139,10 +139,13 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     p_list, p_query = wp.zeros_like(solver.p_next), wp.zeros_like(solver.p_next)
 
     def iteration_lists():
-        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, solver.dt, sum_list], device)
+        # the fluid part of an iteration (the walls' pressures off, wall_weight 0; a_ii as the
+        # diagonal), as the query twins compute it
+        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, 0.0, solver.smoothing_weight, solver.W0, nf,
+                                                  nb, model.mass, solver.dt, sum_list], device)
         launch_particles(pressure_jacobi, n,
-                         [state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_list, state.p, model.boundary_psi, nf, nb,
-                          model.mass, solver.dt, ph.rho0, float(ph.omega), p_list, solver.density_error], device)
+                         [state.rho, solver.rho_adv, solver.a_ii, solver.a_ii, solver.d_ii, sum_list, state.p, model.boundary_psi, nf,
+                          nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_list, solver.density_error], device)
 
     # the query twins walk a wp.HashGrid over the same points: the same candidates in the same
     # order as the solver's own grid (warp_iisph.sph.grid), so the sums are bitwise the lists'

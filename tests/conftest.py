@@ -23,15 +23,23 @@ requires_cuda = pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA d
 # --- tiny runs with meshes, for the viewers and exporters (each test module gets its own) -----------
 
 
+def collapsing_block():
+    """Water 0.2 m wide and 0.24 m high against one wall of a 0.4 x 0.5 x 0.4 m tank (4 cm
+    spacing): it collapses, so every frame differs (water at rest would stay at rest)."""
+    from warp_iisph.scene import Box, Scene
+
+    scene = Scene(spacing=0.04, tank=Box((0.0, 0.0, 0.0), (0.4, 0.5, 0.4)), name="collapsing_block")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (0.2, 0.24, 0.4))
+    return scene
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    """A falling block of about 500 particles, 0.1 s at 30 frames/s: 4 particle and mesh frames."""
-    from warp_iisph import scenes
+    """A collapsing block of 300 particles, 0.1 s at 30 frames/s: 4 particle and mesh frames."""
     from warp_iisph.run.runner import run_scene
 
     out = tmp_path_factory.mktemp("view") / "run"
-    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.16)
-    scene.tank.upper = (0.4, 0.5, 0.4)
+    scene = collapsing_block()
     scene.output.mesh = True
     record = run_scene(scene, out, duration=0.1, fps=30, progress=False)
     assert record["ended"] == "completed"

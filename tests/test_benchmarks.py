@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,7 +51,11 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         dt = {r["method"]: r["dt_max"] for r in rows}
         assert dt["iisph"] > 2 * dt["wcsph"], dt
     else:
-        assert all(r["mean_abs_error"] < 0.1 for r in rows if r["viscosity"] > 0)
+        (run,) = rows  # the surge front leaves the column's foot and only moves on
+        assert not run["diverged"] and run["Z"][0] < 1.1 < run["Z"][-1] and np.all(np.diff(run["Z"]) > -0.05)
+        assert run["error_a_1125"] is not None and run["error_a_2250"] is not None
+        rest = record["resting_tank"]  # hydrostatics: pressure grows as rho0 g depth, the water stays at rest
+        assert abs(rest["slope_mean"] - 1.0) < 0.1 and rest["mean_speed_max"] < 0.02
 
 
 def _quick(script: str, tmp_path, stem: str, *extra) -> dict:

@@ -7,7 +7,6 @@ import meshio
 import numpy as np
 import pytest
 
-from warp_iisph import scenes
 from warp_iisph.cli import main
 from warp_iisph.run.folder import RunError, RunFolder
 from warp_iisph.run.formats import read_particles
@@ -16,9 +15,10 @@ from warp_iisph.scene import SceneFileError, load_scene
 
 
 def tiny_scene(fmt: str):
-    """A falling block of about 500 particles (the same as test_view's tiny run)."""
-    scene = scenes.hydrostatic_tank(spacing=0.04, width=0.4, depth=0.4, water_height=0.16)
-    scene.tank.upper = (0.4, 0.5, 0.4)
+    """A collapsing block of 300 particles (the same as the tiny run of conftest)."""
+    from conftest import collapsing_block
+
+    scene = collapsing_block()
     scene.output.format = fmt
     return scene
 

@@ -3,95 +3,89 @@
 import numpy as np
 import pytest
 
-from warp_iisph import DivergenceError, Simulation, scenes
+from warp_iisph import Box, DivergenceError, Physics, Scene, Simulation, scenes
 from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
 
 G = 9.81
 
 
-def test_hydrostatic_tank_settles_to_hydrostatic_pressure():
-    """Water at rest in a closed tank (2000 particles, IISPH, eta 0.1 %): the solver converges,
-    pressure grows as rho0 g depth, velocities decay and no particle leaves.
+def test_water_at_rest_holds_hydrostatic_pressure_every_step():
+    """Water at rest in a closed tank (2,000 particles, 20 layers, the defaults): after settling,
+    at every step the pressure fitted over the interior (two spacings from the walls) grows as
+    rho0 g depth, the water stays at rest and no particle needs putting back.
 
-    Pressures are averaged over the last 0.3 s and over each layer of particles at least two
-    spacings from the walls (particles touching a wall carry extra pressure, see solvers.common).
-    """
-    h, width, height = 0.02, 0.2, 0.4
-    sim = Simulation(scenes.hydrostatic_tank(spacing=h, width=width, depth=width, water_height=height, dt=0.002, viscosity=0.01), "cpu")
-    speeds, p_sum, n_sum = [], 0.0, 0
-    while sim.time < 1.2 - 1e-9:
-        rec = sim.step()
-        assert rec["escaped"] == 0 and rec["non_finite"] == 0
-        speeds.append(rec["max_velocity"])
-        if sim.time > 0.9:
-            p_sum, n_sum = p_sum + sim.pressures, n_sum + 1
-    tail = sim.stats[-50:]
-    assert np.mean([s["density_error"] for s in tail]) <= 1e-3 + 1e-9
-    assert all(s["density_error"] <= 1e-3 or s["iterations"] == 100 for s in tail)
-    assert np.mean(speeds[-50:]) < 0.5 * np.max(speeds)
-    assert np.max(speeds[-50:]) < 0.1
-
-    p = p_sum / n_sum
-    x = sim.positions
-    top = x[:, 1].max() + 0.5 * h
-    depth = top - x[:, 1]
-    interior = np.all((x[:, [0, 2]] > 2 * h) & (x[:, [0, 2]] < width - 2 * h), axis=1) & (x[:, 1] > 2 * h)
-    layer = np.floor(x[:, 1] / h).astype(int)
-    p_bottom = 1000.0 * G * height
-    checked = 0
-    for k in range(layer.max()):  # every layer below the top one
-        sel = interior & (layer == k)
-        if sel.sum() < 5:
-            continue
-        expected = 1000.0 * G * depth[sel].mean()
-        assert abs(p[sel].mean() - expected) <= 0.05 * p_bottom, (k, p[sel].mean(), expected)
-        checked += 1
-    assert checked >= 12
-    slope = np.polyfit(depth[interior], p[interior], 1)[0]
-    assert abs(slope / (1000.0 * G) - 1.0) <= 0.05
-
-
-def _front_errors(spacing, a=0.1, layers=4, **physics):
-    scene = scenes.martin_moyce(spacing=spacing, a=a, depth=layers * spacing, length=5 * a, height=2.5 * a, **physics)
+    Averaged over the steps the slope is rho0 g within 3 %: the pressure has to carry the
+    column's weight (momentum balance). Step by step it may wander by more: relaxed Jacobi
+    corrects a whole-column (long-wave) pressure error only partly in one solve (docs/physics.md),
+    so a step is held to 10 %. The layer on the floor is compressed by at most twice the solver's
+    tolerance eta (with Akinci's walls it carried twice the pressure, and more)."""
+    h, size, depth = 0.02, (0.2, 0.5, 0.2), 0.4
+    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), size), name="resting_tank")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (size[0], depth, size[2]))
     sim = Simulation(scene, "cpu")
-    ref = load_martin_moyce()
-    pts = np.concatenate(list(ref.values()))
-    pts = pts[pts[:, 0] <= 3.0]
+    sim.advance(1.5)
+    slopes, speeds, bottom = [], [], []
+    while sim.time < 1.8 - 1e-9:
+        rec = sim.step()
+        assert rec["escaped"] == rec["non_finite"] == rec["wall_corrections"] == 0
+        x, p, rho = sim.positions, sim.pressures, sim.densities
+        interior = np.all((x[:, [0, 2]] > 2 * h) & (x[:, [0, 2]] < np.array([size[0], size[2]]) - 2 * h), axis=1) & (x[:, 1] > 2 * h)
+        slopes.append(-np.polyfit(x[interior, 1], p[interior], 1)[0] / (1000.0 * G))
+        speeds.append(np.linalg.norm(sim.velocities, axis=1))
+        bottom.append(rho[x[:, 1] < h].mean() / 1000.0 - 1.0)
+    slopes = np.asarray(slopes)
+    assert abs(slopes.mean() - 1.0) <= 0.03, slopes.mean()
+    assert np.all(np.abs(slopes - 1.0) <= 0.10), (slopes.min(), slopes.max())
+    assert max(s.mean() for s in speeds) < 0.01  # m/s: at rest
+    assert max(s.max() for s in speeds) < 0.1
+    assert max(bottom) <= 2 * sim.physics.eta
+
+
+def _martin_moyce_front(nx: int, a: float = 0.3, t_max: float = 3.0, **physics):
+    """The benchmark's Martin & Moyce column (a wide, 2a high, in a 6a x 3a x 0.5a tank) at nx
+    particles across: the experiment's T <= t_max, Z = front / a there, and the experiment's Z."""
+    h = a / nx
+    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (6 * a, 3 * a, 0.5 * a)), physics=Physics(**physics), name="martin_moyce")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (a, 2 * a, 0.5 * a))
+    sim = Simulation(scene, "cpu")
+    pts = np.concatenate(list(load_martin_moyce().values()))
+    pts = pts[pts[:, 0] <= t_max]
     pts = pts[np.argsort(pts[:, 0])]
-    errors = []
-    for T, Z in pts:
+    Z = []
+    for T, _ in pts:
         sim.advance(T / np.sqrt(2 * G / a) - sim.time)
-        errors.append(surge_front(sim.positions, spacing) / a / Z - 1.0)
-    return np.asarray(errors), sim
+        Z.append(surge_front(sim.positions, h) / a)
+    assert all(s["escaped"] == 0 and s["non_finite"] == 0 for s in sim.stats)
+    return pts[:, 0], np.asarray(Z), pts[:, 1]
 
 
-def test_dam_break_front_matches_martin_moyce():
-    """Surge front against Martin & Moyce (1952) for T <= 3, a = 0.1 m at a/h = 10 (800
-    particles), with the default physics (viscosity 0.05, free-slip walls: nothing fitted to
-    the experiment). Measured: mean 4.2 %, worst +8.8 % (T = 1.6); finer resolutions and
-    a = 0.3 m in lab_scripts/martin_moyce.py."""
-    errors, sim = _front_errors(0.01)
-    assert np.mean(np.abs(errors)) <= 0.06, errors
-    assert np.max(np.abs(errors)) <= 0.10, errors
-    assert all(s["escaped"] == 0 for s in sim.stats)
+def test_dam_break_front_between_experiment_and_shallow_water():
+    """Martin & Moyce (1952), a = 0.3 m at nx = 12, the defaults. The front cannot outrun the
+    dry-bed shallow-water front Z = 1 + 2T (Ritter 1892: no vertical acceleration, nothing
+    dissipated), and with no gate to lift, no surface tension and free-slip walls it should not
+    lag the experiment (5 % allowed for reading the paper's figure)."""
+    T, Z, Z_exp = _martin_moyce_front(12)
+    assert np.all(Z <= 1.0 + 2.0 * T), Z
+    assert np.all(Z >= 0.95 * Z_exp), Z / Z_exp
 
 
-def test_inviscid_dam_break_runs_ahead_of_experiment():
-    """Without viscosity the front leads the experiment (measured +14 % on average): the walls'
-    first fluid layer carries about twice the pressure (p_b = p_i, see solvers.common) and
-    runs ahead along the floor."""
-    errors, _ = _front_errors(0.01, viscosity=0.0)
-    assert np.mean(errors) > 0.08
+def test_viscosity_slows_the_front():
+    """Without viscosity the same column spreads faster: at no sample is the inviscid front
+    behind the viscous one, and on average it is ahead."""
+    _, Z_visc, _ = _martin_moyce_front(12, t_max=2.0)
+    _, Z_inv, _ = _martin_moyce_front(12, t_max=2.0, viscosity=0.0)
+    assert np.all(Z_inv >= Z_visc - 0.02) and Z_inv.mean() > Z_visc.mean()
 
 
 def test_iisph_stable_where_wcsph_diverges():
-    """The same dam break at a fixed 4 ms step: WCSPH (k = 50 kPa, its usual stiffness; its
-    sound-speed limit is 0.5 ms) blows up, IISPH stays bounded with no particle lost."""
+    """The same dam break at a fixed 4 ms step, taken as it is (no substeps): WCSPH (k = 50 kPa,
+    its usual stiffness; its sound-speed limit is 0.5 ms) blows up, IISPH stays bounded with no
+    particle lost."""
     dt = 0.004
     with pytest.raises(DivergenceError) as info:
-        Simulation(scenes.martin_moyce(spacing=0.02, method="wcsph", dt=dt), "cpu").advance(0.4)
+        Simulation(scenes.martin_moyce(spacing=0.02, method="wcsph", dt=dt, substeps=False), "cpu").advance(0.4)
     assert info.value.step > 0 and "step" in str(info.value)
-    sim = Simulation(scenes.martin_moyce(spacing=0.02, method="iisph", dt=dt), "cpu")
+    sim = Simulation(scenes.martin_moyce(spacing=0.02, method="iisph", dt=dt, substeps=False), "cpu")
     sim.advance(0.4)
     assert all(s["escaped"] == 0 and s["non_finite"] == 0 for s in sim.stats)
     free_fall = np.sqrt(2 * G * 0.4)  # the column is 0.4 m high

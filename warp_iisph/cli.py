@@ -233,6 +233,7 @@ def _run(args) -> int:
         f"mean compression {100 * t['mean_compression']:.3f} %"
         + (f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back within the walls in {t['corrected_steps']} steps"
            if t.get("corrected_steps") else "")
+        + (f", the fixed dt cut into up to {t['most_substeps']} substeps in {t['substeps']} steps" if t.get("substeps") else "")
         + f" -> {out}"
     )
     if t.get("not_emitted"):

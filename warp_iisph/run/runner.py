@@ -332,6 +332,8 @@ class StepTotals:
         self.sums = {"iterations": 0.0, "density_error": 0.0, "compression": 0.0}
         self.corrections = {"wall_corrections": 0, "obstacle_corrections": 0}
         self.corrected_steps = 0
+        self.substeps = 0  # steps that were pieces of a fixed dt cut into substeps
+        self.most_substeps = 1
         self.unconverged = 0
         self.worst_unconverged = 0.0
 
@@ -343,6 +345,9 @@ class StepTotals:
         for k in self.corrections:
             self.corrections[k] += rec.get(k, 0)
         self.corrected_steps += int(any(rec.get(k, 0) for k in self.corrections))
+        pieces = rec.get("substeps", 1)
+        self.substeps += int(pieces > 1)
+        self.most_substeps = max(self.most_substeps, pieces)
         if ph.method in ("iisph", "dfsph") and rec["iterations"] >= ph.max_iterations and rec["density_error"] > ph.eta:
             self.unconverged += 1
             self.worst_unconverged = max(self.worst_unconverged, rec["density_error"])
@@ -362,6 +367,8 @@ class StepTotals:
             "mean_compression": self.sums["compression"] / n,
             **self.corrections,
             "corrected_steps": self.corrected_steps,
+            "substeps": self.substeps,
+            "most_substeps": self.most_substeps,
             "unconverged_steps": self.unconverged,
             "worst_unconverged_error": self.worst_unconverged,
         }

@@ -11,6 +11,8 @@ from .checks import flag, floats, in_range, position, positive, vec3
 
 METHODS = ("iisph", "wcsph", "dfsph")
 
+WALL_PRESSURES = ("extrapolated", "fluid")  # physics.wall_pressure: see Physics
+
 SMOOTHING = ("laplacian", "taubin", "none")
 MESH_FORMATS = ("obj", "ply")
 
@@ -114,10 +116,19 @@ class Physics:
       the SPH Laplacian's factor 2(d + 2) = 10 where the report's sum has 2: a kinematic viscosity
       of 0.01 m^2/s). It removes what the pressure solver's start-up leaves moving (water started at
       rest would bounce for ever without it); being a fixed kinematic viscosity it damps small
-      scenes more than large ones. Its explicit step needs dt <= 0.625 h^2 / mu, which the CFL rule
+      scenes more than large ones. Its explicit step needs dt <= 0.4 h^2 / mu, which the CFL rule
       keeps.
     - ``boundary_viscosity``: the same coefficient against the walls (wall friction, m^2/s);
       0 leaves the walls free-slip.
+    - ``wall_pressure``: the pressure the boundary particles push with. ``"extrapolated"`` (the
+      default): the fluid's pressure around the particle pushed, continued into the wall with the
+      hydrostatic (and, for a moving obstacle, inertial) gradient, ``p_b = max(p~_i + rho_i
+      (g - a_b).(x_b - x~_i), 0)`` (``p~_i``, ``x~_i``: the pressure and position averaged over
+      i's neighbourhood with weights W_ij; after Adami et al. 2012), in the symmetric force
+      ``psi_b (p_i/rho_i^2 + p_b/rho0^2) grad W_ib`` and in IISPH's ``sum_j d_ij p_j``.
+      ``"fluid"``: Akinci et al.'s ``psi_b p_i/rho_i^2 grad W_ib`` (the fluid particle's own
+      pressure, in one term), with which the fluid layer touching a wall carries about twice its
+      hydrostatic pressure. IISPH and WCSPH read it; DFSPH's solves keep Akinci's walls.
     - ``gravity``: (m/s^2).
     - ``eta``: IISPH's and DFSPH's target average density error, a fraction (0.001 = 0.1 %).
     - ``eta_divergence``: DFSPH's target average divergence error, the density that the
@@ -126,10 +137,16 @@ class Physics:
       solves; ``min_iterations`` the floor of the pressure (constant-density) solve.
     - ``omega``: IISPH's Jacobi relaxation factor.
     - ``stiffness``: WCSPH's k in p = k((rho/rho0)^7 - 1) (Pa).
+    - ``substeps``: with a fixed ``dt``, cut a step longer than the method can take into equal
+      substeps (each step record's ``substeps`` says into how many): no longer than the explicit
+      viscosity's limit, nor than ``h / (max(max|v|, sqrt(2 g y_top)) + c)`` (no particle crosses
+      more than one spacing in a step; from rest, ``dt^2 g y_top / h^2 <= 1/2``, beyond which
+      IISPH's linearised density prediction fails at the walls). ``False`` takes the fixed dt as
+      it is.
     - ``dt``: fixed time step (s); ``None`` selects the CFL rule
       ``dt = cfl * h / (max|v| + c)`` clamped to ``[dt_min, dt_max]`` (``c`` is WCSPH's speed of
       sound sqrt(7 k / rho0), 0 for IISPH and DFSPH), and to the viscosity's stability limit
-      ``0.625 h^2 / max(viscosity, boundary_viscosity)``.
+      ``0.4 h^2 / max(viscosity, boundary_viscosity)``.
     - ``max_velocity``: a speed (m/s) beyond which the run counts as diverged; ``None`` derives
       one from the domain height (10 x the free-fall speed over it, at least 10 m/s).
     """
@@ -138,6 +155,7 @@ class Physics:
     rho0: float = 1000.0
     viscosity: float = 0.05
     boundary_viscosity: float = 0.0
+    wall_pressure: str = "extrapolated"
     gravity: tuple = (0.0, -9.81, 0.0)
     eta: float = 1.0e-3
     eta_divergence: float = 1.0e-3
@@ -146,6 +164,7 @@ class Physics:
     omega: float = 0.5
     stiffness: float = 50_000.0
     dt: Optional[float] = None
+    substeps: bool = True
     cfl: float = 0.5
     dt_min: float = 1.0e-5
     dt_max: float = 5.0e-3
@@ -157,6 +176,8 @@ class Physics:
         self.rho0 = positive(self.rho0, "physics.rho0", "kg/m^3")
         self.viscosity = in_range(self.viscosity, "physics.viscosity", 0.0, 1.0, "m^2/s")
         self.boundary_viscosity = in_range(self.boundary_viscosity, "physics.boundary_viscosity", 0.0, 1.0, "m^2/s")
+        if self.wall_pressure not in WALL_PRESSURES:
+            raise ValueError(f"physics.wall_pressure = {self.wall_pressure!r}: must be one of {', '.join(WALL_PRESSURES)}")
         self.gravity = floats(vec3(self.gravity, "physics.gravity"))
         self.eta = in_range(self.eta, "physics.eta", 0.0, 0.5, "fraction of rho0, e.g. 0.001", lo_open=True)
         self.eta_divergence = in_range(self.eta_divergence, "physics.eta_divergence", 0.0, 0.5, "fraction of rho0 per step, e.g. 0.001",
@@ -173,6 +194,7 @@ class Physics:
         self.stiffness = positive(self.stiffness, "physics.stiffness", "Pa")
         if self.dt is not None:
             self.dt = in_range(self.dt, "physics.dt", 0.0, 1.0, "seconds", lo_open=True)
+        self.substeps = flag(self.substeps, "physics.substeps")
         self.cfl = in_range(self.cfl, "physics.cfl", 0.0, 2.0, "Courant number", lo_open=True)
         self.dt_min = in_range(self.dt_min, "physics.dt_min", 0.0, 1.0, "seconds", lo_open=True)
         self.dt_max = in_range(self.dt_max, "physics.dt_max", self.dt_min, 1.0, "seconds, >= dt_min")

@@ -68,6 +68,7 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         boundary_x=xb_dev,
         boundary_psi=psi,
         boundary_v=wp.zeros(max(xb_dev.shape[0], 1), dtype=wp.vec3, device=device),
+        boundary_a=wp.zeros(max(xb_dev.shape[0], 1), dtype=wp.vec3, device=device),
         bodies=moving,
         containment=_containment(scene, meshes, h, moving, device),
         domain_lower=lo - margin,
@@ -163,8 +164,9 @@ def _cell_sorted(points: np.ndarray, H: float, device) -> wp.array:
     return wp.array(points[order.numpy()].astype(np.float32), dtype=wp.vec3, device=device)
 
 
-# Bytes per fluid particle: state, solver scratch and about 40 neighbour entries of 16 bytes.
-BYTES_PER_FLUID_PARTICLE = 900
+# Bytes per fluid particle: state, solver scratch and about 40 neighbour entries of 20 bytes
+# (index, grad W, W).
+BYTES_PER_FLUID_PARTICLE = 1100
 BYTES_PER_BOUNDARY_PARTICLE = 40
 
 

@@ -93,17 +93,22 @@ def move_bodies(
     first: int,
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
+    acc: wp.array(dtype=wp.vec3),
 ):
-    """Boundary particle ``first + k`` of a moving body: its place at the step's start and the
-    velocity that brings it to its place at the step's end."""
+    """Boundary particle ``first + k`` of a moving body: its place at the step's start, the
+    velocity that brings it to its place at the step's end, and its acceleration (the central
+    difference of its places a step before, at and after the step's start; before the motion's
+    first key, the body stands where that key puts it)."""
     k = wp.tid()
     b = body[k]
     t = time[0]
     h = dt[0]
     a = body_place(keys, b, t, rest[k])
     e = body_place(keys, b, t + h, rest[k])
+    before = body_place(keys, b, t - h, rest[k])
     x[first + k] = a
     v[first + k] = (e - a) / float(h)
+    acc[first + k] = (e - 2.0 * a + before) / float(h * h)
 
 
 class MovingBodies:
@@ -135,8 +140,9 @@ class MovingBodies:
         k.slope_rotate = vec([s[1] for s in slopes])
         self.keys = k
 
-    def place(self, boundary_x: wp.array, boundary_v: wp.array, time: wp.array, dt: wp.array) -> None:
-        """Put the bodies where they are at ``time`` with the velocity of the step ``dt`` (device arrays)."""
+    def place(self, boundary_x: wp.array, boundary_v: wp.array, boundary_a: wp.array, time: wp.array, dt: wp.array) -> None:
+        """Put the bodies where they are at ``time`` with the velocity of the step ``dt`` and their
+        acceleration (device arrays)."""
         if self.n:
-            wp.launch(move_bodies, dim=self.n, inputs=[self.keys, self.body, self.rest, time, dt, self.first, boundary_x, boundary_v],
-                      device=self.device)
+            wp.launch(move_bodies, dim=self.n, inputs=[self.keys, self.body, self.rest, time, dt, self.first, boundary_x, boundary_v,
+                                                       boundary_a], device=self.device)

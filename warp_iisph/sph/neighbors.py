@@ -15,14 +15,15 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 from .grid import CellGrid, ParticleGrid, cell_first, cell_hash, cell_range
-from .kernel import cubic_grad_W
+from .kernel import cubic_W, cubic_grad_W
 from .wall_mask import NearMask, may_have_neighbors, near_mask
 
 
 @wp.struct
 class NeighborList:
     """Neighbour lists: the m-th neighbour of particle i (m < ``count[i]``) is
-    ``index[start[i] + m * step]``, with kernel gradient ``grad_W[...]`` (:func:`entry`). Compact
+    ``index[start[i] + m * step]``, with kernel gradient ``grad_W[...]`` and value ``W[...]``
+    (:func:`entry`). Compact
     (CSR) lists and particle-major strided lists have ``step`` 1; slot-major strided lists keep
     slot m of every particle together (``start[i] = i``, ``step = n``), so neighbouring threads
     read neighbouring entries: the layout a GPU gathers fastest."""
@@ -31,6 +32,8 @@ class NeighborList:
     count: wp.array(dtype=wp.int32)
     index: wp.array(dtype=wp.int32)
     grad_W: wp.array(dtype=wp.vec3)
+    W: wp.array(dtype=float)
+    head: wp.array(dtype=float)  # fluid-to-wall lists: the step's hydrostatic head (wall_pressure.py)
     step: int
 
 
@@ -86,6 +89,7 @@ def fill_from_cells(g: CellGrid, points: wp.array(dtype=wp.vec3), first: int, x_
                         if k < capacity:
                             nbrs.index[k] = j
                             nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
+                            nbrs.W[k] = cubic_W(wp.length(x_ij), radius)
                         k += 1
     return k
 
@@ -149,6 +153,7 @@ def fill_neighbors(
                 if k < capacity:
                     nbrs.index[k] = j
                     nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
+                    nbrs.W[k] = cubic_W(wp.length(x_ij), radius)
                 k += 1
     k = fill_from_cells(moving, points, moving_first, x_i, radius, nbrs, k, capacity)
     if k > capacity:  # keep every later loop inside the storage
@@ -195,6 +200,7 @@ def fill_neighbors_strided(
                                 e = k0 + k * nbrs.step
                                 nbrs.index[e] = j
                                 nbrs.grad_W[e] = cubic_grad_W(x_ij, radius)
+                                nbrs.W[e] = cubic_W(wp.length(x_ij), radius)
                             k += 1
     nbrs.count[i] = wp.min(k, stride)
     wanted[i] = k
@@ -235,8 +241,10 @@ class NeighborListBuffer:
     """Device storage of one :class:`NeighborList`, grown (never shrunk) as needed; built as
     compact (CSR) lists of one set's neighbours in another (fluid particles' walls)."""
 
-    def __init__(self, n: int, device, capacity: int | None = None):
+    def __init__(self, n: int, device, capacity: int | None = None, heads: bool = False):
+        """``heads``: keep a ``head`` per entry too (the walls' hydrostatic heads)."""
         self.device = device
+        self.heads = heads
         self.lists = NeighborList()
         self.lists.start = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
         self.lists.count = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
@@ -250,6 +258,8 @@ class NeighborListBuffer:
         self.capacity = capacity
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
         self.lists.grad_W = wp.zeros(capacity, dtype=wp.vec3, device=self.device)
+        self.lists.W = wp.zeros(capacity, dtype=float, device=self.device)
+        self.lists.head = wp.zeros(capacity if self.heads else 1, dtype=float, device=self.device)
 
     def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, mask: NearMask, moving: ParticleGrid,
               moving_first: int, sync: bool = True):
@@ -343,7 +353,7 @@ class NeighborSearch:
             self.boundary_mask = near_mask(still, self.radius, device)  # most particles are far from walls
         self.moving_grid = ParticleGrid(n_boundary - self.n_still, device)
         self.fluid = StridedListBuffer(n_fluid, device)
-        self.boundary = NeighborListBuffer(n_fluid, device)
+        self.boundary = NeighborListBuffer(n_fluid, device, heads=True)
         self._order = wp.zeros(max(n_fluid, 1), dtype=wp.int32, device=device)
 
     def cell_order(self, x: wp.array, n: int | None = None) -> wp.array:

@@ -140,13 +140,15 @@ class Simulation:
     def checkpoint(self) -> dict:
         """Everything the next step depends on, as NumPy arrays: the particles in their memory
         order (with the solver's warm starts), the clock, the step count (the reorder schedule)
-        and the top speed (the CFL rule).
+        the top speed (the CFL rule) and what is left
+        of a fixed step being cut into substeps.
         A simulation restored from it continues bitwise as this one would."""
         s = self.state
         # copies: on the CPU .numpy() is a view of the live arrays
         out = {name: getattr(s, name).numpy()[: s.n].copy() for name in ("x", "v", "rho", "p", "id")}
         out.update({f"carried_{name}": array.numpy()[: s.n].copy() for name, array in s.carried.items()})
-        out.update(max_speed2=self.loop.max_speed2.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
+        out.update(max_speed2=self.loop.max_speed2.numpy().copy(), sub_left=self.loop.sub_left.numpy().copy(),
+                   sub_done=self.loop.sub_done.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
                    method=np.array(self.physics.method), next_id=np.int64(s.next_id), **self.flows.checkpoint())
         return out
 
@@ -169,6 +171,9 @@ class Simulation:
         s.next_id = int(checkpoint.get("next_id", n))
         self.flows.restore(checkpoint)
         self.loop.max_speed2.assign(checkpoint["max_speed2"])
+        if "sub_left" in checkpoint:  # a fixed step being cut into substeps (older checkpoints: none)
+            self.loop.sub_left.assign(checkpoint["sub_left"])
+            self.loop.sub_done.assign(checkpoint["sub_done"])
         self.time = float(checkpoint["time"])
         self.step_count = int(checkpoint["step_count"])
 

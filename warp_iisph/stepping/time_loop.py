@@ -21,18 +21,32 @@ from ..engine.timing import StageTimes
 from ..sph.solvers import STAGES
 
 LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity", "escaped", "non_finite", "wall_corrections",
-              "obstacle_corrections", "t")
+              "obstacle_corrections", "t", "substeps")
+# the explicit viscosity's step limit, in h^2 / mu (see viscous_dt_limit)
+VISCOUS_DT_FACTOR = 0.4
 # particles are reordered by grid cell every this many steps (1 = every step)
 REORDER_INTERVAL = 10
 
 
 def viscous_dt_limit(h: float, physics) -> float:
-    """Largest step the explicit viscosity is stable with: Morris et al. (1997) ``0.125 h^2 / nu``
-    for a kinematic viscosity nu. The report's form ``2 mu sum_j ...`` is ``2(d + 2) nu sum_j ...``
-    (the SPH Laplacian, Monaghan 2005) with ``nu = mu / (d + 2) = mu / 5``, so the limit is
-    ``0.625 h^2 / mu``; wall friction has the same form. Infinite without viscosity."""
+    """Largest step the explicit viscosity is stable with, ``0.4 h^2 / mu`` (wall friction has the
+    same form). Explicit Euler on ``dv/dt = -K v`` needs ``dt < 2 / lambda_max(K)``: on a lattice
+    of spacing h (cubic spline, support 2h, the report's form with its 0.01 h^2) the largest
+    eigenvalue, over all wave vectors, is ``2.92 mu / h^2``, i.e. ``dt < 0.685 h^2 / mu`` (Morris et
+    al. 1997's ``0.125 h^2 / nu`` with ``nu = mu / 5`` gives 0.625). Settled, disordered particles
+    go unstable earlier: the Martin & Moyce column at a/h = 30 blew up in its viscosity (compression
+    of several per cent with no pressure) at 0.56 h^2 / mu and ran clean at 0.50; 0.4 keeps a
+    quarter of margin below that. Infinite without viscosity."""
     mu = max(physics.viscosity, physics.boundary_viscosity)
-    return math.inf if mu <= 0.0 else 0.625 * h * h / mu
+    return math.inf if mu <= 0.0 else VISCOUS_DT_FACTOR * h * h / mu
+
+
+@wp.func
+def fixed_step_limit(h: wp.float64, speed: wp.float64, limit: wp.float64) -> wp.float64:
+    """The longest step a fixed dt may be cut into: ``limit`` (the viscosity's) and ``h / speed``."""
+    if speed > wp.float64(0.0):
+        return wp.min(limit, h / speed)
+    return limit
 
 
 @wp.kernel
@@ -44,20 +58,44 @@ def choose_dt(
     signal_speed: wp.float64,
     dt_min: wp.float64,
     dt_max: wp.float64,
+    split: int,
+    split_limit: wp.float64,
     dt_request: wp.array(dtype=wp.float64),
     max_speed2: wp.array(dtype=float),
     time: wp.array(dtype=wp.float64),
     end: wp.array(dtype=wp.float64),
+    sub_left: wp.array(dtype=wp.float64),
+    sub_done: wp.array(dtype=wp.int32),
+    pieces: wp.array(dtype=wp.int32),
     dt64: wp.array(dtype=wp.float64),
     dt32: wp.array(dtype=float),
 ):
     """The step: a requested one, the scene's fixed dt, or the CFL rule
     ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max] (``dt_max`` here is
     also the explicit viscosity's limit, :func:`viscous_dt_limit`); then shortened to land on the
-    end time (and lengthened to it when less than a twentieth of a step would remain)."""
+    end time (and lengthened to it when less than a twentieth of a step would remain).
+
+    With ``split``, a fixed dt longer than a step may be is cut into equal substeps (``pieces``:
+    how many its step is cut into): no longer than the viscosity's limit, nor than
+    ``h / (max(max|v|, sqrt(2 g y_top)) + c)``, so that no particle crosses more than a spacing in
+    a step and, from rest, ``dt^2 g y_top / h^2 <= 1/2``. ``sub_left`` is what is left of the
+    fixed step being cut (recounted every substep, as speeds change)."""
     dt = dt_request[0]
+    n = wp.int32(1)
+    splitting = False
     if dt <= wp.float64(0.0):
         dt = fixed_dt
+        if dt > wp.float64(0.0) and split != 0:
+            splitting = True
+            left = sub_left[0]
+            if left <= wp.float64(0.0):
+                left = dt
+                sub_done[0] = 0
+            speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), velocity_scale) + signal_speed
+            pieces_left = wp.max(wp.ceil(left / fixed_step_limit(h, speed, split_limit) - wp.float64(1.0e-6)), wp.float64(1.0))
+            dt = left / pieces_left
+            sub_left[0] = left
+            n = sub_done[0] + wp.int32(pieces_left)
     if dt <= wp.float64(0.0):
         speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), velocity_scale) + signal_speed
         dt = dt_max
@@ -68,6 +106,14 @@ def choose_dt(
     dt = wp.min(dt, left)
     if left - dt < wp.float64(1.0e-9) + wp.float64(0.05) * dt:
         dt = left
+    if splitting:
+        rest = sub_left[0] - dt
+        if rest <= wp.float64(1.0e-9) * fixed_dt:
+            sub_left[0] = wp.float64(0.0)
+        else:
+            sub_left[0] = rest
+            sub_done[0] = sub_done[0] + 1
+    pieces[0] = n
     dt64[0] = dt
     dt32[0] = float(dt)
 
@@ -123,6 +169,7 @@ def record_step(
     max_speed2: wp.array(dtype=float),
     counts: wp.array(dtype=wp.int32),
     corrections: wp.array(dtype=wp.int32),
+    pieces: wp.array(dtype=wp.int32),
     needed: wp.array(dtype=wp.int32),
     list_total_f: wp.array(dtype=wp.int32),
     list_total_b: wp.array(dtype=wp.int32),
@@ -150,6 +197,7 @@ def record_step(
     log[k, 7] = wp.float64(corrections[0])
     log[k, 8] = wp.float64(corrections[1])
     log[k, 9] = t
+    log[k, 10] = wp.float64(pieces[0])
     needed[0] = wp.max(needed[0], list_total_f[0])
     needed[1] = wp.max(needed[1], list_total_b[0])
     slot[0] = k + 1
@@ -191,6 +239,13 @@ class TimeLoop:
         self.needed = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed2 = wp.zeros(1, dtype=float, device=dev)  # the last step's top speed, squared: the CFL rule's
         self.counts = wp.zeros(2, dtype=wp.int32, device=dev)  # particles out of the domain, non-finite
+        # a fixed dt cut into substeps: what is left of the one being cut, substeps taken of it, and
+        # how many it is cut into (logged)
+        self.sub_left = wp.zeros(1, dtype=f64, device=dev)
+        self.sub_done = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.pieces = wp.ones(1, dtype=wp.int32, device=dev)
+        # a fixed step is cut to the explicit viscosity's limit (the CFL rule's dt_max includes it)
+        self.split_limit = viscous_dt_limit(model.spacing, self.physics)
         self.log = wp.zeros((self.capacity, len(self.fields)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
 
@@ -212,10 +267,10 @@ class TimeLoop:
         f64 = wp.float64
         wp.launch(choose_dt, dim=1, device=dev, inputs=[
             f64(ph.dt if ph.dt is not None else -1.0), f64(ph.cfl), f64(model.spacing), f64(self.velocity_scale),
-            f64(solver.signal_speed), f64(ph.dt_min), f64(self.dt_limit), self.dt_request, self.max_speed2, self.time, self.end,
-            self.dt64, solver.dt])
+            f64(solver.signal_speed), f64(ph.dt_min), f64(self.dt_limit), int(ph.substeps), f64(min(self.split_limit, 1.0e30)),
+            self.dt_request, self.max_speed2, self.time, self.end, self.sub_left, self.sub_done, self.pieces, self.dt64, solver.dt])
         if model.bodies is not None:  # moving obstacles where they are at the step's start
-            model.bodies.place(model.boundary_x, model.boundary_v, self.time, self.dt64)
+            model.bodies.place(model.boundary_x, model.boundary_v, model.boundary_a, self.time, self.dt64)
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
             wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x, state.n)))
@@ -235,7 +290,7 @@ class TimeLoop:
                 wp.launch(record_count, dim=1, device=dev, inputs=[self.slot, value, column, self.log])
         wp.launch(record_step, dim=1, device=dev, inputs=[
             max(state.n, 1), f64(self.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
-            self.max_speed2, self.counts, model.containment.corrections, self.needed, search.fluid.needed,
+            self.max_speed2, self.counts, model.containment.corrections, self.pieces, self.needed, search.fluid.needed,
             search.boundary.needed if search.boundary_grid is not None else self._zero_total,
             self.time, self.end, self.steps, self.slot, self.step_limit, self.log, self.keep_going])
 
@@ -262,7 +317,7 @@ class TimeLoop:
         out = []
         for row in rows:
             rec = dict(zip(self.fields, (float(v) for v in row)))
-            for key in ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections", *counts):
+            for key in ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections", "substeps", *counts):
                 rec[key] = int(rec[key])
             out.append(rec)
         return out

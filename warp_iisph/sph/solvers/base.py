@@ -3,11 +3,13 @@ skeleton.
 
 Density (Akinci boundaries): ``rho_i = sum_j m W_ij + sum_b psi_b W_ib`` (j includes i).
 Pressure acceleration: ``a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij
-- sum_b psi_b (p_i/rho_i^2) grad W_ib``: a wall pushes with the fluid particle's own pressure
-(Akinci et al. 2012). This is the force that conserves energy (it is minus the gradient of the
-fluid's internal energy with respect to its position); its price is that fluid particles
-touching a wall carry about twice the hydrostatic pressure, since the wall contributes no
-``p_j`` term. Mirroring the pressure (a factor 2) fixes that but pumps energy into the flow.
+- sum_b psi_b (p_i/rho_i^2 + p_b/rho0^2) grad W_ib``: a wall particle is a neighbour with its own
+pressure ``p_b``, the fluid's pressure extrapolated into the wall (:mod:`..wall_pressure`,
+``physics.wall_pressure = "extrapolated"``). With ``"fluid"`` the wall term is Akinci et al.'s
+``psi_b (p_i/rho_i^2) grad W_ib`` (the fluid particle's own pressure, one term), with which the
+fluid touching a wall carries about twice the hydrostatic pressure.
+
+Neighbour lists store ``W`` beside ``grad W``; densities are summed from them.
 """
 
 from __future__ import annotations
@@ -18,8 +20,9 @@ import warp as wp
 
 from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
-from ..kernel import cubic_W
+from ..kernel import cubic_W, cubic_W_np
 from ..neighbors import NeighborList, NeighborSearch, entry
+from ..wall_pressure import smoothed_pressure, wall_heads
 
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
 
@@ -40,15 +43,12 @@ def compute_density(
 ):
     """Density of fluid particle i, and its compression max(rho/rho0 - 1, 0)."""
     i = wp.tid() + offset
-    x_i = x[i]
     r = mass * cubic_W(0.0, H)
     for m in range(nf.count[i]):
-        k = entry(nf, i, m)
-        r += mass * cubic_W(wp.length(x_i - x[nf.index[k]]), H)
+        r += mass * nf.W[entry(nf, i, m)]
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
-        b = nb.index[k]
-        r += psi[b] * cubic_W(wp.length(x_i - xb[b]), H)
+        r += psi[nb.index[k]] * nb.W[k]
     rho[i] = r
     compression[i] = wp.max(wp.float64(r / rho0) - wp.float64(1.0), wp.float64(0.0))
 
@@ -60,6 +60,9 @@ def integrate(
     rho: wp.array(dtype=float),
     p: wp.array(dtype=float),
     psi: wp.array(dtype=float),
+    wall_weight: float,
+    weight: wp.array(dtype=float),
+    W0: float,
     nf: NeighborList,
     nb: NeighborList,
     mass: float,
@@ -67,18 +70,30 @@ def integrate(
     v: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
 ):
-    """Pressure acceleration, then symplectic Euler: v = v_adv + dt a_p; x += dt v."""
+    """Pressure acceleration, then symplectic Euler: v = v_adv + dt a_p; x += dt v.
+    ``wall_weight`` is 1/rho0^2 with the walls' extrapolated pressures, 0 for Akinci's walls."""
     i = wp.tid() + offset
     dt = dt_step[0]
-    p_i = p[i] / (rho[i] * rho[i])
+    rho_i = rho[i]
+    p_i = p[i] / (rho_i * rho_i)
     a = wp.vec3(0.0, 0.0, 0.0)
+    walls = wall_weight > 0.0 and nb.count[i] > 0
+    p_sum = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         j = nf.index[k]
         a -= mass * (p_i + p[j] / (rho[j] * rho[j])) * nf.grad_W[k]
+        if walls:
+            p_sum += nf.W[k] * p[j]
+    p_c = float(0.0)
+    if walls:
+        p_c = smoothed_pressure(i, p, p_sum, W0, weight)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
-        a -= psi[nb.index[k]] * p_i * nb.grad_W[k]
+        p_b = float(0.0)
+        if walls:
+            p_b = wp.max(p_c + nb.head[k], 0.0)
+        a -= psi[nb.index[k]] * (p_i + wall_weight * p_b) * nb.grad_W[k]
     v_i = v_adv[i] + dt * a
     v[i] = v_i
     x[i] = x[i] + dt * v_i
@@ -103,6 +118,13 @@ class SPHSolver:
         self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
         self._no_iterations = wp.zeros(1, dtype=wp.int32, device=model.device)
         self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
+        # the walls' pressures: extrapolated from the smoothed fluid pressure (:mod:`..wall_pressure`)
+        # or Akinci's p_i in one term ("fluid"); wall_weight is their factor 1/rho0^2 in the force
+        # and in IISPH's sum_j d_ij p_j, 0 for Akinci's
+        self.extrapolated = self.physics.wall_pressure == "extrapolated" and model.n_boundary > 0
+        self.wall_weight = 1.0 / (self.physics.rho0 * self.physics.rho0) if self.extrapolated else 0.0
+        self.W0 = float(cubic_W_np(0.0, model.support_radius))
+        self.smoothing_weight = wp.ones(max(n, 1), dtype=float, device=model.device)  # sum_j W_ij, near walls
 
     @property
     def signal_speed(self) -> float:
@@ -126,6 +148,9 @@ class SPHSolver:
                 model.device,
             )
             sum_into(self.compression, n, self._compression_sum)
+            if self.extrapolated:
+                launch_particles(wall_heads, n, [state.x, state.rho, model.boundary_x, model.boundary_a, wp.vec3(*self.physics.gravity), nf,
+                                                 nb, self.W0, self.smoothing_weight], model.device)
         with timer("advection"):
             self.predict_advection(model, state)
         with timer("pressure"):
@@ -134,7 +159,8 @@ class SPHSolver:
             launch_particles(
                 integrate,
                 n,
-                [self.v_adv, state.rho, state.p, model.boundary_psi, nf, nb, model.mass, self.dt, state.v, state.x],
+                [self.v_adv, state.rho, state.p, model.boundary_psi, self.wall_weight, self.smoothing_weight, self.W0, nf, nb, model.mass,
+                 self.dt, state.v, state.x],
                 model.device,
             )
 

@@ -1,17 +1,23 @@
-"""Implicit Incompressible SPH (Ihmsen et al. 2014, IEEE TVCG 20(3)), with Akinci boundaries.
+"""Implicit Incompressible SPH (Ihmsen et al. 2014, IEEE TVCG 20(3)), with Akinci boundary particles
+whose pressure is the fluid's extrapolated into the wall (:mod:`..wall_pressure`).
 
 Per step, after densities: ``predict_advection`` computes ``v_adv = v + dt a_nonpressure``,
 ``d_ii = -dt^2 sum_j m/rho_i^2 grad W_ij - dt^2 sum_b psi_b/rho_i^2 grad W_ib``,
 ``rho_adv = rho_i + dt sum_j m v_adv_ij . grad W_ij + dt sum_b psi_b (v_adv_i - v_b) . grad W_ib`` and
 ``a_ii = sum_j m (d_ii - d_ji) . grad W_ij + sum_b psi_b d_ii . grad W_ib`` with
 ``d_ji = dt^2 m/rho_i^2 grad W_ij``; the pressure starts at ``0.5 p(t - dt)``.
-``pressure_solve`` runs relaxed Jacobi: ``sum_j d_ij p_j = -dt^2 sum_j m p_j/rho_j^2 grad W_ij``,
-then ``p_i = max((1 - omega) p_i + omega / a_ii (rho0 - rho_adv_i - s_i), 0)`` with
+``pressure_solve`` runs relaxed Jacobi: ``sum_j d_ij p_j = -dt^2 sum_j m p_j/rho_j^2 grad W_ij
+- dt^2 sum_b psi_b p_b/rho0^2 grad W_ib`` (the walls' pressures ``p_b`` extrapolated from this
+iteration's pressures: known values like the neighbours', so they enter ``s_i``; with
+``physics.wall_pressure = "fluid"`` the wall term is Akinci's, i's own pressure, held by ``d_ii``),
 ``s_i = sum_j m (sum_dij_pj_i - d_jj p_j - (sum_dij_pj_j - d_ji p_i)) . grad W_ij
-+ sum_b psi_b sum_dij_pj_i . grad W_ib``, until the average predicted density error
-``mean(max(rho_i/rho0 - 1, 0))`` (reduced in float64) is at most ``eta`` and at least
-``min_iterations`` ran, or ``max_iterations`` is reached. The error is that of the iteration's
-input pressures, ``rho_adv + a_ii p_i + s_i`` (the residual; see ``jacobi_update``).
++ sum_b psi_b sum_dij_pj_i . grad W_ib``, the predicted density ``rho_adv + a_ii p_i + s_i`` and
+``p_i = max(p_i + omega (rho0 - rho_pred_i) / a_diag_i, 0)`` (``a_diag``: the system's diagonal,
+``a_ii`` plus the share p_i has in the walls' pressures near i; ``a_ii`` itself with Akinci's
+walls, where the step is written ``(1 - omega) p_i + omega / a_ii (rho0 - rho_adv_i - s_i)``),
+until the average predicted density error ``mean(max(rho_i/rho0 - 1, 0))`` (reduced in float64)
+is at most ``eta`` and at least ``min_iterations`` ran, or ``max_iterations`` is reached. The
+error is that of the iteration's input pressures (the residual; see ``jacobi_update``).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import warp as wp
 from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
+from ..wall_pressure import smoothed_pressure
 from .base import SPHSolver
 from .forces import non_pressure_acceleration
 
@@ -42,9 +49,15 @@ def predict_advection_velocity(
     vb: wp.array(dtype=wp.vec3),
     boundary_viscosity: float,
     dt_step: wp.array(dtype=float),
+    wall_weight: float,
+    p: wp.array(dtype=float),
     v_adv: wp.array(dtype=wp.vec3),
     d_ii: wp.array(dtype=wp.vec3),
+    push: wp.array(dtype=wp.vec3),
 ):
+    """``v_adv``, ``d_ii`` and, with extrapolated wall pressures, ``E_i = -dt^2 / rho0^2 sum_b
+    psi_b grad W_ib`` over the walls whose pressure is positive at the step's start (judged from
+    p_i): how far i moves per unit of the pressure its walls push with."""
     i = wp.tid() + offset
     dt = dt_step[0]
     v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity)
@@ -52,11 +65,18 @@ def predict_advection_velocity(
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         d -= mass * nf.grad_W[k]
+    rho_i = rho[i]
+    e = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
-        d -= psi[nb.index[k]] * nb.grad_W[k]
-    rho_i = rho[i]
+        b = nb.index[k]
+        g = psi[b] * nb.grad_W[k]
+        d -= g
+        if wall_weight > 0.0:
+            if p[i] + nb.head[k] > 0.0:
+                e += g
     d_ii[i] = d * (dt * dt / (rho_i * rho_i))
+    push[i] = (-dt * dt * wall_weight) * e
 
 
 @wp.kernel
@@ -71,24 +91,45 @@ def predict_advection_density(
     nb: NeighborList,
     mass: float,
     dt_step: wp.array(dtype=float),
+    wall_weight: float,
+    push: wp.array(dtype=wp.vec3),
+    weight: wp.array(dtype=float),
+    W0: float,
     rho_adv: wp.array(dtype=float),
     a_ii: wp.array(dtype=float),
+    a_diag: wp.array(dtype=float),
     p: wp.array(dtype=float),
 ):
+    """``rho_adv``, ``a_ii`` and the warm start; with extrapolated wall pressures also the system's
+    diagonal ``a_diag``: p_i enters the smoothed pressure of i and of its neighbours j near walls
+    (weights ``w_ji = W_ij / sum_k W_jk``), whose walls then move them by ``w_ji E_j`` per unit
+    (``E_j``: ``push``), so ``a_diag = a_ii + sum_j m (w_ii E_i - w_ji E_j) . grad W_ij +
+    sum_b psi_b w_ii E_i . grad W_ib``. Without it the Jacobi step overshoots where a particle's
+    own pressure dominates its walls' (edges, corners, thin films)."""
     i = wp.tid() + offset
     dt = dt_step[0]
     v_i = v_adv[i]
     rho_i = rho[i]
     dii = d_ii[i]
     d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    walls = wall_weight > 0.0
+    e_i = wp.vec3(0.0, 0.0, 0.0)
+    if walls and nb.count[i] > 0:
+        e_i = push[i] * (W0 / weight[i])
     r = float(0.0)
     a = float(0.0)
+    w = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         j = nf.index[k]
         g = nf.grad_W[k]
         r += mass * wp.dot(v_i - v_adv[j], g)
         a += mass * wp.dot(dii - d_ji_scale * g, g)
+        if walls:
+            e = e_i
+            if nb.count[j] > 0:
+                e = e_i - push[j] * (nf.W[k] / weight[j])
+            w += mass * wp.dot(e, g)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         g = nb.grad_W[k]
@@ -96,8 +137,12 @@ def predict_advection_density(
         psi_b = psi[b]
         r += psi_b * wp.dot(v_i - vb[b], g)  # a moving wall's velocity: the flow through it compresses
         a += psi_b * wp.dot(dii, g)
+        if walls:
+            w += psi_b * wp.dot(e_i, g)
     rho_adv[i] = rho_i + dt * r
     a_ii[i] = a
+    if walls:
+        a_diag[i] = a + w
     p[i] = 0.5 * p[i]
 
 
@@ -129,6 +174,7 @@ def jacobi_update(
     sigma: float,
     p_i: float,
     a: float,
+    a_diag: float,
     rho_adv_i: float,
     rho0: float,
     omega: float,
@@ -138,15 +184,22 @@ def jacobi_update(
     """The relaxed Jacobi pressure from ``s_i``, and the predicted density error of the pressures
     this iteration started from.
 
-    ``s_i`` is summed from the iteration's input pressures, so ``rho_adv + a_ii p_i + s_i`` is the
-    density those pressures predict: the true residual. Evaluating it with the updated ``p_i``
-    instead (as SPlisHSPlasH does) mixes two iterates and reports ``(1 - omega)`` times the
-    residual, half of it at omega = 0.5, so the solver stopped at twice the error eta allows."""
+    ``s_i`` is summed from the iteration's input pressures (the walls' pressures too), so
+    ``rho_adv + a_ii p_i + s_i`` is the density those pressures predict: the true residual.
+    Evaluating it with the updated ``p_i`` instead (as SPlisHSPlasH does) mixes two iterates and
+    reports ``(1 - omega)`` times the residual, half of it at omega = 0.5, so the solver stopped at
+    twice the error eta allows. The step divides the residual by the system's diagonal
+    ``a_diag``: ``a_ii`` itself with Akinci's walls (then ``p + omega (rho0 - rho_pred) / a_ii`` is
+    written in IISPH's form), ``a_ii`` plus the share p_i has through the walls' extrapolated
+    pressures with those (:func:`wall_diagonal`)."""
     p_next = float(0.0)
-    if wp.abs(a) > 1.0e-12:
-        p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv_i - sigma), 0.0)
-    p_new[i] = p_next
     rho_pred = rho_adv_i + a * p_i + sigma
+    if wp.abs(a) > 1.0e-12:
+        if a_diag == a:
+            p_next = wp.max((1.0 - omega) * p_i + omega / a * (rho0 - rho_adv_i - sigma), 0.0)
+        else:
+            p_next = wp.max(p_i + omega / a_diag * (rho0 - rho_pred), 0.0)
+    p_new[i] = p_next
     density_error[i] = wp.max(wp.float64(rho_pred / rho0) - wp.float64(1.0), wp.float64(0.0))
 
 
@@ -155,18 +208,35 @@ def pressure_sum_dij_pj(
     offset: int,
     rho: wp.array(dtype=float),
     p: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    wall_weight: float,
+    weight: wp.array(dtype=float),
+    W0: float,
     nf: NeighborList,
+    nb: NeighborList,
     mass: float,
     dt_step: wp.array(dtype=float),
     sum_dij_pj: wp.array(dtype=wp.vec3),
 ):
+    """``sum_j d_ij p_j``: the displacement the neighbours' pressures give particle i over the
+    step, with the walls' pressures extrapolated from this iteration's (``wall_weight`` = 1/rho0^2;
+    0 for Akinci's walls, whose term is i's own pressure, in ``d_ii``)."""
     i = wp.tid() + offset
     dt = dt_step[0]
     acc = wp.vec3(0.0, 0.0, 0.0)
+    walls = wall_weight > 0.0 and nb.count[i] > 0
+    p_sum = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         j = nf.index[k]
         acc -= dij_pj_term(mass, p[j], rho[j], nf.grad_W[k])
+        if walls:
+            p_sum += nf.W[k] * p[j]
+    if walls:
+        p_c = smoothed_pressure(i, p, p_sum, W0, weight)
+        for m in range(nb.count[i]):
+            k = entry(nb, i, m)
+            acc -= (psi[nb.index[k]] * wall_weight * wp.max(p_c + nb.head[k], 0.0)) * nb.grad_W[k]
     sum_dij_pj[i] = dt * dt * acc
 
 
@@ -176,6 +246,7 @@ def pressure_jacobi(
     rho: wp.array(dtype=float),
     rho_adv: wp.array(dtype=float),
     a_ii: wp.array(dtype=float),
+    a_diag: wp.array(dtype=float),
     d_ii: wp.array(dtype=wp.vec3),
     sum_dij_pj: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=float),
@@ -202,7 +273,7 @@ def pressure_jacobi(
         g = nf.grad_W[k]
         sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
-    jacobi_update(i, sigma, p_i, a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
+    jacobi_update(i, sigma, p_i, a_ii[i], a_diag[i], rho_adv[i], rho0, omega, p_new, density_error)
 
 
 @wp.kernel
@@ -232,9 +303,12 @@ class IISPHSolver(SPHSolver):
         n, dev = model.capacity, model.device
         self.d_ii = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.a_ii = wp.zeros(n, dtype=float, device=dev)
+        # the diagonal the Jacobi step divides by: a_ii itself with Akinci's walls
+        self.a_diag = wp.zeros(n, dtype=float, device=dev) if self.extrapolated else self.a_ii
         self.rho_adv = wp.zeros(n, dtype=float, device=dev)
         self.sum_dij_pj = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.p_next = wp.zeros(n, dtype=float, device=dev)
+        self.push = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.density_error = wp.zeros(n, dtype=wp.float64, device=dev)
         self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
         self._iterations = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -244,18 +318,19 @@ class IISPHSolver(SPHSolver):
         ph = self.physics
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = state.n, model.device
+        g = wp.vec3(*ph.gravity)
         launch_particles(
             predict_advection_velocity,
             n,
-            [state.x, state.v, state.rho, model.boundary_psi, nf, nb, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
-             model.boundary_x, model.boundary_v, ph.boundary_viscosity, self.dt, self.v_adv, self.d_ii],
+            [state.x, state.v, state.rho, model.boundary_psi, nf, nb, model.mass, ph.viscosity, model.spacing, g, model.boundary_x,
+             model.boundary_v, ph.boundary_viscosity, self.dt, self.wall_weight, state.p, self.v_adv, self.d_ii, self.push],
             dev,
         )
         launch_particles(
             predict_advection_density,
             n,
-            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt, self.rho_adv,
-             self.a_ii, state.p],
+            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt, self.wall_weight,
+             self.push, self.smoothing_weight, self.W0, self.rho_adv, self.a_ii, self.a_diag, state.p],
             dev,
         )
 
@@ -270,11 +345,12 @@ class IISPHSolver(SPHSolver):
         ph = self.physics
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = state.n, model.device
-        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, nf, model.mass, self.dt, self.sum_dij_pj], dev)
+        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, self.wall_weight, self.smoothing_weight, self.W0,
+                                                  nf, nb, model.mass, self.dt, self.sum_dij_pj], dev)
         launch_particles(
             pressure_jacobi,
             n,
-            [state.rho, self.rho_adv, self.a_ii, self.d_ii, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
+            [state.rho, self.rho_adv, self.a_ii, self.a_diag, self.d_ii, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
              model.mass, self.dt, ph.rho0, float(ph.omega), self.p_next, self.density_error],
             dev,
         )
