@@ -7,8 +7,8 @@
    below 1 %, and a max speed below 3x the free-fall speed of the column; with the CFL number
    dt * v_ref / h (v_ref = sqrt(2 g 2a)) of each limit.
 2. The 32,768-particle dam break (scenes.dam_break_cube) at a fixed 5 ms and 10 ms for 2 s with
-   the defaults: a fixed step longer than IISPH can take is cut into substeps (counted per
-   step); every step's particles put back within the tank by the last line
+   the defaults, where a fixed step longer than IISPH can take is cut into substeps (counted per
+   step), and with every step taken as it is (substeps off); every step's particles put back within the tank by the last line
    (warp_iisph/sph/containment.py: what the pressure solver left undone), compression and
    iterations.
 
@@ -67,10 +67,10 @@ def largest_stable_dt(method: str, h: float, lo: float, hi: float, steps: int, d
     return {"dt_max": lo, "first_unstable": hi, "failure": why_hi}
 
 
-def fixed_step_dam_break(dt: float, duration: float, particles: int = 32768) -> dict:
-    """The dam break (a 0.96 m cube of water) at a fixed ``dt`` with the defaults: per-step
-    records and totals."""
-    sim = Simulation(scenes.dam_break_cube(particles=particles, dt=dt), "cpu", history=1)
+def fixed_step_dam_break(dt: float, duration: float, particles: int = 32768, substeps: bool = True) -> dict:
+    """The dam break (a 0.96 m cube of water) at a fixed ``dt`` with the defaults (``substeps``
+    false: every step taken as it is): per-step records and totals."""
+    sim = Simulation(scenes.dam_break_cube(particles=particles, dt=dt, substeps=substeps), "cpu", history=1)
     spacing = sim.model.spacing
     steps, stopped, t0 = [], None, time.perf_counter()
     try:
@@ -81,7 +81,7 @@ def fixed_step_dam_break(dt: float, duration: float, particles: int = 32768) -> 
     except DivergenceError as err:
         stopped = str(err)
     corr = [s["wall_corrections"] + s["obstacle_corrections"] for s in steps]
-    return {"fixed_dt": dt, "spacing": spacing, "particles": sim.n_particles, "duration": duration, "t_reached": sim.time,
+    return {"fixed_dt": dt, "substeps": substeps, "spacing": spacing, "particles": sim.n_particles, "duration": duration, "t_reached": sim.time,
             "stopped": stopped, "steps": len(steps), "wall_seconds": time.perf_counter() - t0,
             "fixed_steps": int(round(sim.time / dt)), "substepped_steps": sum(s["substeps"] > 1 for s in steps),
             "most_substeps": max((s["substeps"] for s in steps), default=1),
@@ -119,10 +119,10 @@ def main():
             dt = "none" if r["dt_max"] is None else f"{1e3 * r['dt_max']:.2f} ms (CFL {r['cfl_at_limit']:.2f})"
             print(f"{method:>5} h = {h:g} m: largest stable dt {dt}; fails by: {r.get('failure', r.get('note', ''))}")
     dam = []
-    for dt in (float(v) for v in args.fixed.split(",")):
-        r = fixed_step_dam_break(dt, dam_duration, dam_particles)
+    for dt, substeps in ((float(v), s) for v in args.fixed.split(",") for s in (True, False)):
+        r = fixed_step_dam_break(dt, dam_duration, dam_particles, substeps)
         dam.append(r)
-        print(f"dam break ({r['particles']} particles) at a fixed {1e3 * dt:g} ms: reached {r['t_reached']:.3f} s"
+        print(f"dam break ({r['particles']} particles) at a fixed {1e3 * dt:g} ms{'' if substeps else ', no substeps'}: reached {r['t_reached']:.3f} s"
               + (f" (STOPPED: {r['stopped']})" if r["stopped"] else "")
               + f" in {r['steps']} steps ({r['substepped_steps']} of them substeps, up to {r['most_substeps']} per fixed step); "
               f"{r['corrections']} particles put back in {r['steps_with_corrections']} steps (at most {r['most_corrections_in_a_step']} "
@@ -150,13 +150,14 @@ def chart(rows, dam, path):
     ax.set_ylabel("largest stable fixed dt (ms), no substeps")
     ax.set_title("Dam break: largest stable time step")
     ax.legend()
-    for r, colour in zip(dam, ("C0", "C3", "C2")):
+    for r, colour in zip(dam, ("C0", "C1", "C3", "C4", "C2", "C5")):
         t = [s["t"] for s in r["per_step"]]
         corr = [s["wall_corrections"] + s["obstacle_corrections"] for s in r["per_step"]]
-        bx.plot(t, corr, ".", ms=3, color=colour, label=f"fixed {1e3 * r['fixed_dt']:g} ms: particles put back per step "
-                                                        f"({r['corrections']} in all)")
-        bx.plot(t, [s["substeps"] for s in r["per_step"]], "-", lw=0.8, color=colour, alpha=0.6,
-                label=f"fixed {1e3 * r['fixed_dt']:g} ms: substeps per fixed step")
+        name = f"fixed {1e3 * r['fixed_dt']:g} ms" + ("" if r.get("substeps", True) else ", no substeps")
+        bx.plot(t, corr, ".", ms=3, color=colour, label=f"{name}: particles put back per step ({r['corrections']} in all"
+                                                        + ("" if r["stopped"] is None else f"; stopped at {r['t_reached']:.2f} s") + ")")
+        if r.get("substeps", True):
+            bx.plot(t, [s["substeps"] for s in r["per_step"]], "-", lw=0.8, color=colour, alpha=0.6, label=f"{name}: substeps per fixed step")
     bx.set_xlabel("t (s)")
     bx.set_ylabel("count")
     bx.set_title(f"Dam break, {dam[0]['particles']} particles, fixed steps" if dam else "")
