@@ -44,9 +44,10 @@ def main():
             cli(["preview", str(run), "--frames", f"{frame}:{frame + 1}", "--out", str(still), "--resolution", "480x270",
                  "--no-progress"])
         t = record["totals"]
-        rows.append({"scene": name, "exit": code, "ended": record["ended"], "particles": record["particles"]["fluid"],
+        rows.append({"scene": name, "exit": code, "ended": record["ended"], "particles": t["particles"],  # at the end (emitters add)
                      "simulated_seconds": t["simulated_time"], "steps": t["steps"], "wall_seconds": t["wall_seconds"],
                      "mean_compression": t["mean_compression"], "wall_corrections": t.get("wall_corrections"),
+                     "obstacle_corrections": t.get("obstacle_corrections"),
                      "still": still.name, "frame": frame})
         print(f"{name:16s} {rows[-1]['particles']:>6} particles, {t['simulated_time']:.2f} s simulated in {t['wall_seconds']:.0f} s "
               f"({record['ended']}) -> {still}")

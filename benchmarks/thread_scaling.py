@@ -3,9 +3,10 @@
 and ms per stage for each count, and its mean actual compression. Beside it, in the same run on
 the same cores, SPlisHSPlasH's IISPH and DFSPH on the same dam break with 2 threads
 (benchmarks/peer_splishsplash.py; the `bench` extra, skipped when not installed). Writes
-benchmarks/results/thread_scaling.json and .png.
+benchmarks/results/thread_scaling.json and .png. ``--matched iisph:3e-4,dfsph:5e-4`` adds runs of
+ours with 2 threads at other methods and tolerances, to set beside the peers at a like compression.
 
-    python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer] [--quick]
+    python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer] [--matched METHOD:ETA,...] [--quick]
 """
 
 import argparse
@@ -19,15 +20,17 @@ from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import available_cores, set_threads
 
 
-def run(threads: int, spacing: float, duration: float) -> dict:
+def run(threads: int, spacing: float, duration: float, method: str = "iisph", eta: float = 1e-3) -> dict:
     set_threads(threads)
-    sim = Simulation(scenes.dam_break_cube(spacing=spacing, eta=1e-3, cfl=0.5, dt_max=5e-3), "cpu")
+    sim = Simulation(scenes.dam_break_cube(spacing=spacing, method=method, eta=eta, cfl=0.5, dt_max=5e-3), "cpu")
     t0 = time.perf_counter()
     sim.advance(duration)
     wall = time.perf_counter() - t0
     st = sim.stats
     stages = {k: float(np.median([s["ms"][k] for s in st])) for k in st[0]["ms"]}
     return {
+        "method": method,
+        "eta": eta,
         "threads": threads,
         "particles": sim.n_particles,
         "wall_seconds": wall,
@@ -39,12 +42,16 @@ def run(threads: int, spacing: float, duration: float) -> dict:
     }
 
 
-def chart(results: list, peers: list, path) -> None:
+def chart(results: list, peers: list, path, matched: list = ()) -> None:
     plt = pyplot()
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     th = [r["threads"] for r in results]
-    a.plot(th, [r["wall_seconds_per_simulated_second"] for r in results], "o-", label="warp_iisph IISPH")
+    a.plot(th, [r["wall_seconds_per_simulated_second"] for r in results], "o-",
+           label=f"warp_iisph IISPH ({100 * results[0]['mean_density_error']:.3f} %)")
+    for r, marker in zip(matched, "sD^v"):
+        a.plot([r["threads"]], [r["wall_seconds_per_simulated_second"]], marker, label=f"warp_iisph {r['method'].upper()} eta "
+               f"{r['eta']:g} ({100 * r['mean_density_error']:.3f} %)")
     for p, style in zip(peers, ("--", ":")):
         a.axhline(p["wall_seconds_per_simulated_second"], color="gray", ls=style,
                   label=f"SPlisHSPlasH {p['method'].upper()}, {p['threads']} threads ({100 * p['mean_compression']:.3f} %)")
@@ -74,6 +81,7 @@ def main():
     ap.add_argument("--spacing", type=float, default=0.03)
     ap.add_argument("--threads", default=",".join(str(t) for t in sorted({1, 2, available_cores()})))
     ap.add_argument("--no-peer", action="store_true", help="skip SPlisHSPlasH")
+    ap.add_argument("--matched", default="", help="extra 2-thread runs of ours, METHOD:ETA,...")
     ap.add_argument("--quick", action="store_true", help="a coarse, short run (under a minute)")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
@@ -99,9 +107,16 @@ def main():
         print("SPlisHSPlasH: not installed (pip install 'warp_iisph[bench]'), skipped")
     for r in results:
         print(f"warp_iisph, {r['threads']} threads: mean compression {100 * r['mean_density_error']:.3f} %")
+    matched = []
+    for item in filter(None, args.matched.split(",")):
+        method, eta = item.split(":")
+        r = run(2, args.spacing, args.duration, method, float(eta))
+        matched.append(r)
+        print(f"warp_iisph {method.upper()} eta {float(eta):g}, 2 threads: {r['wall_seconds_per_simulated_second']:.1f} s/sim s, "
+              f"{r['steps']} steps, {r['mean_iterations']:.2f} iterations, mean compression {100 * r['mean_density_error']:.3f} %")
     record = header("thread_scaling", scene="dam_break_cube", spacing=args.spacing, duration=args.duration,
-                    available_cores=available_cores(), results=results, peers=peers)
-    chart(results, peers, save(record, args.out, "thread_scaling", args.quick))
+                    available_cores=available_cores(), results=results, peers=peers, matched=matched)
+    chart(results, peers, save(record, args.out, "thread_scaling", args.quick), matched)
 
 
 if __name__ == "__main__":
