@@ -1,11 +1,13 @@
-"""The walls' extrapolated pressure (physics.wall_pressure) and fixed steps cut into substeps
-(physics.substeps): physics first, then the plain, graph and resumed paths agreeing bitwise."""
+"""The walls' extrapolated pressure (physics.wall_pressure), fixed steps cut into substeps
+(physics.substeps) and the viscosity's own sub-steps: physics first, then the plain, graph and
+resumed paths agreeing bitwise."""
 
 import numpy as np
 import pytest
 
 from warp_iisph import Box, Physics, Scene, Simulation, scenes
-from warp_iisph.stepping.time_loop import viscous_dt_limit
+from warp_iisph.analysis.dam_break import surge_front
+from warp_iisph.sph.solvers.forces import viscous_dt_limit
 
 G = 9.81
 
@@ -48,24 +50,63 @@ def dam(dt: float, substeps: bool = True, graph: bool = False) -> Simulation:
 
 
 def test_a_fixed_step_is_cut_into_substeps_that_land_on_it():
-    """A fixed 20 ms step on a 2 cm dam break is longer than the viscosity's limit allows
-    (0.4 h^2 / mu = 3.2 ms): every step taken is within the limit, the substeps of one fixed
-    step are equal, and their ends land on the multiples of 20 ms."""
+    """A fixed 20 ms step on a 2 cm dam break lets particles cross several spacings: every step
+    taken is at most h / v_ref (v_ref = sqrt(2 g y_top), the free-fall speed of the column's
+    top), the substeps of one fixed step are equal, and their ends land on the multiples of 20 ms."""
     dt = 0.02
     sim = dam(dt)
     sim.advance(0.2)
-    limit = viscous_dt_limit(sim.model.spacing, sim.physics)
+    v_ref = np.sqrt(2 * G * 0.4)
     st = sim.stats
-    assert all(s["dt"] <= limit * (1 + 1e-6) for s in st)
-    assert min(s["substeps"] for s in st) >= int(np.ceil(dt / limit))
+    assert all(s["dt"] <= sim.model.spacing / v_ref * (1 + 1e-6) for s in st)
+    assert min(s["substeps"] for s in st) >= 3
     ends = [s["t"] for s in st if abs(s["t"] / dt - round(s["t"] / dt)) < 1e-6]
     assert len(ends) == 10 and abs(sim.time - 0.2) < 1e-9
     t0 = 0.0
     for end in ends:  # the steps between two ends are equal pieces of one fixed step
-        piece = [s["dt"] for s in st if t0 + 1e-9 < s["t"] <= end + 1e-9]
-        assert len(piece) == int(piece and next(s["substeps"] for s in st if t0 + 1e-9 < s["t"] <= end + 1e-9))
+        group = [s for s in st if t0 + 1e-9 < s["t"] <= end + 1e-9]
+        piece = [s["dt"] for s in group]
+        assert len(piece) == group[0]["substeps"]
         assert max(piece) - min(piece) < 1e-6 * dt and abs(sum(piece) - dt) < 1e-6 * dt
         t0 = end
+
+
+def fine_column(dt=None, graph: bool = False, **physics) -> Simulation:
+    """Martin & Moyce, a = 0.1 m at 1 cm (800 particles, 4 layers deep): the default viscosity's
+    limit 0.4 h^2 / mu is 0.8 ms, a third of the flow's own step."""
+    return Simulation(scenes.martin_moyce(spacing=0.01, a=0.1, depth=0.04, dt=dt, **physics), "cpu", graph=graph)
+
+
+def test_viscosity_takes_its_own_substeps_where_the_step_exceeds_its_limit():
+    """The step follows the flow (CFL), not the viscosity: steps of 2-3 times the viscosity's
+    limit run stable (an explicit viscous step that long blows up: the stability benchmark's
+    bisection), and the front they give is the front of steps within the limit (the same
+    viscosity, applied in sub-steps instead of whole steps)."""
+    limit = viscous_dt_limit(0.01, Physics())
+    T = np.array([0.5, 1.0, 1.5, 2.0])
+    fronts = {}
+    for name, dt in (("cfl", None), ("small", 0.9 * limit)):
+        sim = fine_column(dt)
+        Z = []
+        for t in T / np.sqrt(2 * G / 0.1):
+            sim.advance(t - sim.time)
+            Z.append(surge_front(sim.positions, 0.01) / 0.1)
+        st = sim.stats
+        assert all(s["escaped"] == 0 and s["wall_corrections"] == 0 for s in st)
+        assert np.mean([s["compression"] for s in st]) < 2 * sim.physics.eta
+        fronts[name] = np.array(Z)
+        if name == "cfl":
+            assert np.median([s["dt"] for s in st]) > 2 * limit
+    np.testing.assert_allclose(fronts["cfl"], fronts["small"], rtol=0.03)
+
+
+def test_viscous_substeps_in_a_graph_are_bitwise_the_plain_run():
+    plain, graph = fine_column(), fine_column(graph=True)
+    plain.advance(0.05)
+    graph.advance(0.05)
+    assert max(s["dt"] for s in plain.stats) > 2 * viscous_dt_limit(0.01, plain.physics)
+    np.testing.assert_array_equal(graph.positions, plain.positions)
+    np.testing.assert_array_equal(graph.velocities, plain.velocities)
 
 
 def test_without_substeps_a_fixed_step_is_taken_as_it_is():
@@ -85,7 +126,7 @@ def test_substeps_in_a_graph_and_after_a_resume_are_bitwise_the_plain_run():
     assert [s["dt"] for s in graph.stats] == [s["dt"] for s in plain.stats]
 
     whole = dam(0.02)
-    for _ in range(9):
+    for _ in range(10):
         whole.step()
     assert whole.stats[-1]["substeps"] > 1 and abs(whole.time / 0.02 - round(whole.time / 0.02)) > 1e-3  # mid-way through a cut step
     saved = whole.checkpoint()

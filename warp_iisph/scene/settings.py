@@ -116,8 +116,9 @@ class Physics:
       the SPH Laplacian's factor 2(d + 2) = 10 where the report's sum has 2: a kinematic viscosity
       of 0.01 m^2/s). It removes what the pressure solver's start-up leaves moving (water started at
       rest would bounce for ever without it); being a fixed kinematic viscosity it damps small
-      scenes more than large ones. Its explicit step needs dt <= 0.4 h^2 / mu, which the CFL rule
-      keeps.
+      scenes more than large ones. Its explicit step is stable up to 0.4 h^2 / mu; a longer step
+      applies it in equal sub-steps within that limit (one pass over the neighbour lists each),
+      so the step follows the flow, not the viscosity.
     - ``boundary_viscosity``: the same coefficient against the walls (wall friction, m^2/s);
       0 leaves the walls free-slip.
     - ``wall_pressure``: the pressure the boundary particles push with. ``"extrapolated"`` (the
@@ -138,15 +139,15 @@ class Physics:
     - ``omega``: IISPH's Jacobi relaxation factor.
     - ``stiffness``: WCSPH's k in p = k((rho/rho0)^7 - 1) (Pa).
     - ``substeps``: with a fixed ``dt``, cut a step longer than the method can take into equal
-      substeps (each step record's ``substeps`` says into how many): no longer than the explicit
-      viscosity's limit, nor than ``h / (max(max|v|, sqrt(2 g y_top)) + c)`` (no particle crosses
+      substeps (each step record's ``substeps`` says into how many): no longer than
+      ``h / (max(max|v|, sqrt(2 g y_top)) + c)`` (no particle crosses
       more than one spacing in a step; from rest, ``dt^2 g y_top / h^2 <= 1/2``, beyond which
       IISPH's linearised density prediction fails at the walls). ``False`` takes the fixed dt as
       it is.
     - ``dt``: fixed time step (s); ``None`` selects the CFL rule
       ``dt = cfl * h / (max|v| + c)`` clamped to ``[dt_min, dt_max]`` (``c`` is WCSPH's speed of
-      sound sqrt(7 k / rho0), 0 for IISPH and DFSPH), and to the viscosity's stability limit
-      ``0.4 h^2 / max(viscosity, boundary_viscosity)``.
+      sound sqrt(7 k / rho0), 0 for IISPH and DFSPH); the last steps before a time the run must
+      land on (a frame, the end) are fitted to it.
     - ``max_velocity``: a speed (m/s) beyond which the run counts as diverged; ``None`` derives
       one from the domain height (10 x the free-fall speed over it, at least 10 m/s).
     """

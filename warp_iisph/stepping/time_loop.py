@@ -12,7 +12,6 @@ conditional nodes.
 
 from __future__ import annotations
 
-import math
 from contextlib import nullcontext
 
 import warp as wp
@@ -22,31 +21,17 @@ from ..sph.solvers import STAGES
 
 LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity", "escaped", "non_finite", "wall_corrections",
               "obstacle_corrections", "t", "substeps")
-# the explicit viscosity's step limit, in h^2 / mu (see viscous_dt_limit)
-VISCOUS_DT_FACTOR = 0.4
 # particles are reordered by grid cell every this many steps (1 = every step)
 REORDER_INTERVAL = 10
 
 
-def viscous_dt_limit(h: float, physics) -> float:
-    """Largest step the explicit viscosity is stable with, ``0.4 h^2 / mu`` (wall friction has the
-    same form). Explicit Euler on ``dv/dt = -K v`` needs ``dt < 2 / lambda_max(K)``: on a lattice
-    of spacing h (cubic spline, support 2h, the report's form with its 0.01 h^2) the largest
-    eigenvalue, over all wave vectors, is ``2.92 mu / h^2``, i.e. ``dt < 0.685 h^2 / mu`` (Morris et
-    al. 1997's ``0.125 h^2 / nu`` with ``nu = mu / 5`` gives 0.625). Settled, disordered particles
-    go unstable earlier: the Martin & Moyce column at a/h = 30 blew up in its viscosity (compression
-    of several per cent with no pressure) at 0.56 h^2 / mu and ran clean at 0.50; 0.4 keeps a
-    quarter of margin below that. Infinite without viscosity."""
-    mu = max(physics.viscosity, physics.boundary_viscosity)
-    return math.inf if mu <= 0.0 else VISCOUS_DT_FACTOR * h * h / mu
-
-
 @wp.func
-def fixed_step_limit(h: wp.float64, speed: wp.float64, limit: wp.float64) -> wp.float64:
-    """The longest step a fixed dt may be cut into: ``limit`` (the viscosity's) and ``h / speed``."""
+def fixed_step_limit(h: wp.float64, speed: wp.float64, longest: wp.float64) -> wp.float64:
+    """The longest step a fixed dt may be cut into: ``h / speed`` (``longest``, the fixed dt, when
+    nothing moves)."""
     if speed > wp.float64(0.0):
-        return wp.min(limit, h / speed)
-    return limit
+        return wp.min(longest, h / speed)
+    return longest
 
 
 @wp.kernel
@@ -59,7 +44,6 @@ def choose_dt(
     dt_min: wp.float64,
     dt_max: wp.float64,
     split: int,
-    split_limit: wp.float64,
     dt_request: wp.array(dtype=wp.float64),
     max_speed2: wp.array(dtype=float),
     time: wp.array(dtype=wp.float64),
@@ -71,13 +55,14 @@ def choose_dt(
     dt32: wp.array(dtype=float),
 ):
     """The step: a requested one, the scene's fixed dt, or the CFL rule
-    ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max] (``dt_max`` here is
-    also the explicit viscosity's limit, :func:`viscous_dt_limit`); then shortened to land on the
-    end time (and lengthened to it when less than a twentieth of a step would remain).
+    ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max] (the viscosity
+    takes sub-steps of its own where a step exceeds its limit, ``sph.solvers.forces``); then
+    fitted to land on the end time: the last step is lengthened to it when less than a twentieth
+    of a step would remain, and where between one and two steps remain the rule's steps (not a
+    fixed dt's substeps) become two equal halves of what remains.
 
     With ``split``, a fixed dt longer than a step may be is cut into equal substeps (``pieces``:
-    how many its step is cut into): no longer than the viscosity's limit, nor than
-    ``h / (max(max|v|, sqrt(2 g y_top)) + c)``, so that no particle crosses more than a spacing in
+    how many its step is cut into): no longer than ``h / (max(max|v|, sqrt(2 g y_top)) + c)``, so that no particle crosses more than a spacing in
     a step and, from rest, ``dt^2 g y_top / h^2 <= 1/2``. ``sub_left`` is what is left of the
     fixed step being cut (recounted every substep, as speeds change)."""
     dt = dt_request[0]
@@ -92,7 +77,7 @@ def choose_dt(
                 left = dt
                 sub_done[0] = 0
             speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), velocity_scale) + signal_speed
-            pieces_left = wp.max(wp.ceil(left / fixed_step_limit(h, speed, split_limit) - wp.float64(1.0e-6)), wp.float64(1.0))
+            pieces_left = wp.max(wp.ceil(left / fixed_step_limit(h, speed, dt) - wp.float64(1.0e-6)), wp.float64(1.0))
             dt = left / pieces_left
             sub_left[0] = left
             n = sub_done[0] + wp.int32(pieces_left)
@@ -103,9 +88,12 @@ def choose_dt(
             dt = cfl * h / speed
         dt = wp.min(wp.max(dt, dt_min), dt_max)
     left = end[0] - time[0]
-    dt = wp.min(dt, left)
     if left - dt < wp.float64(1.0e-9) + wp.float64(0.05) * dt:
         dt = left
+    elif left < wp.float64(2.0) * dt and not splitting:
+        # two equal steps to the end rather than a full one and a sliver: a short step builds
+        # almost no pressure, and the next, full step starts from half of that
+        dt = wp.float64(0.5) * left
     if splitting:
         rest = sub_left[0] - dt
         if rest <= wp.float64(1.0e-9) * fixed_dt:
@@ -219,9 +207,7 @@ class TimeLoop:
         self.physics = model.physics
         self.velocity_scale = float(velocity_scale)
         self.velocity_limit = float(velocity_limit)
-        # the CFL rule's longest step: dt_max, or shorter where the explicit viscosity needs it
-        # (a fixed dt is the user's choice and left alone)
-        self.dt_limit = min(self.physics.dt_max, viscous_dt_limit(model.spacing, self.physics))
+        self.dt_limit = self.physics.dt_max  # the CFL rule's longest step
         self.capacity = int(log_capacity)
         self.extra = dict(solver.extra_stats()) if hasattr(solver, "extra_stats") else {}
         self.fields = LOG_FIELDS + tuple(self.extra)
@@ -244,8 +230,6 @@ class TimeLoop:
         self.sub_left = wp.zeros(1, dtype=f64, device=dev)
         self.sub_done = wp.zeros(1, dtype=wp.int32, device=dev)
         self.pieces = wp.ones(1, dtype=wp.int32, device=dev)
-        # a fixed step is cut to the explicit viscosity's limit (the CFL rule's dt_max includes it)
-        self.split_limit = viscous_dt_limit(model.spacing, self.physics)
         self.log = wp.zeros((self.capacity, len(self.fields)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
 
@@ -267,7 +251,7 @@ class TimeLoop:
         f64 = wp.float64
         wp.launch(choose_dt, dim=1, device=dev, inputs=[
             f64(ph.dt if ph.dt is not None else -1.0), f64(ph.cfl), f64(model.spacing), f64(self.velocity_scale),
-            f64(solver.signal_speed), f64(ph.dt_min), f64(self.dt_limit), int(ph.substeps), f64(min(self.split_limit, 1.0e30)),
+            f64(solver.signal_speed), f64(ph.dt_min), f64(self.dt_limit), int(ph.substeps),
             self.dt_request, self.max_speed2, self.time, self.end, self.sub_left, self.sub_done, self.pieces, self.dt64, solver.dt])
         if model.bodies is not None:  # moving obstacles where they are at the step's start
             model.bodies.place(model.boundary_x, model.boundary_v, model.boundary_a, self.time, self.dt64)

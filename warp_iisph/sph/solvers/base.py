@@ -23,6 +23,7 @@ from ...engine.reduce import sum_into
 from ..kernel import cubic_W, cubic_W_np
 from ..neighbors import NeighborList, NeighborSearch, entry
 from ..wall_pressure import smoothed_pressure, wall_heads
+from .forces import ViscousSubsteps
 
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
 
@@ -125,6 +126,7 @@ class SPHSolver:
         self.wall_weight = 1.0 / (self.physics.rho0 * self.physics.rho0) if self.extrapolated else 0.0
         self.W0 = float(cubic_W_np(0.0, model.support_radius))
         self.smoothing_weight = wp.ones(max(n, 1), dtype=float, device=model.device)  # sum_j W_ij, near walls
+        self.viscous = ViscousSubsteps(model, n)  # the viscosity's sub-steps where a step exceeds its limit
 
     @property
     def signal_speed(self) -> float:

@@ -334,9 +334,10 @@ class DFSPHSolver(SPHSolver):
             state.n,
             [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
              model.boundary_x, model.boundary_v, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt,
-             self.v_adv],
+             self.viscous.kernel_limit, self.viscous.most, self.v_adv],
             model.device,
         )
+        self.viscous.run(model, state, self.search.fluid.lists, self.search.boundary.lists, self.dt, self.v_adv)
 
     def _apply(self, model, state, v) -> None:
         launch_particles(apply_stiffness, state.n, [self.delta, model.boundary_psi, self.search.fluid.lists, self.search.boundary.lists,

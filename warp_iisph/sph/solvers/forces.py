@@ -8,11 +8,46 @@ Wall friction (Akinci et al. 2012) uses the same form against the boundary parti
 their obstacle's velocity ``v_b``), ``a_i += 2 mu_b sum_b (psi_b / rho_i) ((v_i - v_b) . x_ib) /
 (|x_ib|^2 + 0.01 h^2) grad W_ib``, with its own
 coefficient ``mu_b`` (m^2/s); 0 (the default) keeps the walls free-slip and costs nothing.
+
+Being explicit, the viscosity is stable only for steps up to ``0.4 h^2 / mu``
+(:func:`viscous_dt_limit`), which falls below the flow's own step (CFL) at fine spacings (at
+the default ``mu``, below about 2 cm). A longer step applies it in ``n`` equal sub-steps of
+``dt / n`` within that limit, on the step's neighbour lists (:class:`ViscousSubsteps`): the
+pressure solve and the neighbour search run once per step, each viscous sub-step costs one pass
+over the fluid lists. A step within the limit is one pass, as before.
 """
+
+import math
 
 import warp as wp
 
+from ...engine.launch import launch_particles
 from ..neighbors import NeighborList, entry
+
+# the explicit viscosity's step limit, in h^2 / mu (see viscous_dt_limit)
+VISCOUS_DT_FACTOR = 0.4
+
+
+def viscous_dt_limit(h: float, physics) -> float:
+    """Largest step the explicit viscosity is stable with, ``0.4 h^2 / mu`` (wall friction has the
+    same form). Explicit Euler on ``dv/dt = -K v`` needs ``dt < 2 / lambda_max(K)``: on a lattice
+    of spacing h (cubic spline, support 2h, the report's form with its 0.01 h^2) the largest
+    eigenvalue, over all wave vectors, is ``2.92 mu / h^2``, i.e. ``dt < 0.685 h^2 / mu`` (Morris et
+    al. 1997's ``0.125 h^2 / nu`` with ``nu = mu / 5`` gives 0.625). Settled, disordered particles
+    go unstable earlier: the Martin & Moyce column at a/h = 30 blew up in its viscosity (compression
+    of several per cent with no pressure) at 0.56 h^2 / mu and ran clean at 0.50; 0.4 keeps a
+    quarter of margin below that. Infinite without viscosity."""
+    mu = max(physics.viscosity, physics.boundary_viscosity)
+    return math.inf if mu <= 0.0 else VISCOUS_DT_FACTOR * h * h / mu
+
+
+@wp.func
+def viscous_substep_count(dt: float, limit: float, most: int) -> int:
+    """How many equal sub-steps within ``limit`` the viscosity takes over ``dt`` (at most ``most``)."""
+    n = int(1)
+    if dt > limit:
+        n = wp.min(int(wp.ceil(dt / limit - 1.0e-5)), most)
+    return wp.max(n, 1)
 
 
 @wp.func
@@ -77,9 +112,102 @@ def predict_velocity(
     nb: NeighborList,
     boundary_viscosity: float,
     dt_step: wp.array(dtype=float),
+    viscous_limit: float,
+    viscous_most: int,
     v_adv: wp.array(dtype=wp.vec3),
 ):
-    """v_adv = v + dt * (gravity + viscosity): the velocity before pressure acts."""
+    """v_adv = v + dt * (gravity + viscosity): the velocity before pressure acts (the first of the
+    viscosity's sub-steps where the step is longer than its limit)."""
+    i = wp.tid() + offset
+    v_adv[i] = advected_velocity(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity, dt_step[0],
+                                 viscous_limit, viscous_most)
+
+
+@wp.func
+def advected_velocity(
+    i: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    nf: NeighborList,
+    mass: float,
+    viscosity: float,
+    h: float,
+    gravity: wp.vec3,
+    xb: wp.array(dtype=wp.vec3),
+    vb: wp.array(dtype=wp.vec3),
+    psi: wp.array(dtype=float),
+    nb: NeighborList,
+    boundary_viscosity: float,
+    dt: float,
+    viscous_limit: float,
+    viscous_most: int,
+) -> wp.vec3:
+    """``v + dt (g + a_visc)``, or with ``n`` viscous sub-steps ``v + dt g + (dt / n) a_visc``
+    (the first of them; :func:`viscous_substep` takes the others)."""
+    n = viscous_substep_count(dt, viscous_limit, viscous_most)
+    if n == 1:
+        return v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity)
+    a_visc = non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, wp.vec3(0.0, 0.0, 0.0), xb, vb, psi, nb, boundary_viscosity)
+    return v[i] + dt * gravity + (dt / float(n)) * a_visc
+
+
+@wp.kernel
+def viscous_substep(
+    offset: int,
+    k: int,
+    x: wp.array(dtype=wp.vec3),
+    v_in: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    nf: NeighborList,
+    mass: float,
+    viscosity: float,
+    h: float,
+    xb: wp.array(dtype=wp.vec3),
+    vb: wp.array(dtype=wp.vec3),
+    psi: wp.array(dtype=float),
+    nb: NeighborList,
+    boundary_viscosity: float,
+    dt_step: wp.array(dtype=float),
+    viscous_limit: float,
+    viscous_most: int,
+    v_out: wp.array(dtype=wp.vec3),
+):
+    """Viscous sub-step ``k`` (from 1) of the step: ``v += (dt / n) a_visc(v)`` if the step has
+    more than ``k`` of them, else the velocity passed on unchanged."""
     i = wp.tid() + offset
     dt = dt_step[0]
-    v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity)
+    n = viscous_substep_count(dt, viscous_limit, viscous_most)
+    if k < n:
+        a = non_pressure_acceleration(i, x, v_in, rho, nf, mass, viscosity, h, wp.vec3(0.0, 0.0, 0.0), xb, vb, psi, nb, boundary_viscosity)
+        v_out[i] = v_in[i] + (dt / float(n)) * a
+    else:
+        v_out[i] = v_in[i]
+
+
+class ViscousSubsteps:
+    """The viscosity's sub-steps after the first: a fixed number of launches per step (graph-safe),
+    as many as the longest step the run may take needs (the fixed dt, else dt_max); each does its
+    sub-step, or passes the velocity on where this step needs fewer."""
+
+    def __init__(self, model, capacity: int):
+        ph = model.physics
+        self.limit = viscous_dt_limit(model.spacing, ph)
+        longest = ph.dt if ph.dt is not None else ph.dt_max
+        self.most = 1 if not math.isfinite(self.limit) else max(1, math.ceil(longest / self.limit - 1.0e-5))
+        self.kernel_limit = min(self.limit, 1.0e30)  # float32 for the kernels
+        self.scratch = wp.zeros(max(capacity, 1), dtype=wp.vec3, device=model.device) if self.most > 1 else None
+
+    def run(self, model, state, nf, nb, dt_step: wp.array, v_adv: wp.array) -> None:
+        """Sub-steps 1 .. most - 1 on ``v_adv`` (which holds sub-step 0's result and ends with the last)."""
+        if self.most == 1:
+            return
+        ph = model.physics
+        src, dst = v_adv, self.scratch
+        for k in range(1, self.most):
+            launch_particles(viscous_substep, state.n, [k, state.x, src, state.rho, nf, model.mass, ph.viscosity, model.spacing,
+                                                        model.boundary_x, model.boundary_v, model.boundary_psi, nb, ph.boundary_viscosity,
+                                                        dt_step, self.kernel_limit, self.most, dst], model.device)
+            src, dst = dst, src
+        if src is not v_adv:
+            wp.copy(v_adv, src, count=state.n)

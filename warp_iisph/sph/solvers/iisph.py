@@ -29,7 +29,7 @@ from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
 from ..wall_pressure import smoothed_pressure
 from .base import SPHSolver
-from .forces import non_pressure_acceleration
+from .forces import advected_velocity
 
 
 @wp.kernel
@@ -49,6 +49,8 @@ def predict_advection_velocity(
     vb: wp.array(dtype=wp.vec3),
     boundary_viscosity: float,
     dt_step: wp.array(dtype=float),
+    viscous_limit: float,
+    viscous_most: int,
     wall_weight: float,
     p: wp.array(dtype=float),
     v_adv: wp.array(dtype=wp.vec3),
@@ -60,7 +62,8 @@ def predict_advection_velocity(
     p_i): how far i moves per unit of the pressure its walls push with."""
     i = wp.tid() + offset
     dt = dt_step[0]
-    v_adv[i] = v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity)
+    v_adv[i] = advected_velocity(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity, dt, viscous_limit,
+                                 viscous_most)
     d = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
@@ -323,9 +326,11 @@ class IISPHSolver(SPHSolver):
             predict_advection_velocity,
             n,
             [state.x, state.v, state.rho, model.boundary_psi, nf, nb, model.mass, ph.viscosity, model.spacing, g, model.boundary_x,
-             model.boundary_v, ph.boundary_viscosity, self.dt, self.wall_weight, state.p, self.v_adv, self.d_ii, self.push],
+             model.boundary_v, ph.boundary_viscosity, self.dt, self.viscous.kernel_limit, self.viscous.most, self.wall_weight, state.p,
+             self.v_adv, self.d_ii, self.push],
             dev,
         )
+        self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
         launch_particles(
             predict_advection_density,
             n,

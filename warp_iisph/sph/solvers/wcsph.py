@@ -39,9 +39,10 @@ class WCSPHSolver(SPHSolver):
             state.n,
             [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
              model.boundary_x, model.boundary_v, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt,
-             self.v_adv],
+             self.viscous.kernel_limit, self.viscous.most, self.v_adv],
             model.device,
         )
+        self.viscous.run(model, state, self.search.fluid.lists, self.search.boundary.lists, self.dt, self.v_adv)
 
     def pressure_solve(self, model, state) -> None:
         launch_particles(state_equation, state.n, [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p], model.device)
