@@ -142,3 +142,17 @@ def test_substeps_in_a_graph_and_after_a_resume_are_bitwise_the_plain_run():
 def test_wall_pressure_must_be_a_known_name(value):
     with pytest.raises(ValueError, match="physics.wall_pressure"):
         Physics(wall_pressure=value).validate()
+
+
+@pytest.mark.parametrize("substeps", [True, False])
+def test_landing_on_frame_times_leaves_no_sliver_of_a_fixed_step(substeps):
+    """Frames every 9.1 ms with a fixed 4 ms step: where the step does not divide the frame
+    interval, the steps before each frame are fitted to it (two equal halves of what remains
+    rather than a full step and a sliver, which builds almost no pressure and leaves the next
+    step to start from half of it). No step is shorter than half the fixed step."""
+    sim = dam(0.004, substeps=substeps)
+    for k in range(1, 21):
+        sim.advance(k * 0.0091 - sim.time)
+        assert abs(sim.time - k * 0.0091) < 1e-9
+    assert min(s["dt"] for s in sim.stats) >= 0.5 * 0.004
+    assert max(s["dt"] for s in sim.stats) <= 0.004 * 1.05 + 1e-9

@@ -58,13 +58,14 @@ def choose_dt(
     ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max] (the viscosity
     takes sub-steps of its own where a step exceeds its limit, ``sph.solvers.forces``); then
     fitted to land on the end time: the last step is lengthened to it when less than a twentieth
-    of a step would remain, and where between one and two steps remain the rule's steps (not a
-    fixed dt's substeps) become two equal halves of what remains.
+    of a step would remain, and where between one and two steps remain they become two equal
+    halves of what remains (for a fixed dt cut into substeps, two equal fixed steps, each cut).
 
     With ``split``, a fixed dt longer than a step may be is cut into equal substeps (``pieces``:
-    how many its step is cut into): no longer than ``h / (max(max|v|, sqrt(2 g y_top)) + c)``, so that no particle crosses more than a spacing in
-    a step and, from rest, ``dt^2 g y_top / h^2 <= 1/2``. ``sub_left`` is what is left of the
-    fixed step being cut (recounted every substep, as speeds change)."""
+    how many its step is cut into): no longer than ``h / (max(max|v|, sqrt(2 g y_top)) + c)``, so
+    that no particle crosses more than a spacing in a step and, from rest,
+    ``dt^2 g y_top / h^2 <= 1/2``. ``sub_left`` is what is left of the fixed step being cut
+    (recounted every substep, as speeds change); a landing time inside it ends it there."""
     dt = dt_request[0]
     n = wp.int32(1)
     splitting = False
@@ -76,6 +77,13 @@ def choose_dt(
             if left <= wp.float64(0.0):
                 left = dt
                 sub_done[0] = 0
+            to_end = end[0] - time[0]
+            if to_end < wp.float64(1.05) * left:
+                # a landing time (a frame, the end) within this fixed step: the step ends there, in
+                # equal pieces, and the next starts from it (no sliver left over)
+                left = to_end
+            elif to_end < wp.float64(2.0) * left:
+                left = wp.float64(0.5) * to_end  # two equal fixed steps to it, not a full one and a sliver
             speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), velocity_scale) + signal_speed
             pieces_left = wp.max(wp.ceil(left / fixed_step_limit(h, speed, dt) - wp.float64(1.0e-6)), wp.float64(1.0))
             dt = left / pieces_left
