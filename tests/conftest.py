@@ -1,4 +1,5 @@
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,13 @@ import warp as wp  # noqa: E402
 wp.config.log_level = wp.LOG_WARNING
 wp.config.kernel_cache_dir = os.environ["WARP_CACHE_PATH"]
 wp.init()
+
+
+def terminal_signals() -> None:
+    """For a child process that the tests interrupt: Ctrl-C as in a terminal. A shell without job
+    control starts background jobs with SIGINT ignored, and Python then never raises
+    KeyboardInterrupt; the child gets the default back before it starts."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def cuda_available() -> bool:

@@ -26,6 +26,8 @@ from warp_iisph.run.formats import FileFormatError, read_particles, read_stats
 from warp_iisph.run.runner import run_scene
 from warp_iisph.scene.settings import METHODS
 
+from conftest import terminal_signals
+
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "spacing=0.04", "--no-progress"]
 
@@ -221,7 +223,7 @@ def test_a_signal_mid_run_keeps_every_frame_and_says_how_it_ended(tmp_path, sig,
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", "run", "martin_moyce", "--duration", "5", "--out", str(out), *SMALL],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals, env=env)
     _wait_for(out / "particles" / "frame_00003.ply", proc)
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
@@ -243,7 +245,7 @@ def test_ctrl_c_during_start_up_is_one_line_and_keeps_the_old_run(old_run):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", "run", "martin_moyce", "--duration", "1", "--out", str(old_run),
                              "--overwrite", "--set", "spacing=0.004", "--no-progress"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals, env=env)
     time.sleep(0.8)  # importing, sampling 250k particles: seconds before the first frame
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)

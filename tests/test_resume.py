@@ -14,6 +14,8 @@ import pytest
 from warp_iisph.cli import main
 from warp_iisph.run.formats import read_particles, read_stats
 
+from conftest import terminal_signals
+
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "spacing=0.04", "--no-progress"]
 
@@ -45,7 +47,7 @@ def test_an_interrupted_run_resumes_bitwise(whole, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", "run", "martin_moyce", "--duration", "0.4", "--out", str(out),
                              "--set", "spacing=0.04", "--set", "physics.dt=0.0005", "--no-progress"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals)
     t0 = time.time()
     while not (out / "particles" / "frame_00003.ply").exists():
         assert proc.poll() is None and time.time() - t0 < 120, proc.communicate()
