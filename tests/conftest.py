@@ -14,6 +14,18 @@ wp.config.kernel_cache_dir = os.environ["WARP_CACHE_PATH"]
 wp.init()
 
 
+def finish(proc, timeout: float = 60) -> tuple[str, str]:
+    """``proc.communicate`` that never leaves the child running: killed if it outlives ``timeout``."""
+    import subprocess
+
+    try:
+        return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
+
+
 def terminal_signals() -> None:
     """For a child process that the tests interrupt: Ctrl-C as in a terminal. A shell without job
     control starts background jobs with SIGINT ignored, and Python then never raises

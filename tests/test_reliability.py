@@ -26,7 +26,7 @@ from warp_iisph.run.formats import FileFormatError, read_particles, read_stats
 from warp_iisph.run.runner import run_scene
 from warp_iisph.scene.settings import METHODS
 
-from conftest import terminal_signals
+from conftest import finish, terminal_signals
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "spacing=0.04", "--no-progress"]
@@ -226,7 +226,7 @@ def test_a_signal_mid_run_keeps_every_frame_and_says_how_it_ended(tmp_path, sig,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals, env=env)
     _wait_for(out / "particles" / "frame_00003.ply", proc)
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=60)
+    _, err = finish(proc)
     assert proc.returncode == status, err
     assert len(err.strip().splitlines()) == 1 and ended in err
     record = json.loads((out / "run.json").read_text())
@@ -248,7 +248,7 @@ def test_ctrl_c_during_start_up_is_one_line_and_keeps_the_old_run(old_run):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals, env=env)
     time.sleep(0.8)  # importing, sampling 250k particles: seconds before the first frame
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    _, err = finish(proc)
     assert proc.returncode == 130 and err.strip() == "warp-iisph: interrupted", err
     assert snapshot(old_run) == before
     assert not [p for p in old_run.parent.iterdir() if p.name.startswith(f".{old_run.name}.")]  # no staging folder left

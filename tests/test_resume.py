@@ -14,7 +14,7 @@ import pytest
 from warp_iisph.cli import main
 from warp_iisph.run.formats import read_particles, read_stats
 
-from conftest import terminal_signals
+from conftest import finish, terminal_signals
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "spacing=0.04", "--no-progress"]
@@ -53,7 +53,7 @@ def test_an_interrupted_run_resumes_bitwise(whole, tmp_path):
         assert proc.poll() is None and time.time() - t0 < 120, proc.communicate()
         time.sleep(0.02)
     proc.send_signal(signal.SIGINT)
-    proc.communicate(timeout=60)
+    finish(proc)
     record = json.loads((out / "run.json").read_text())
     assert record["ended"] == "interrupted" and record["totals"]["frames"] < 12
     # the interrupted run used a fixed dt; so does the run it must equal
