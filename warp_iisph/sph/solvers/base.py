@@ -23,7 +23,7 @@ from ...engine.reduce import sum_into
 from ..kernel import cubic_W, cubic_W_np
 from ..neighbors import NeighborList, NeighborSearch, entry
 from ..wall_pressure import smoothed_pressure, wall_heads
-from .forces import ViscousSubsteps
+from .forces import ViscousSubsteps, predict_velocity
 
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
 
@@ -31,8 +31,6 @@ STAGES = ("neighbours", "density", "advection", "pressure", "integration")
 @wp.kernel
 def compute_density(
     offset: int,
-    x: wp.array(dtype=wp.vec3),
-    xb: wp.array(dtype=wp.vec3),
     psi: wp.array(dtype=float),
     nf: NeighborList,
     nb: NeighborList,
@@ -42,7 +40,7 @@ def compute_density(
     rho: wp.array(dtype=float),
     compression: wp.array(dtype=wp.float64),
 ):
-    """Density of fluid particle i, and its compression max(rho/rho0 - 1, 0)."""
+    """Density of fluid particle i from the W its lists hold, and its compression max(rho/rho0 - 1, 0)."""
     i = wp.tid() + offset
     r = mass * cubic_W(0.0, H)
     for m in range(nf.count[i]):
@@ -145,7 +143,7 @@ class SPHSolver:
             launch_particles(
                 compute_density,
                 n,
-                [state.x, model.boundary_x, model.boundary_psi, nf, nb, model.mass, model.support_radius, self.physics.rho0, state.rho,
+                [model.boundary_psi, nf, nb, model.mass, model.support_radius, self.physics.rho0, state.rho,
                  self.compression],
                 model.device,
             )
@@ -170,6 +168,22 @@ class SPHSolver:
         """The device sums of the pressure solver's final density error and its iteration count;
         WCSPH has no solver, so its error is the compression."""
         return self._compression_sum, self._no_iterations
+
+    def advect_velocity(self, model, state) -> None:
+        """``v_adv = v + dt (gravity + viscosity)``, the viscosity in sub-steps where the step
+        exceeds its limit: the advection of the methods with no per-particle terms of their own
+        to add (WCSPH, DFSPH; IISPH computes d_ii in the same pass)."""
+        ph = self.physics
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        launch_particles(
+            predict_velocity,
+            state.n,
+            [state.x, state.v, state.rho, nf, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity), model.boundary_x,
+             model.boundary_v, model.boundary_psi, nb, ph.boundary_viscosity, self.dt, self.viscous.kernel_limit, self.viscous.most,
+             self.v_adv],
+            model.device,
+        )
+        self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
 
     def predict_advection(self, model, state) -> None:
         raise NotImplementedError

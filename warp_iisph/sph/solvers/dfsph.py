@@ -47,7 +47,6 @@ from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
 from .base import SPHSolver, compute_density
-from .forces import predict_velocity
 
 # Fewer neighbours (fluid and wall, self excluded) than this, and a particle takes no part in
 # the divergence solve (the paper's particle deficiency rule; a resting particle has 26 fluid
@@ -310,7 +309,7 @@ class DFSPHSolver(SPHSolver):
             launch_particles(
                 compute_density,
                 n,
-                [state.x, model.boundary_x, model.boundary_psi, nf, nb, model.mass, model.support_radius, ph.rho0, state.rho,
+                [model.boundary_psi, nf, nb, model.mass, model.support_radius, ph.rho0, state.rho,
                  self.compression],
                 dev,
             )
@@ -328,16 +327,7 @@ class DFSPHSolver(SPHSolver):
 
     def predict_advection(self, model, state) -> None:
         """``v_adv = v + dt a_nonpressure`` from the divergence-free velocity."""
-        ph = self.physics
-        launch_particles(
-            predict_velocity,
-            state.n,
-            [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
-             model.boundary_x, model.boundary_v, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt,
-             self.viscous.kernel_limit, self.viscous.most, self.v_adv],
-            model.device,
-        )
-        self.viscous.run(model, state, self.search.fluid.lists, self.search.boundary.lists, self.dt, self.v_adv)
+        self.advect_velocity(model, state)
 
     def _apply(self, model, state, v) -> None:
         launch_particles(apply_stiffness, state.n, [self.delta, model.boundary_psi, self.search.fluid.lists, self.search.boundary.lists,

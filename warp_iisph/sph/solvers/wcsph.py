@@ -13,7 +13,6 @@ import warp as wp
 
 from ...engine.launch import launch_particles
 from .base import SPHSolver
-from .forces import predict_velocity
 
 
 @wp.kernel
@@ -33,16 +32,7 @@ class WCSPHSolver(SPHSolver):
         return math.sqrt(7.0 * self.physics.stiffness / self.physics.rho0)
 
     def predict_advection(self, model, state) -> None:
-        ph = self.physics
-        launch_particles(
-            predict_velocity,
-            state.n,
-            [state.x, state.v, state.rho, self.search.fluid.lists, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity),
-             model.boundary_x, model.boundary_v, model.boundary_psi, self.search.boundary.lists, ph.boundary_viscosity, self.dt,
-             self.viscous.kernel_limit, self.viscous.most, self.v_adv],
-            model.device,
-        )
-        self.viscous.run(model, state, self.search.fluid.lists, self.search.boundary.lists, self.dt, self.v_adv)
+        self.advect_velocity(model, state)
 
     def pressure_solve(self, model, state) -> None:
         launch_particles(state_equation, state.n, [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p], model.device)
