@@ -146,3 +146,13 @@ def test_dfsph_benchmark_quick_mode(tmp_path):
         assert (r["mean_divergence_iterations"] or 0) >= (1 if r["method"] == "dfsph" else 0)
     fixed = [r for r in rows if r["dt"] == 0.01]
     assert all(r["steps"] == 10 or r["diverged"] for r in fixed)
+
+
+def test_resting_tank_study_quick_mode(tmp_path):
+    rows = _quick("resting_tank.py", tmp_path, "resting_tank_quick")["runs"]
+    assert [r["label"].split(",")[0] for r in rows] == ["IISPH"] * 4 + ["DFSPH", "WCSPH"]
+    for r in rows:  # every case reports its steps, or how it diverged
+        assert r["steps"] or r["diverged"]
+    default = rows[0]  # IISPH at the defaults: pressure carries the weight, the water rests
+    assert not default["diverged"] and abs(default["slope_mean"] - 1.0) < 0.05 and default["mean_speed_max"] < 0.03
+    assert default["step_number"] == pytest.approx(default["steps"][0]["dt"] ** 2 * 9.81 * 0.6 / 0.04**2, rel=0.05)

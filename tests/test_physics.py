@@ -12,31 +12,37 @@ G = 9.81
 def test_water_at_rest_holds_hydrostatic_pressure_every_step():
     """Water at rest in a closed tank (2,000 particles, 20 layers, the defaults): after settling,
     at every step the pressure fitted over the interior (two spacings from the walls) grows as
-    rho0 g depth, the water stays at rest and no particle needs putting back.
+    rho0 g depth within 3 % (it has to carry the column's weight: momentum balance), also on the
+    steps shortened to land on frame times; the water stays at rest and no particle needs putting
+    back. The layer on the floor is compressed by at most twice the solver's tolerance eta (with
+    Akinci's walls it carried twice the pressure, and more).
 
-    Averaged over the steps the slope is rho0 g within 3 %: the pressure has to carry the
-    column's weight (momentum balance). Step by step it may wander by more: relaxed Jacobi
-    corrects a whole-column (long-wave) pressure error only partly in one solve (docs/physics.md),
-    so a step is held to 10 %. The layer on the floor is compressed by at most twice the solver's
-    tolerance eta (with Akinci's walls it carried twice the pressure, and more)."""
+    Before the solve ended where its error reaches eta (docs/physics.md, round 4), the slope
+    wandered from 0.98 to 1.06 between steps with the iteration count: relaxed Jacobi leaves a
+    long-wave error, whose pressure the step's last iteration moves by percents."""
     h, size, depth = 0.02, (0.2, 0.5, 0.2), 0.4
     scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), size), name="resting_tank")
     scene.add_fluid_box((0.0, 0.0, 0.0), (size[0], depth, size[2]))
     sim = Simulation(scene, "cpu")
-    while sim.time < 2.0:  # steps of the CFL rule, none shortened to land on a time (frames are, docs/physics.md)
+    while sim.time < 2.0:
         sim.step()
     slopes, speeds, bottom = [], [], []
-    while sim.time < 2.3 - 1e-9:
-        rec = sim.step()
+
+    def measure(rec):
         assert rec["escaped"] == rec["non_finite"] == rec["wall_corrections"] == 0
         x, p, rho = sim.positions, sim.pressures, sim.densities
         interior = np.all((x[:, [0, 2]] > 2 * h) & (x[:, [0, 2]] < np.array([size[0], size[2]]) - 2 * h), axis=1) & (x[:, 1] > 2 * h)
         slopes.append(-np.polyfit(x[interior, 1], p[interior], 1)[0] / (1000.0 * G))
         speeds.append(np.linalg.norm(sim.velocities, axis=1))
         bottom.append(rho[x[:, 1] < h].mean() / 1000.0 - 1.0)
+
+    while sim.time < 2.3 - 1e-9:  # every step of the CFL rule
+        measure(sim.step())
+    for frame in range(70, 73):  # frames of a 30 fps run: each ends on a step fitted to land there
+        sim.advance(frame / 30.0 - sim.time)
+        measure(sim.stats[-1])
     slopes = np.asarray(slopes)
-    assert abs(slopes.mean() - 1.0) <= 0.03, slopes.mean()
-    assert np.all(np.abs(slopes - 1.0) <= 0.10), (slopes.min(), slopes.max())
+    assert np.all(np.abs(slopes - 1.0) <= 0.03), (slopes.min(), slopes.max())
     assert max(s.mean() for s in speeds) < 0.01  # m/s: at rest
     assert max(s.max() for s in speeds) < 0.1
     assert max(bottom) <= 2 * sim.physics.eta
