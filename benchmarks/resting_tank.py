@@ -22,7 +22,6 @@ benchmarks/results/resting_tank.json and resting_tank.png.
 
 import argparse
 
-import numpy as np
 import warp as wp
 
 from common import RESULTS, header, pyplot, save
