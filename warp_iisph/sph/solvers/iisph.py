@@ -19,12 +19,14 @@ until the average predicted density error ``mean(max(rho_i/rho0 - 1, 0))`` (redu
 is at most ``eta`` and at least ``min_iterations`` ran, or ``max_iterations`` is reached. The
 error is that of the iteration's input pressures (the residual; see ``jacobi_update``).
 
-The solve ends where the error reaches eta: in the iteration that takes it below eta, the result
-is the pressures between the last iterate and this one at which the error (linear between
-them) is eta, not the next Jacobi update. Relaxed Jacobi leaves a long-wave error (compression
+The solve ends at the Jacobi update of the pressures at which the error reaches eta: in the
+iteration that takes it below eta, those lie between the last iterate and this one (the error
+taken as linear between them), and as the update is affine in the pressures it is the same share
+of the way from this iterate to its update. Relaxed Jacobi leaves a long-wave error (compression
 growing with depth), and one iteration more or less moved the pressure of resting water by
-percents; so the pressure jumped from step to step with the iteration count (hydrostatic slope
-0.98-1.06 between steps, 1.019-1.020 with this ending; docs/physics.md, round 4).
+percents: ending at an iterate's update, the pressure jumped from step to step with the
+iteration count (hydrostatic slope 0.98-1.06 between steps, 1.019-1.020 with this ending;
+docs/physics.md, round 4).
 """
 
 from __future__ import annotations
@@ -301,8 +303,8 @@ def jacobi_convergence(
     """Count the iteration; stop once the mean predicted density error is at most eta (after
     ``min_iterations``) or at ``max_iterations``. Where the error crossed eta in this iteration,
     ``blend`` is the share of the way from the last iteration's pressures to this one's at which
-    the (piecewise linear) error reaches eta, and the error sum reported is eta's; otherwise
-    ``blend`` is negative and the solve ends with the Jacobi update of this iteration."""
+    the error (taken as linear between them) reaches eta, and the error sum reported is eta's;
+    otherwise ``blend`` is negative."""
     it = iterations[0] + 1
     iterations[0] = it
     mean = error_sum[0] / wp.float64(n)
@@ -323,20 +325,16 @@ def jacobi_advance(
     keep_going: wp.array(dtype=wp.int32),
     blend: wp.array(dtype=float),
     p_next: wp.array(dtype=float),
-    p_last: wp.array(dtype=float),
     p: wp.array(dtype=float),
 ):
-    """The pressures the next iteration starts from (the Jacobi update, this iteration's kept as
-    ``p_last``), or, once converged, the solve's result: where the error crossed eta in this
-    iteration, the pressures at which it reaches eta (``blend``), so that the result does not
-    jump with the iteration count from step to step; else the Jacobi update."""
+    """The Jacobi update ``p_next`` of this iteration's pressures ``p``, or, where the error
+    crossed eta in this iteration, the update of the pressures at which it reaches eta: the
+    update is affine in the pressures (but for the clamp at zero), so that is
+    ``p + blend (p_next - p)``, and the result does not jump with the iteration count."""
     i = wp.tid() + offset
     b = blend[0]
-    if keep_going[0] != 0:
-        p_last[i] = p[i]
-        p[i] = p_next[i]
-    elif b >= 0.0:
-        p[i] = p_last[i] + b * (p[i] - p_last[i])
+    if keep_going[0] == 0 and b >= 0.0:
+        p[i] = p[i] + b * (p_next[i] - p[i])
     else:
         p[i] = p_next[i]
 
@@ -360,7 +358,6 @@ class IISPHSolver(SPHSolver):
         self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
         self._iterations = wp.zeros(1, dtype=wp.int32, device=dev)
         self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
-        self.p_last = wp.zeros(n, dtype=float, device=dev)
         self._last_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
         self._blend = wp.zeros(1, dtype=float, device=dev)
 
@@ -410,7 +407,7 @@ class IISPHSolver(SPHSolver):
         sum_into(self.density_error, n, self._error_sum)
         wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
                                                      self._iterations, self.keep_going, self._last_error_sum, self._blend], device=dev)
-        launch_particles(jacobi_advance, n, [self.keep_going, self._blend, self.p_next, self.p_last, state.p], dev)
+        launch_particles(jacobi_advance, n, [self.keep_going, self._blend, self.p_next, state.p], dev)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
         return self._error_sum, self._iterations
