@@ -25,7 +25,7 @@ taken as linear between them), and as the update is affine in the pressures it i
 of the way from this iterate to its update. Relaxed Jacobi leaves a long-wave error (compression
 growing with depth), and one iteration more or less moved the pressure of resting water by
 percents: ending at an iterate's update, the pressure jumped from step to step with the
-iteration count (hydrostatic slope 0.98-1.06 between steps, 1.019-1.020 with this ending;
+iteration count (hydrostatic slope 0.98-1.06 between steps, 1.020-1.021 with this ending;
 docs/physics.md, round 4).
 """
 
