@@ -8,11 +8,13 @@ one step, so the slope's scatter from step to step shrinks as the step number dt
 grows, up to where the column stops resting. Cases (tank 0.4 m wide, 0.2 m deep, spacing 2 cm):
 
 1. IISPH defaults, water 0.6 m deep (the validation's tank): the CFL rule's step from rest
-2. IISPH, fixed 5 ms (SPlisHSPlasH's longest CFL step), 0.6 m
-3. IISPH defaults, 1.2 m deep
-4. IISPH, fixed 4.1 ms, 1.2 m deep (one spacing at the free-fall speed)
-5. DFSPH defaults, 0.6 m
-6. WCSPH defaults, 0.6 m
+2. IISPH, fixed 5 ms (SPlisHSPlasH's longest CFL step) taken as it is, 0.6 m
+3. IISPH, fixed 5 ms with substeps (the default: cut where it is longer than the rest allows), 0.6 m
+4. IISPH defaults, 1.2 m deep
+5. IISPH, fixed 4.1 ms taken as it is, 1.2 m deep (one spacing at the free-fall speed)
+6. IISPH, fixed 5 ms with substeps, 1.2 m deep
+7. DFSPH defaults, 0.6 m
+8. WCSPH defaults, 0.6 m
 
 Each settles 2 s and is measured every step for 0.5 s. Writes
 benchmarks/results/resting_tank.json and resting_tank.png.
@@ -29,9 +31,11 @@ from validation import resting_tank
 
 CASES = [
     ("IISPH, defaults, 0.6 m", {}, 0.6),
-    ("IISPH, fixed 5 ms, 0.6 m", {"dt": 0.005}, 0.6),
+    ("IISPH, fixed 5 ms as it is, 0.6 m", {"dt": 0.005, "substeps": False}, 0.6),
+    ("IISPH, fixed 5 ms, substeps, 0.6 m", {"dt": 0.005}, 0.6),
     ("IISPH, defaults, 1.2 m", {}, 1.2),
-    ("IISPH, fixed 4.1 ms, 1.2 m", {"dt": 0.0041}, 1.2),
+    ("IISPH, fixed 4.1 ms as it is, 1.2 m", {"dt": 0.0041, "substeps": False}, 1.2),
+    ("IISPH, fixed 5 ms, substeps, 1.2 m", {"dt": 0.005}, 1.2),
     ("DFSPH, defaults, 0.6 m", {"method": "dfsph"}, 0.6),
     ("WCSPH, defaults, 0.6 m", {"method": "wcsph"}, 0.6),
 ]

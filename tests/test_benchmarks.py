@@ -150,7 +150,7 @@ def test_dfsph_benchmark_quick_mode(tmp_path):
 
 def test_resting_tank_study_quick_mode(tmp_path):
     rows = _quick("resting_tank.py", tmp_path, "resting_tank_quick")["runs"]
-    assert [r["label"].split(",")[0] for r in rows] == ["IISPH"] * 4 + ["DFSPH", "WCSPH"]
+    assert [r["label"].split(",")[0] for r in rows] == ["IISPH"] * 6 + ["DFSPH", "WCSPH"]
     for r in rows:  # every case reports its steps, or how it diverged
         assert r["steps"] or r["diverged"]
     default = rows[0]  # IISPH at the defaults: pressure carries the weight, the water rests

@@ -25,6 +25,9 @@ LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity"
 REORDER_INTERVAL = 10
 
 
+SQRT2 = wp.constant(wp.float64(1.4142135623730951))
+
+
 @wp.func
 def fixed_step_limit(h: wp.float64, speed: wp.float64, longest: wp.float64) -> wp.float64:
     """The longest step a fixed dt may be cut into: ``h / speed`` (``longest``, the fixed dt, when
@@ -62,9 +65,10 @@ def choose_dt(
     halves of what remains (for a fixed dt cut into substeps, two equal fixed steps, each cut).
 
     With ``split``, a fixed dt longer than a step may be is cut into equal substeps (``pieces``:
-    how many its step is cut into): no longer than ``h / (max(max|v|, sqrt(2 g y_top)) + c)``, so
+    how many its step is cut into): no longer than ``h / (max(max|v|, 2 sqrt(g y_top)) + c)``, so
     that no particle crosses more than a spacing in a step and, from rest,
-    ``dt^2 g y_top / h^2 <= 1/2``. ``sub_left`` is what is left of the fixed step being cut
+    ``dt^2 g y_top / h^2 <= 1/4`` (resting IISPH water bounces at 0.49 and its pressure alternates
+    from step to step at 0.37). ``sub_left`` is what is left of the fixed step being cut
     (recounted every substep, as speeds change); a landing time inside it ends it there."""
     dt = dt_request[0]
     n = wp.int32(1)
@@ -84,7 +88,9 @@ def choose_dt(
                 left = to_end
             elif to_end < wp.float64(2.0) * left:
                 left = wp.float64(0.5) * to_end  # two equal fixed steps to it, not a full one and a sliver
-            speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), velocity_scale) + signal_speed
+            # from rest sqrt(2) times the free-fall speed: dt^2 g y_top / h^2 <= 1/4, where IISPH
+            # water still rests with a steady pressure (about 0.3; docs/physics.md 4.12)
+            speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), SQRT2 * velocity_scale) + signal_speed
             pieces_left = wp.max(wp.ceil(left / fixed_step_limit(h, speed, dt) - wp.float64(1.0e-6)), wp.float64(1.0))
             dt = left / pieces_left
             sub_left[0] = left
