@@ -178,9 +178,7 @@ class SPHSolver:
         launch_particles(
             predict_velocity,
             state.n,
-            [state.x, state.v, state.rho, nf, model.mass, ph.viscosity, model.spacing, wp.vec3(*ph.gravity), model.boundary_x,
-             model.boundary_v, model.boundary_psi, nb, ph.boundary_viscosity, self.dt, self.viscous.kernel_limit, self.viscous.most,
-             self.v_adv],
+            [state.x, state.v, state.rho, nf, nb, self.viscous.terms, wp.vec3(*ph.gravity), self.dt, self.v_adv],
             model.device,
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)

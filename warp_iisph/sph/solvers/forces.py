@@ -56,6 +56,23 @@ def viscous_pair(v_ij: wp.vec3, x_ij: wp.vec3, h: float, grad_W: wp.vec3) -> wp.
     return wp.dot(v_ij, x_ij) / (wp.dot(x_ij, x_ij) + 0.01 * h * h) * grad_W
 
 
+@wp.struct
+class ViscousTerms:
+    """What the viscosity and wall friction need besides the particles' own state: the particle
+    mass and spacing, both coefficients (m^2/s), the walls (positions, velocities, psi) and the
+    step limit with the most sub-steps a step may take (:class:`ViscousSubsteps`)."""
+
+    mass: float
+    h: float
+    viscosity: float
+    boundary_viscosity: float
+    xb: wp.array(dtype=wp.vec3)
+    vb: wp.array(dtype=wp.vec3)
+    psi: wp.array(dtype=float)
+    limit: float
+    most: int
+
+
 @wp.func
 def non_pressure_acceleration(
     i: int,
@@ -63,35 +80,30 @@ def non_pressure_acceleration(
     v: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
     nf: NeighborList,
-    mass: float,
-    viscosity: float,
-    h: float,
-    gravity: wp.vec3,
-    xb: wp.array(dtype=wp.vec3),
-    vb: wp.array(dtype=wp.vec3),
-    psi: wp.array(dtype=float),
     nb: NeighborList,
-    boundary_viscosity: float,
+    terms: ViscousTerms,
+    gravity: wp.vec3,
 ) -> wp.vec3:
     a = gravity
-    if viscosity > 0.0:
+    h = terms.h
+    if terms.viscosity > 0.0:
         x_i = x[i]
         v_i = v[i]
         visc = wp.vec3(0.0, 0.0, 0.0)
         for m in range(nf.count[i]):
             k = entry(nf, i, m)
             j = nf.index[k]
-            visc += (mass / rho[j]) * viscous_pair(v_i - v[j], x_i - x[j], h, nf.grad_W[k])
-        a = a + 2.0 * viscosity * visc
-    if boundary_viscosity > 0.0:
+            visc += (terms.mass / rho[j]) * viscous_pair(v_i - v[j], x_i - x[j], h, nf.grad_W[k])
+        a = a + 2.0 * terms.viscosity * visc
+    if terms.boundary_viscosity > 0.0:
         x_i = x[i]
         v_i = v[i]
         fric = wp.vec3(0.0, 0.0, 0.0)
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
             b = nb.index[k]
-            fric += (psi[b] / rho[i]) * viscous_pair(v_i - vb[b], x_i - xb[b], h, nb.grad_W[k])
-        a = a + 2.0 * boundary_viscosity * fric
+            fric += (terms.psi[b] / rho[i]) * viscous_pair(v_i - terms.vb[b], x_i - terms.xb[b], h, nb.grad_W[k])
+        a = a + 2.0 * terms.boundary_viscosity * fric
     return a
 
 
@@ -102,25 +114,16 @@ def predict_velocity(
     v: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
     nf: NeighborList,
-    mass: float,
-    viscosity: float,
-    h: float,
-    gravity: wp.vec3,
-    xb: wp.array(dtype=wp.vec3),
-    vb: wp.array(dtype=wp.vec3),
-    psi: wp.array(dtype=float),
     nb: NeighborList,
-    boundary_viscosity: float,
+    terms: ViscousTerms,
+    gravity: wp.vec3,
     dt_step: wp.array(dtype=float),
-    viscous_limit: float,
-    viscous_most: int,
     v_adv: wp.array(dtype=wp.vec3),
 ):
     """v_adv = v + dt * (gravity + viscosity): the velocity before pressure acts (the first of the
     viscosity's sub-steps where the step is longer than its limit)."""
     i = wp.tid() + offset
-    v_adv[i] = advected_velocity(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity, dt_step[0],
-                                 viscous_limit, viscous_most)
+    v_adv[i] = advected_velocity(i, x, v, rho, nf, nb, terms, gravity, dt_step[0])
 
 
 @wp.func
@@ -130,25 +133,17 @@ def advected_velocity(
     v: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
     nf: NeighborList,
-    mass: float,
-    viscosity: float,
-    h: float,
-    gravity: wp.vec3,
-    xb: wp.array(dtype=wp.vec3),
-    vb: wp.array(dtype=wp.vec3),
-    psi: wp.array(dtype=float),
     nb: NeighborList,
-    boundary_viscosity: float,
+    terms: ViscousTerms,
+    gravity: wp.vec3,
     dt: float,
-    viscous_limit: float,
-    viscous_most: int,
 ) -> wp.vec3:
     """``v + dt (g + a_visc)``, or with ``n`` viscous sub-steps ``v + dt g + (dt / n) a_visc``
     (the first of them; :func:`viscous_substep` takes the others)."""
-    n = viscous_substep_count(dt, viscous_limit, viscous_most)
+    n = viscous_substep_count(dt, terms.limit, terms.most)
     if n == 1:
-        return v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity)
-    a_visc = non_pressure_acceleration(i, x, v, rho, nf, mass, viscosity, h, wp.vec3(0.0, 0.0, 0.0), xb, vb, psi, nb, boundary_viscosity)
+        return v[i] + dt * non_pressure_acceleration(i, x, v, rho, nf, nb, terms, gravity)
+    a_visc = non_pressure_acceleration(i, x, v, rho, nf, nb, terms, wp.vec3(0.0, 0.0, 0.0))
     return v[i] + dt * gravity + (dt / float(n)) * a_visc
 
 
@@ -160,26 +155,18 @@ def viscous_substep(
     v_in: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
     nf: NeighborList,
-    mass: float,
-    viscosity: float,
-    h: float,
-    xb: wp.array(dtype=wp.vec3),
-    vb: wp.array(dtype=wp.vec3),
-    psi: wp.array(dtype=float),
     nb: NeighborList,
-    boundary_viscosity: float,
+    terms: ViscousTerms,
     dt_step: wp.array(dtype=float),
-    viscous_limit: float,
-    viscous_most: int,
     v_out: wp.array(dtype=wp.vec3),
 ):
     """Viscous sub-step ``k`` (from 1) of the step: ``v += (dt / n) a_visc(v)`` if the step has
     more than ``k`` of them, else the velocity passed on unchanged."""
     i = wp.tid() + offset
     dt = dt_step[0]
-    n = viscous_substep_count(dt, viscous_limit, viscous_most)
+    n = viscous_substep_count(dt, terms.limit, terms.most)
     if k < n:
-        a = non_pressure_acceleration(i, x, v_in, rho, nf, mass, viscosity, h, wp.vec3(0.0, 0.0, 0.0), xb, vb, psi, nb, boundary_viscosity)
+        a = non_pressure_acceleration(i, x, v_in, rho, nf, nb, terms, wp.vec3(0.0, 0.0, 0.0))
         v_out[i] = v_in[i] + (dt / float(n)) * a
     else:
         v_out[i] = v_in[i]
@@ -188,26 +175,30 @@ def viscous_substep(
 class ViscousSubsteps:
     """The viscosity's sub-steps after the first: a fixed number of launches per step (graph-safe),
     as many as the longest step the run may take needs (the fixed dt, else dt_max); each does its
-    sub-step, or passes the velocity on where this step needs fewer."""
+    sub-step, or passes the velocity on where this step needs fewer. ``terms`` is what every
+    kernel computing the viscosity takes (:class:`ViscousTerms`)."""
 
     def __init__(self, model, capacity: int):
         ph = model.physics
         self.limit = viscous_dt_limit(model.spacing, ph)
         longest = ph.dt if ph.dt is not None else ph.dt_max
         self.most = 1 if not math.isfinite(self.limit) else max(1, math.ceil(longest / self.limit - 1.0e-5))
-        self.kernel_limit = min(self.limit, 1.0e30)  # float32 for the kernels
         self.scratch = wp.zeros(max(capacity, 1), dtype=wp.vec3, device=model.device) if self.most > 1 else None
+        terms = ViscousTerms()
+        terms.mass, terms.h = model.mass, model.spacing
+        terms.viscosity, terms.boundary_viscosity = ph.viscosity, ph.boundary_viscosity
+        terms.xb, terms.vb, terms.psi = model.boundary_x, model.boundary_v, model.boundary_psi
+        terms.limit = min(self.limit, 1.0e30)  # float32 for the kernels
+        terms.most = self.most
+        self.terms = terms
 
     def run(self, model, state, nf, nb, dt_step: wp.array, v_adv: wp.array) -> None:
         """Sub-steps 1 .. most - 1 on ``v_adv`` (which holds sub-step 0's result and ends with the last)."""
         if self.most == 1:
             return
-        ph = model.physics
         src, dst = v_adv, self.scratch
         for k in range(1, self.most):
-            launch_particles(viscous_substep, state.n, [k, state.x, src, state.rho, nf, model.mass, ph.viscosity, model.spacing,
-                                                        model.boundary_x, model.boundary_v, model.boundary_psi, nb, ph.boundary_viscosity,
-                                                        dt_step, self.kernel_limit, self.most, dst], model.device)
+            launch_particles(viscous_substep, state.n, [k, state.x, src, state.rho, nf, nb, self.terms, dt_step, dst], model.device)
             src, dst = dst, src
         if src is not v_adv:
             wp.copy(v_adv, src, count=state.n)

@@ -38,7 +38,7 @@ from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
 from ..wall_pressure import smoothed_pressure
 from .base import SPHSolver
-from .forces import advected_velocity
+from .forces import ViscousTerms, advected_velocity
 
 
 @wp.kernel
@@ -47,19 +47,11 @@ def predict_advection_velocity(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    viscosity: float,
-    h: float,
+    terms: ViscousTerms,
     gravity: wp.vec3,
-    xb: wp.array(dtype=wp.vec3),
-    vb: wp.array(dtype=wp.vec3),
-    boundary_viscosity: float,
     dt_step: wp.array(dtype=float),
-    viscous_limit: float,
-    viscous_most: int,
     wall_weight: float,
     p: wp.array(dtype=float),
     v_adv: wp.array(dtype=wp.vec3),
@@ -71,18 +63,17 @@ def predict_advection_velocity(
     p_i): how far i moves per unit of the pressure its walls push with."""
     i = wp.tid() + offset
     dt = dt_step[0]
-    v_adv[i] = advected_velocity(i, x, v, rho, nf, mass, viscosity, h, gravity, xb, vb, psi, nb, boundary_viscosity, dt, viscous_limit,
-                                 viscous_most)
+    v_adv[i] = advected_velocity(i, x, v, rho, nf, nb, terms, gravity, dt)
     d = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
-        d -= mass * nf.grad_W[k]
+        d -= terms.mass * nf.grad_W[k]
     rho_i = rho[i]
     e = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         b = nb.index[k]
-        g = psi[b] * nb.grad_W[k]
+        g = terms.psi[b] * nb.grad_W[k]
         d -= g
         if wall_weight > 0.0:
             if p[i] + nb.head[k] > 0.0:
@@ -369,9 +360,8 @@ class IISPHSolver(SPHSolver):
         launch_particles(
             predict_advection_velocity,
             n,
-            [state.x, state.v, state.rho, model.boundary_psi, nf, nb, model.mass, ph.viscosity, model.spacing, g, model.boundary_x,
-             model.boundary_v, ph.boundary_viscosity, self.dt, self.viscous.kernel_limit, self.viscous.most, self.wall_weight, state.p,
-             self.v_adv, self.d_ii, self.push],
+            [state.x, state.v, state.rho, nf, nb, self.viscous.terms, g, self.dt, self.wall_weight, state.p, self.v_adv, self.d_ii,
+             self.push],
             dev,
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
