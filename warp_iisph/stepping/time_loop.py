@@ -37,6 +37,19 @@ def fixed_step_limit(h: wp.float64, speed: wp.float64, longest: wp.float64) -> w
     return longest
 
 
+@wp.func
+def fit_to_landing(step: wp.float64, to_end: wp.float64) -> wp.float64:
+    """A step fitted to land on a time ``to_end`` ahead: all of it where less than a twentieth of
+    a step would remain, half of it where between one and two steps remain (two equal steps rather
+    than a full one and a sliver: a short step builds almost no pressure, and the next, full step
+    starts from half of that), else the step."""
+    if to_end - step < wp.float64(1.0e-9) + wp.float64(0.05) * step:
+        return to_end
+    if to_end < wp.float64(2.0) * step:
+        return wp.float64(0.5) * to_end
+    return step
+
+
 @wp.kernel
 def choose_dt(
     fixed_dt: wp.float64,
@@ -81,13 +94,9 @@ def choose_dt(
             if left <= wp.float64(0.0):
                 left = dt
                 sub_done[0] = 0
-            to_end = end[0] - time[0]
-            if to_end < wp.float64(1.05) * left:
-                # a landing time (a frame, the end) within this fixed step: the step ends there, in
-                # equal pieces, and the next starts from it (no sliver left over)
-                left = to_end
-            elif to_end < wp.float64(2.0) * left:
-                left = wp.float64(0.5) * to_end  # two equal fixed steps to it, not a full one and a sliver
+            # a landing time (a frame, the end) near this fixed step: the step ends there, in equal
+            # pieces, and the next starts from it (no sliver left over)
+            left = fit_to_landing(left, end[0] - time[0])
             # from rest sqrt(2) times the free-fall speed: dt^2 g y_top / h^2 <= 1/4, where IISPH
             # water still rests with a steady pressure (about 0.3; docs/physics.md 4.12)
             speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), SQRT2 * velocity_scale) + signal_speed
@@ -102,12 +111,11 @@ def choose_dt(
             dt = cfl * h / speed
         dt = wp.min(wp.max(dt, dt_min), dt_max)
     left = end[0] - time[0]
-    if left - dt < wp.float64(1.0e-9) + wp.float64(0.05) * dt:
-        dt = left
-    elif left < wp.float64(2.0) * dt and not splitting:
-        # two equal steps to the end rather than a full one and a sliver: a short step builds
-        # almost no pressure, and the next, full step starts from half of that
-        dt = wp.float64(0.5) * left
+    if splitting:
+        if left - dt < wp.float64(1.0e-9) + wp.float64(0.05) * dt:
+            dt = left
+    else:
+        dt = fit_to_landing(dt, left)
     if splitting:
         rest = sub_left[0] - dt
         if rest <= wp.float64(1.0e-9) * fixed_dt:
