@@ -140,9 +140,10 @@ class Physics:
     - ``stiffness``: WCSPH's k in p = k((rho/rho0)^7 - 1) (Pa).
     - ``substeps``: with a fixed ``dt``, cut a step longer than the method can take into equal
       substeps (each step record's ``substeps`` says into how many): no longer than
-      ``h / (max(max|v|, sqrt(2 g y_top)) + c)`` (no particle crosses
-      more than one spacing in a step; from rest, ``dt^2 g y_top / h^2 <= 1/2``, beyond which
-      IISPH's linearised density prediction fails at the walls). ``False`` takes the fixed dt as
+      ``h / (max(max|v|, 2 sqrt(g y_top)) + c)`` (no particle crosses
+      more than one spacing in a step; from rest, ``dt^2 g y_top / h^2 <= 1/4``: resting IISPH
+      water alternates its pressure at 0.37 and bounces at 0.49, and at 1/2 IISPH's linearised
+      density prediction fails at the walls). ``False`` takes the fixed dt as
       it is.
     - ``dt``: fixed time step (s); ``None`` selects the CFL rule
       ``dt = cfl * h / (max|v| + c)`` clamped to ``[dt_min, dt_max]`` (``c`` is WCSPH's speed of

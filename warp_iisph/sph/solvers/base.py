@@ -140,14 +140,7 @@ class SPHSolver:
             self.search.build(state.x, n, sync=sync)
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         with timer("density"):
-            launch_particles(
-                compute_density,
-                n,
-                [model.boundary_psi, nf, nb, model.mass, model.support_radius, self.physics.rho0, state.rho,
-                 self.compression],
-                model.device,
-            )
-            sum_into(self.compression, n, self._compression_sum)
+            self.compute_densities(model, state)
             if self.extrapolated:
                 launch_particles(wall_heads, n, [state.x, state.rho, model.boundary_x, model.boundary_a, wp.vec3(*self.physics.gravity), nf,
                                                  nb, self.W0, self.smoothing_weight], model.device)
@@ -168,6 +161,13 @@ class SPHSolver:
         """The device sums of the pressure solver's final density error and its iteration count;
         WCSPH has no solver, so its error is the compression."""
         return self._compression_sum, self._no_iterations
+
+    def compute_densities(self, model, state) -> None:
+        """``rho`` from this step's lists, and the compression's sum for the step's statistics."""
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        launch_particles(compute_density, state.n, [model.boundary_psi, nf, nb, model.mass, model.support_radius, self.physics.rho0,
+                                                    state.rho, self.compression], model.device)
+        sum_into(self.compression, state.n, self._compression_sum)
 
     def advect_velocity(self, model, state) -> None:
         """``v_adv = v + dt (gravity + viscosity)``, the viscosity in sub-steps where the step

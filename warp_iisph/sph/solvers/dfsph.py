@@ -46,7 +46,7 @@ import warp as wp
 from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
-from .base import SPHSolver, compute_density
+from .base import SPHSolver
 
 # Fewer neighbours (fluid and wall, self excluded) than this, and a particle takes no part in
 # the divergence solve (the paper's particle deficiency rule; a resting particle has 26 fluid
@@ -300,20 +300,12 @@ class DFSPHSolver(SPHSolver):
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
         timer = timer or nullcontext
-        ph = self.physics
         n, dev = state.n, model.device
         with timer("neighbours"):
             self.search.build(state.x, n, sync=sync)
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         with timer("density"):
-            launch_particles(
-                compute_density,
-                n,
-                [model.boundary_psi, nf, nb, model.mass, model.support_radius, ph.rho0, state.rho,
-                 self.compression],
-                dev,
-            )
-            sum_into(self.compression, n, self._compression_sum)
+            self.compute_densities(model, state)
             launch_particles(dfsph_factor, n, [model.boundary_psi, nf, nb, model.mass, self.least_denominator, self.factor], dev)
         with timer("pressure"):
             self.divergence_solve(model, state)
