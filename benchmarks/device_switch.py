@@ -16,13 +16,16 @@ is from it. Writes benchmarks/results/device_switch[_graph][_mesh].json and .png
 """
 
 import argparse
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import warp as wp
 
 from common import RESULTS, header, present_devices, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
+from warp_iisph.run.formats import write_mesh
 from warp_iisph.surface import SurfaceReconstructor
 
 FPS = 30.0
@@ -67,7 +70,9 @@ def run(device: str, count: int, duration: float, graph: bool = False, mesh: boo
     frames = max(1, round(duration * FPS)) if mesh else 1
     steps0, t_sim0 = sim.step_count, sim.time
     wall = mesh_wall = 0.0
-    triangles = []
+    triangles, export = [], {"ply": [], "obj": []}
+    stage_ms = {}
+    tmp = tempfile.TemporaryDirectory() if mesh else None
     for _ in range(frames):
         t0 = time.perf_counter()
         sim.advance(duration / frames)
@@ -75,8 +80,17 @@ def run(device: str, count: int, duration: float, graph: bool = False, mesh: boo
         wall += time.perf_counter() - t0
         if recon is not None:
             t0 = time.perf_counter()
-            triangles.append(len(recon.reconstruct(sim.state.x).faces))
+            surface = recon.reconstruct(sim.state.x)
             mesh_wall += time.perf_counter() - t0
+            triangles.append(len(surface.faces))
+            for k, v in surface.seconds.items():
+                stage_ms.setdefault(k, []).append(1e3 * v)
+            for fmt in export:  # as the frame writer would, off the simulation's thread
+                t0 = time.perf_counter()
+                write_mesh(Path(tmp.name) / "frame", surface.vertices, surface.faces, surface.normals, fmt)
+                export[fmt].append(1e3 * (time.perf_counter() - t0))
+    if tmp is not None:
+        tmp.cleanup()
     st = sim.stats[steps0:]
     search = sim.solver.search
     n = sim.n_particles  # entries the lists hold (the fluid lists' unused slots are not streamed)
@@ -102,6 +116,11 @@ def run(device: str, count: int, duration: float, graph: bool = False, mesh: boo
         "mesh_frames": frames if mesh else 0,
         "mesh_ms_per_frame": 1e3 * mesh_wall / frames if mesh else None,
         "mesh_triangles": int(np.median(triangles)) if mesh else None,
+        "mesh_stage_ms": {k: float(np.median(v)) for k, v in stage_ms.items()} if mesh else None,
+        # writing a frame's mesh (binary PLY, OBJ text): the run's frame writer does this on its
+        # own thread while the next frame simulates, so it adds to the wall time only where it
+        # takes longer than simulating a frame
+        "export_ms_per_frame": {k: float(np.median(v)) for k, v in export.items()} if mesh else None,
         "wall_seconds_with_mesh": wall + mesh_wall if mesh else None,
         "realtime_ratio": simulated / (wall + mesh_wall),  # simulated s per wall s, meshing included with --mesh
     }
@@ -162,7 +181,8 @@ def main():
         print(f"{r['device']:>6} {r['particles']:>9} {r['steps']:>5} {r['ms_per_step']:>8.1f} {r['wall_seconds_per_simulated_second']:>8.1f} "
               f"{r['particle_steps_per_second'] / 1e6:>13.2f} {r['mean_iterations']:>5.2f} {up:>6} {r['bytes_per_step'] / 1e6:>8.1f} "
               f"{r['bandwidth_bound_ms']:>8.2f} {r['fraction_of_bandwidth_bound']:>8.1%}"
-              + (f" {r['mesh_ms_per_frame']:>8.1f} {r['realtime_ratio']:>8.3f}" if args.mesh else ""))
+              + (f" {r['mesh_ms_per_frame']:>8.1f} {r['realtime_ratio']:>8.3f}  PLY {r['export_ms_per_frame']['ply']:.0f} ms,"
+                 f" OBJ {r['export_ms_per_frame']['obj']:.0f} ms" if args.mesh else ""))
     print("copy bandwidth: " + ", ".join(f"{d} {b / 1e9:.1f} GB/s" for d, b in bandwidth.items()))
     record = header("device_switch", devices[0], scene="dam_break_cube", duration=args.duration, graph=args.graph,
                     mesh=args.mesh, mesh_fps=FPS if args.mesh else None, devices_missing=missing, copy_bandwidth=bandwidth,

@@ -12,10 +12,15 @@
 #     run "bash benchmarks/gpu_session.sh receive tests" carrying .gpu/2  (unpacks into /tmp/site; then
 #                                            the CUDA and graph tests, CPU against CUDA)
 #     run "bash benchmarks/gpu_session.sh switch"   # device_switch at 100k, 300k, 1M: --graph --mesh, then plain
-#     run "bash benchmarks/gpu_session.sh access"   # lists against grid queries; meshing per stage on CUDA
+#     run "bash benchmarks/gpu_session.sh access"   # lists against grid queries, slot- against particle-major
+# or all of it in the second call, each phase under its own time limit (a session's device time
+# is 15 minutes; the second call then carries .gpu/2 and .warp_cache, the CPU kernels built here):
+#     run "bash benchmarks/gpu_session.sh receive all"
+# Results land in $OUT as one archive, gpu_results.tgz, refreshed after each phase (at most 8
+# files come back from a call, and a phase cut off by its limit keeps what the others wrote).
 set -uo pipefail
 cd "$(dirname "$0")/.."
-phase="${1:?phase: pack, receive, tests, switch or access}"
+phase="${1:?phase: pack, receive, all, tests, switch or access}"
 WARP_VERSION="${WARP_VERSION:-1.19.0}"
 SITE="${SITE:-/tmp/site}"
 PARTS="${PARTS:-/tmp/parts}"
@@ -57,14 +62,36 @@ if [ "$phase" = receive ]; then
     [ "$phase" = none ] && exit 0
 fi
 
-out="${OUT:-benchmarks/results/gpu}"
-mkdir -p "$out"
+final="${OUT:-benchmarks/results/gpu}"
+out="$final"
+[ "$phase" = all ] && out=/tmp/gpu_results
+mkdir -p "$out" "$final"
 [ -d "$SITE/warp" ] && export PYTHONPATH="$SITE:$PWD:${PYTHONPATH:-}"
-export PYTHONUNBUFFERED=1 WARP_CACHE_PATH="${WARP_CACHE_PATH:-/tmp/warp_cache}"
+cache=/tmp/warp_cache
+[ -d .warp_cache ] && cache="$PWD/.warp_cache"
+export PYTHONUNBUFFERED=1 WARP_CACHE_PATH="${WARP_CACHE_PATH:-$cache}"
 nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.memory --format=csv >"$out/gpu.txt" 2>&1
 python3 -c "import warp as wp; wp.init(); print('warp', wp.__version__, wp.get_device('cuda:0').name)" || exit 1
 
+# one phase of "all": its commands under a limit of $1 seconds, then the archive refreshed
+timed_phase() {
+    local limit=$1 name=$2
+    shift 2
+    local t0=$SECONDS
+    echo "=== $name (limit ${limit} s)"
+    timeout -k 5 "$limit" bash -c "$*" >"$out/$name.log" 2>&1
+    echo "=== $name: exit $? after $((SECONDS - t0)) s"
+    tail -n 25 "$out/$name.log"
+    tar czf "$final/gpu_results.tgz" -C "$out" .
+}
+
 case "$phase" in
+all)
+    timed_phase 130 tests "python3 -m pytest -q -rs -x tests -k 'cuda or graph' -p no:cacheprovider"
+    timed_phase 200 switch_graph_mesh "python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --graph --mesh --out $out"
+    timed_phase 130 switch_plain "python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --out $out"
+    timed_phase 90 access "python3 benchmarks/neighbor_access.py --devices cuda --counts 100000,1000000 --repeats 10 --out $out"
+    ;;
 tests)
     python3 -m pytest -q -rs tests -k "cuda or graph" 2>&1 | tee "$out/tests.log"
     ;;
@@ -74,10 +101,9 @@ switch)
     ;;
 access)
     python3 benchmarks/neighbor_access.py --devices cuda --counts 100000,300000,1000000 --out "$out" 2>&1 | tee "$out/access.log"
-    python3 benchmarks/surface.py --device cuda --threads 1 --counts 200000,1000000 --out "$out" 2>&1 | tee "$out/surface.log"
     ;;
 *)
-    echo "unknown phase $phase: pack, receive, tests, switch or access" >&2
+    echo "unknown phase $phase: pack, receive, all, tests, switch or access" >&2
     exit 2
     ;;
 esac

@@ -28,7 +28,7 @@ import warp as wp
 from common import RESULTS, header, present_devices, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import launch_particles
-from warp_iisph.sph.neighbors import NeighborList
+from warp_iisph.sph.neighbors import NeighborList, StridedListBuffer
 from warp_iisph.sph.solvers.iisph import (dij_pj_term, jacobi_boundary_sigma, jacobi_sigma_term, jacobi_update, pressure_jacobi,
                                      pressure_sum_dij_pj)
 from warp_iisph.sph.kernel import cubic_grad_W
@@ -138,14 +138,21 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     sum_list, sum_query = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.sum_dij_pj)
     p_list, p_query = wp.zeros_like(solver.p_next), wp.zeros_like(solver.p_next)
 
-    def iteration_lists():
+    def iteration_lists(lists=nf, sums=sum_list, p_out=p_list):
         # the fluid part of an iteration (the walls' pressures off, wall_weight 0; a_ii as the
         # diagonal), as the query twins compute it
-        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, 0.0, solver.smoothing_weight, solver.W0, nf,
-                                                  nb, model.mass, solver.dt, sum_list], device)
+        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, 0.0, solver.smoothing_weight, solver.W0, lists,
+                                                  nb, model.mass, solver.dt, sums], device)
         launch_particles(pressure_jacobi, n,
-                         [state.rho, solver.rho_adv, solver.a_ii, solver.a_ii, solver.d_ii, sum_list, state.p, model.boundary_psi, nf,
-                          nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_list, solver.density_error], device)
+                         [state.rho, solver.rho_adv, solver.a_ii, solver.a_ii, solver.d_ii, sums, state.p, model.boundary_psi, lists,
+                          nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_out, solver.density_error], device)
+
+    # the same lists in the other layout: slot-major (slot m of particle i at m * n + i, what a
+    # GPU warp reads coalesced) against particle-major (i * stride + m, one cache line per list)
+    slot_major = nf.step != 1
+    other = StridedListBuffer(n, device, stride=search.fluid.stride, slot_major=not slot_major)
+    other.build(search.grid, state.x, n, search.radius)
+    sum_other, p_other = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
 
     # the query twins walk a wp.HashGrid over the same points: the same candidates in the same
     # order as the solver's own grid (warp_iisph.sph.grid), so the sums are bitwise the lists'
@@ -164,6 +171,9 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     t_fill = timed(list_fill, device, repeats)
     t_lists = timed(iteration_lists, device, repeats)
     t_query = timed(iteration_query, device, repeats)
+    t_other = timed(lambda: iteration_lists(other.lists, sum_other, p_other), device, repeats)
+    layout_difference = float(np.abs(p_list.numpy()[:n] - p_other.numpy()[:n]).max())
+    t_slot, t_particle = (t_lists, t_other) if slot_major else (t_other, t_lists)
     # both give the same iteration (same neighbours in the same order, same grad W)
     scale = max(float(np.abs(p_list.numpy()[:n]).max()), 1.0)
     p_difference = float(np.abs(p_list.numpy()[:n] - p_query.numpy()[:n]).max()) / scale
@@ -186,6 +196,11 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
         "grid_build_ms": 1e3 * t_grid,
         "list_fill_ms": 1e3 * t_fill,
         "jacobi_iteration_ms": {"lists": 1e3 * t_lists, "query": 1e3 * t_query},
+        "solver_layout": "slot-major" if slot_major else "particle-major",
+        # the same iteration on the same lists in each layout (bitwise the same pressures)
+        "layout_iteration_ms": {"slot-major": 1e3 * t_slot, "particle-major": 1e3 * t_particle},
+        "particle_major_over_slot_major": t_particle / t_slot,
+        "layout_max_difference": layout_difference,
         "query_over_lists_per_iteration": t_query / t_lists,
         "walks_per_step": walks,
         "modelled_step_ms": {"lists": 1e3 * step_lists, "query": 1e3 * step_query},
@@ -236,12 +251,13 @@ def main():
         warm_up(dev)
         rows += [run(dev, int(c), args.settle, args.repeats) for c in args.counts.split(",")]
     print(f"{'device':>6} {'particles':>9} {'iters':>5} {'grid ms':>7} {'fill ms':>7} {'it lists':>8} {'it query':>8}"
-          f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8}")
+          f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8} {'slot-major':>10} {'part-major':>10}")
     for r in rows:
         it, st = r["jacobi_iteration_ms"], r["modelled_step_ms"]
         print(f"{r['device']:>6} {r['particles']:>9} {r['mean_iterations']:>5.2f} {r['grid_build_ms']:>7.2f} {r['list_fill_ms']:>7.2f}"
               f" {it['lists']:>8.2f} {it['query']:>8.2f} {st['lists']:>10.2f} {st['query']:>10.2f} {r['faster']:>6}"
-              f" {r['max_relative_difference']['pressure']:>8.1e}")
+              f" {r['max_relative_difference']['pressure']:>8.1e} {r['layout_iteration_ms']['slot-major']:>10.2f}"
+              f" {r['layout_iteration_ms']['particle-major']:>10.2f}")
     record = header("neighbor_access", devices[0], scene="dam_break_cube", settle=args.settle, repeats=args.repeats,
                     devices_missing=missing, walks_outside_jacobi=WALKS_OUTSIDE_JACOBI, results=rows)
     if "cuda" in devices:
