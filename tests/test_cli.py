@@ -118,10 +118,10 @@ def test_a_failed_write_is_one_line_and_keeps_earlier_frames(tmp_path, monkeypat
 
     real = runner.write_particles
 
-    def fail_third(path, *args):
+    def fail_third(path, *args, **kw):
         if path.name == "frame_00002.ply":
             raise OSError(28, "No space left on device", str(path))
-        real(path, *args)
+        real(path, *args, **kw)
 
     monkeypatch.setattr(runner, "write_particles", fail_third)
     out = tmp_path / "run"

@@ -124,3 +124,17 @@ def test_emitter_errors_are_one_line(bad, message):
     with pytest.raises(ValueError) as err:
         scene.validate()
     assert message in str(err.value)
+
+
+def test_particle_frames_hold_each_particles_own_id(tmp_path):
+    """Once a sink has removed particles the ids have gaps: a frame's rows are the particles in
+    the order of their ids, each with its own id (not its row number)."""
+    run_scene(jet_scene(duration=1.5), tmp_path / "r", progress=False)
+    frame = read_particles(tmp_path / "r" / "particles" / "frame_00045.ply")
+    sim = Simulation(jet_scene(duration=1.5), "cpu")
+    for _ in range(45):  # frame by frame, as the run (sinks act at frame ends)
+        sim.advance(1 / 30)
+    ids = np.sort(sim.state.id.numpy()[: sim.n_particles])
+    assert sim.flows.removed > 0 and ids[-1] > len(ids) - 1  # gaps
+    np.testing.assert_array_equal(frame["id"], ids)
+    np.testing.assert_array_equal(frame["x"], sim.positions)

@@ -415,3 +415,29 @@ def test_bounds_and_non_finite_count_on_the_device(ball):
     assert bad == 2 and np.array_equal(lo, x[finite].min(0)) and np.array_equal(hi, x[finite].max(0))
     with pytest.raises(ValueError, match="2 particles have non-finite positions"):
         SurfaceReconstructor(H).reconstruct(wp.array(x, dtype=wp.vec3, device="cpu"))
+
+
+@pytest.mark.parametrize("settings", [{}, {"cell": 0.3, "radius": 2.5}])
+def test_gpu_row_gather_equals_the_splat(settings, monkeypatch):
+    """gather_rows (CUDA's field kernel: a thread per row of 8 nodes gathers the particles whose
+    ball reaches it) gives bitwise the field splat_blocks (the CPU's) gives: the same terms in
+    the same order. Run here on the CPU, so a GPU is not needed to check it."""
+    launched = {}
+    plain = surface.launch_particles
+
+    def spy(kernel, n, inputs, device, **kw):
+        if kernel is surface.splat_blocks:
+            launched["inputs"] = inputs
+        return plain(kernel, n, inputs, device, **kw)
+
+    monkeypatch.setattr(surface, "launch_particles", spy)
+    pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)
+    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(2).normal(0, 0.1 * H, pool.shape)]).astype(np.float32)
+    field = SurfaceReconstructor(H, Surface(**settings)).distance_field(x)
+    _, f, xs, start, cd, R, r0, _ = launched["inputs"]
+    splat = f.phi.numpy().copy()
+    f.phi.fill_(np.nan)
+    wp.launch(surface.gather_rows, dim=field.n_stored * surface.ROWS, inputs=[0, f, xs, start, cd, R, r0], device="cpu")
+    gathered = f.phi.numpy()
+    assert field.n_stored > 50 and np.isfinite(gathered).all()
+    assert np.array_equal(gathered.view(np.int32), splat.view(np.int32))

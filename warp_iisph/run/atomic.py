@@ -23,6 +23,12 @@ FILE_MODE = 0o666 & ~_umask()
 def atomic_write(path: Path, write) -> None:
     """``write(tmp)`` to a temporary file beside ``path``, flushed to disk, then renamed into
     place: a file that exists is whole."""
+    staged_write(path, write)()
+
+
+def staged_write(path: Path, write):
+    """:func:`atomic_write` in two halves: the file written and flushed beside ``path`` now, and
+    the returned call renames it into place (so that it appears only after other files)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
     try:
@@ -32,13 +38,17 @@ def atomic_write(path: Path, write) -> None:
         write(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
-        os.replace(tmp, path)
     except BaseException:
         if fd is not None:
             os.close(fd)
         if os.path.exists(tmp):
             os.remove(tmp)
         raise
+
+    def commit() -> None:
+        os.replace(tmp, path)
+
+    return commit
 
 
 def write_json(path, obj) -> None:

@@ -22,6 +22,9 @@ class FrameQueue:
 
     def __init__(self, background: bool = True):
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="warp-iisph-writer") if background else None
+        # a frame's files are written side by side (NumPy's packing and the disk release the GIL):
+        # at 1M particles the particle file, the mesh and the checkpoint take 70-110 ms each
+        self._files = ThreadPoolExecutor(4, thread_name_prefix="warp-iisph-files") if background else None
         self._pending: Optional[Future] = None
         self.blocked = 0.0
         self.busy = 0.0
@@ -42,6 +45,19 @@ class FrameQueue:
         else:
             self._pending = self._pool.submit(self._timed, fn)
 
+    def together(self, jobs: list) -> None:
+        """Run ``jobs`` side by side (in turn when not in the background) and wait for all of
+        them; re-raises the first error."""
+        if self._files is None or len(jobs) < 2:
+            for job in jobs:
+                job()
+            return
+        futures = [self._files.submit(job) for job in jobs]
+        for f in futures:
+            f.exception()  # all finish before any error is raised: no file is left half-written
+        for f in futures:
+            f.result()
+
     def wait(self) -> None:
         """Block until the job in flight is written; re-raises its error."""
         if self._pending is not None:
@@ -58,6 +74,7 @@ class FrameQueue:
         finally:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
+                self._files.shutdown(wait=True)
 
     def __enter__(self) -> "FrameQueue":
         return self

@@ -28,12 +28,13 @@ from .. import __version__
 from ..engine.timing import StageTimes
 from ..scene import Scene, obstacles_mesh, scene_to_dict
 from ..scene.checks import in_range
-from .atomic import atomic_write
+from .atomic import staged_write
 from .folder import MESHES, OBSTACLE_FRAMES, OBSTACLES, PARTICLES, RunError, RunFolder, frame_index, new_run_id
 from .formats import StatsWriter, read_stats, write_obj, write_particles
 from .frame_queue import FrameQueue
 from .meshing import FrameMesher, mesh_settings
 from .progress import frame_bar
+from ..setup.model import id_order
 
 
 class OutputExistsError(ValueError):
@@ -150,25 +151,33 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     moving_obstacles = any(o.motion is not None for o in scene.obstacles)
 
     def write_frame(k: int) -> None:
-        jobs = []
+        files, then = [], []  # written side by side; then what must appear after them
         if scene.output.particles:
-            with times("export"):
+            with times("export"):  # the main thread only downloads; the writer orders by id
                 frame_file = run.particle_frame(k)
-                snapshot = (sim.positions, sim.velocities, sim.densities, sim.pressures)
-            jobs.append(lambda: write_particles(frame_file, *snapshot))
+                raw = {name: sim.state.host(name) for name in ("x", "v", "rho", "p", "id")}
+
+            def particles():
+                order = id_order(raw["id"])
+                write_particles(frame_file, *(raw[name][order] for name in ("x", "v", "rho", "p")), ids=raw["id"][order])
+
+            files.append(particles)
         if mesher is not None:
             mesh, obj = mesher.mesh(sim.state.x[: sim.n_particles]), run.mesh_frame(k)
-            jobs.append(lambda: mesher.export(mesh, obj))
+            files.append(lambda: mesher.export(mesh, obj))
         if moving_obstacles:  # where every obstacle is at this frame, for the viewers
             solid, path = obstacles_mesh(scene.obstacles, k / plan.fps), run.obstacle_frame(k)
-            jobs.append(lambda: write_obj(path, np.asarray(solid.vertices), np.asarray(solid.faces)))
+            files.append(lambda: write_obj(path, np.asarray(solid.vertices), np.asarray(solid.faces)))
         every = scene.output.checkpoint_every
         if every and (k % every == 0 or k == plan.frames - 1):
             state = {**sim.checkpoint(), "frame": np.int64(k)}
-            jobs.append(lambda: save_checkpoint(run, state))  # after the frame's files: it never runs ahead of them
+            staged = []
+            files.append(lambda: staged.append(stage_checkpoint(run, state)))
+            then.append(lambda: staged[0]())  # renamed in after the frame's files: never ahead of them
 
         def job():
-            for j in jobs:
+            queue.together(files)
+            for j in then:
                 j()
             written[0] = k + 1
 
@@ -297,12 +306,13 @@ def load_checkpoint(run: RunFolder) -> dict:
         raise RunError(f"{run.checkpoint}: not a readable checkpoint ({e})") from None
 
 
-def save_checkpoint(run: RunFolder, state: dict) -> None:
+def stage_checkpoint(run: RunFolder, state: dict):
+    """Write the checkpoint beside its place; the returned call renames it in."""
     def write(tmp):
         with open(tmp, "wb") as f:
             np.savez(f, **state)
 
-    atomic_write(run.checkpoint, write)
+    return staged_write(run.checkpoint, write)
 
 
 def _frames_after(run: RunFolder, k: int) -> list[Path]:

@@ -71,6 +71,18 @@ def gather_int(offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype
 _GATHER = {wp.vec3: gather_vec3, wp.float32: gather_float, wp.int32: gather_int}
 
 
+def id_order(ids: np.ndarray) -> np.ndarray:
+    """The permutation that puts particles in the order of their ids (unique): a scatter when
+    they are 0..n-1 (no emitter or sink has changed them; a tenth of a sort's time at 1M), else
+    a sort."""
+    n = len(ids)
+    if n and int(ids.min()) == 0 and int(ids.max()) == n - 1:
+        order = np.empty(n, dtype=np.int64)
+        order[ids] = np.arange(n)
+        return order
+    return np.argsort(ids, kind="stable")
+
+
 @dataclass
 class State:
     """Per-particle fluid data: position ``x``, velocity ``v``, density ``rho``, pressure ``p``
@@ -142,15 +154,19 @@ class State:
 
     def numpy_by_id(self, name: str) -> np.ndarray:
         """Host copy of a per-particle array of the liquid, in the order of the particles' ids."""
-        values = self._host(name)[: self.count]
-        return values[np.argsort(self._host("id")[: self.count], kind="stable")]
+        return self.host(name)[id_order(self.host("id"))]
+
+    def host(self, name: str) -> np.ndarray:
+        """Host copy of the liquid's ``name`` in memory order (see :func:`id_order`), its own
+        (the simulation may go on while it is read)."""
+        return self._host(name)[: self.count]
 
     def _host(self, name: str) -> np.ndarray:
         """``name`` on the host. From a GPU it comes through a page-locked buffer kept for it
         (a copy from pageable memory runs at about half the bus's speed)."""
         src = getattr(self, name)
         if not src.device.is_cuda:
-            return src.numpy()
+            return src.numpy().copy()  # .numpy() is a view of the live array on the CPU
         key = ("pinned", name)
         buf = self._scratch.get(key)
         if buf is None or buf.shape != src.shape:
