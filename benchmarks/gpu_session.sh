@@ -88,7 +88,7 @@ timed_phase() {
 
 case "$phase" in
 all)
-    timed_phase 130 tests "python3 -m pytest -q -rs -x tests -k 'cuda or graph' -p no:cacheprovider"
+    timed_phase 130 tests "python3 -m pytest -q -rs tests -k 'cuda' -p no:cacheprovider"
     timed_phase 200 switch_graph_mesh "python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --graph --mesh --out $out"
     timed_phase 130 switch_plain "python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --out $out"
     timed_phase 90 access "python3 benchmarks/neighbor_access.py --devices cuda --counts 100000,1000000 --repeats 10 --out $out"
