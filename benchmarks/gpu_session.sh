@@ -13,7 +13,8 @@
 #                                            the CUDA and graph tests, CPU against CUDA)
 #     run "bash benchmarks/gpu_session.sh switch"   # device_switch at 100k, 300k, 1M: --graph --mesh, then plain
 #     run "bash benchmarks/gpu_session.sh access"   # lists against grid queries, slot- against particle-major
-# ("all" adds kernel_profile at 100k and 1M, and breakdown at 1M with its files written)
+# ("all" adds 1 simulated second at 1M with --graph, kernel_profile at 100k and 1M, and
+# breakdown at 1M with its files written)
 # or all of it in the second call, each phase under its own time limit (a session's device time
 # is 15 minutes; the second call then carries .gpu/2 and .warp_cache, the CPU kernels built here):
 #     run "bash benchmarks/gpu_session.sh receive all"
@@ -90,6 +91,7 @@ case "$phase" in
 all)
     timed_phase 130 tests "python3 -m pytest -q -rs tests -k 'cuda' -p no:cacheprovider"
     timed_phase 200 switch_graph_mesh "python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --graph --mesh --out $out"
+    timed_phase 90 switch_graph_long "python3 benchmarks/device_switch.py --devices cuda --counts 1000000 --graph --duration 1.0 --out $out"
     timed_phase 130 switch_plain "python3 benchmarks/device_switch.py --devices cuda --counts 100000,300000,1000000 --out $out"
     timed_phase 90 access "python3 benchmarks/neighbor_access.py --devices cuda --counts 100000,1000000 --repeats 10 --out $out"
     timed_phase 90 profile "python3 benchmarks/kernel_profile.py --counts 100000,1000000 --out $out"

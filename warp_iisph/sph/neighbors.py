@@ -59,7 +59,7 @@ def count_in_cells(g: CellGrid, points: wp.array(dtype=wp.vec3), first: int, x_i
                 c = cell_hash(x, y, z)
                 s = cell_first(g, c)
                 while s < g.n and g.keys[s] == c:
-                    d = x_i - points[first + g.ids[s]]
+                    d = x_i - g.points[s]
                     s += 1
                     if wp.dot(d, d) < r2:
                         n += 1
@@ -82,10 +82,10 @@ def fill_from_cells(g: CellGrid, points: wp.array(dtype=wp.vec3), first: int, x_
                 c = cell_hash(x, y, z)
                 s = cell_first(g, c)
                 while s < g.n and g.keys[s] == c:
-                    j = first + g.ids[s]
+                    x_ij = x_i - g.points[s]
                     s += 1
-                    x_ij = x_i - points[j]
                     if wp.dot(x_ij, x_ij) < r2:
+                        j = first + g.ids[s - 1]
                         if k < capacity:
                             nbrs.index[k] = j
                             nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
@@ -191,11 +191,11 @@ def fill_neighbors_strided(
                 c = cell_hash(x, y, z)
                 s = cell_first(grid, c)
                 while s < grid.n and grid.keys[s] == c:
-                    j = grid.ids[s]
+                    x_ij = x_i - grid.points[s]
                     s += 1
-                    if j != i:
-                        x_ij = x_i - points[j]
-                        if wp.dot(x_ij, x_ij) < r2:
+                    if wp.dot(x_ij, x_ij) < r2:
+                        j = grid.ids[s - 1]
+                        if j != i:
                             if k < stride:
                                 e = k0 + k * nbrs.step
                                 nbrs.index[e] = j
