@@ -452,13 +452,8 @@ def particle_bounds(x: wp.array(dtype=wp.vec3), bounds: wp.array(dtype=wp.vec3),
     atomics, one launch, so a device frame needs no copy of its positions to the host."""
     p = x[wp.tid()]
     if wp.isfinite(p):
-        # read first: on a GPU atomics on the same two words queue up; few points move a bound
-        lo = bounds[0]
-        hi = bounds[1]
-        if p[0] < lo[0] or p[1] < lo[1] or p[2] < lo[2]:
-            wp.atomic_min(bounds, 0, p)
-        if p[0] > hi[0] or p[1] > hi[1] or p[2] > hi[2]:
-            wp.atomic_max(bounds, 1, p)
+        wp.atomic_min(bounds, 0, p)
+        wp.atomic_max(bounds, 1, p)
     else:
         wp.atomic_add(bad, 0, 1)
 
