@@ -2,7 +2,9 @@
 of its frames made by `warp-iisph preview`, into docs/gallery/NAME.png. Writes
 docs/gallery/gallery.json with each run's particles, steps, wall time and how it ended.
 
-    python benchmarks/gallery.py [--scenes dam_break,wake] [--quick]
+    python benchmarks/gallery.py [--scenes dam_break,wake] [--device cpu] [--graph] [--quick]
+
+(on a GPU: --device cuda --graph --out somewhere else, to check every scene's run there)
 """
 
 import argparse
@@ -26,6 +28,8 @@ def main():
     ap.add_argument("--scenes", default=",".join(bundled_scenes()), help="comma-separated bundled scene names")
     ap.add_argument("--quick", action="store_true", help="a tenth of each scene's duration, coarser, into a temporary folder")
     ap.add_argument("--out", default=str(GALLERY))
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--graph", action="store_true", help="replay graph-captured steps")
     args = ap.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     out = Path(args.out)
@@ -37,6 +41,7 @@ def main():
         with tempfile.TemporaryDirectory() as tmp:
             run = Path(tmp) / name
             extra = ["--set", f"spacing={2 * scene.spacing}"] if args.quick else []
+            extra += ["--device", args.device] + (["--graph"] if args.graph else [])
             code = cli(["run", name, "--out", str(run), "--duration", f"{duration:g}", "--no-progress", *extra])
             record = json.loads((run / "run.json").read_text())
             frame = max(0, min(record["totals"]["frames"] - 1, round(MOMENT.get(name, 0.5) * duration * record["fps"])))
@@ -48,7 +53,7 @@ def main():
                      "simulated_seconds": t["simulated_time"], "steps": t["steps"], "wall_seconds": t["wall_seconds"],
                      "mean_compression": t["mean_compression"], "wall_corrections": t.get("wall_corrections"),
                      "obstacle_corrections": t.get("obstacle_corrections"),
-                     "still": still.name, "frame": frame})
+                     "still": still.name, "frame": frame, "device": args.device, "graph": args.graph})
         print(f"{name:16s} {rows[-1]['particles']:>6} particles, {t['simulated_time']:.2f} s simulated in {t['wall_seconds']:.0f} s "
               f"({record['ended']}) -> {still}")
     (out / "gallery.json").write_text(json.dumps(header("gallery", runs=rows, quick=args.quick), indent=2) + "\n")

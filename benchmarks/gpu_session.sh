@@ -14,7 +14,8 @@
 #     run "bash benchmarks/gpu_session.sh switch"   # device_switch at 100k, 300k, 1M: --graph --mesh, then plain
 #     run "bash benchmarks/gpu_session.sh access"   # lists against grid queries, slot- against particle-major
 # ("all" adds 1 simulated second at 1M with --graph, kernel_profile at 100k and 1M, and
-# breakdown at 1M with its files written)
+# breakdown at 1M with its files written; "receive check" runs the CUDA tests and every bundled
+# scene through the CLI on CUDA with --graph, benchmarks/gallery.py)
 # or all of it in the second call, each phase under its own time limit (a session's device time
 # is 15 minutes; the second call then carries .gpu/2 and .warp_cache, the CPU kernels built here):
 #     run "bash benchmarks/gpu_session.sh receive all"
@@ -22,7 +23,7 @@
 # files come back from a call, and a phase cut off by its limit keeps what the others wrote).
 set -uo pipefail
 cd "$(dirname "$0")/.."
-phase="${1:?phase: pack, receive, all, tests, switch or access}"
+phase="${1:?phase: pack, receive, all, check, tests, switch or access}"
 WARP_VERSION="${WARP_VERSION:-1.19.0}"
 SITE="${SITE:-/tmp/site}"
 PARTS="${PARTS:-/tmp/parts}"
@@ -66,7 +67,7 @@ fi
 
 final="${OUT:-benchmarks/results/gpu}"
 out="$final"
-[ "$phase" = all ] && out=/tmp/gpu_results
+[ "$phase" = all ] || [ "$phase" = check ] && out=/tmp/gpu_results && rm -rf "$out"
 mkdir -p "$out" "$final"
 [ -d "$SITE/warp" ] && export PYTHONPATH="$SITE:$PWD:${PYTHONPATH:-}"
 cache=/tmp/warp_cache
@@ -97,6 +98,10 @@ all)
     timed_phase 90 profile "python3 benchmarks/kernel_profile.py --counts 100000,1000000 --out $out"
     timed_phase 120 breakdown "python3 benchmarks/breakdown.py --device cuda --particles 1000000 --duration 0.25 --out $out"
     ;;
+check)  # the CUDA tests, then every bundled scene through the CLI on CUDA with --graph
+    timed_phase 150 tests "python3 -m pytest -q -rs tests -k 'cuda' -p no:cacheprovider"
+    timed_phase 240 gallery "python3 benchmarks/gallery.py --device cuda --graph --out $out/gallery"
+    ;;
 tests)
     python3 -m pytest -q -rs tests -k "cuda or graph" 2>&1 | tee "$out/tests.log"
     ;;
@@ -108,7 +113,7 @@ access)
     python3 benchmarks/neighbor_access.py --devices cuda --counts 100000,300000,1000000 --out "$out" 2>&1 | tee "$out/access.log"
     ;;
 *)
-    echo "unknown phase $phase: pack, receive, all, tests, switch or access" >&2
+    echo "unknown phase $phase: pack, receive, all, check, tests, switch or access" >&2
     exit 2
     ;;
 esac

@@ -79,11 +79,13 @@ def test_cli_graph_flag(tmp_path):
 
 
 @requires_cuda
-def test_cuda_graph_matches_cpu():
-    scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1)  # noqa: E731
+@pytest.mark.parametrize("method", ["iisph", "wcsph", "dfsph"])
+def test_cuda_graph_matches_cpu(method):
+    scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method)  # noqa: E731
     cpu, cuda = run(scene(), False, 0.1), run(scene(), True, 0.1, device="cuda")
-    assert cuda.step_count == cpu.step_count
-    assert np.max(np.abs(cuda.positions - cpu.positions)) < 0.02  # GPU atomics and FMA reorder sums
+    # GPU atomics and FMA reorder sums: CFL steps and iteration counts may differ by one
+    assert abs(cuda.step_count - cpu.step_count) <= max(1, cpu.step_count // 50)
+    assert np.max(np.abs(cuda.positions - cpu.positions)) < 0.02
 
 
 @pytest.mark.parametrize("method", ["iisph", "dfsph"])
