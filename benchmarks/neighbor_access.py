@@ -28,7 +28,8 @@ import warp as wp
 from common import RESULTS, header, present_devices, pyplot, save, warm_up
 from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import launch_particles
-from warp_iisph.sph.neighbors import NeighborList, StridedListBuffer
+from warp_iisph.sph.grid import CellGrid, cell_first, cell_hash, cell_range
+from warp_iisph.sph.neighbors import NeighborList, StridedListBuffer, entry
 from warp_iisph.sph.solvers.iisph import (dij_pj_term, jacobi_boundary_sigma, jacobi_sigma_term, jacobi_update, pressure_jacobi,
                                      pressure_sum_dij_pj)
 from warp_iisph.sph.kernel import cubic_grad_W
@@ -106,6 +107,91 @@ def pressure_jacobi_query(
     jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
 
 
+@wp.kernel
+def pressure_sum_dij_pj_index(
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    radius: float,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    nf: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    sum_dij_pj: wp.array(dtype=wp.vec3),
+):
+    """The list twin that reads only the lists' indices and recomputes grad W from positions
+    (a quarter of the list bytes streamed, a position gathered per entry)."""
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    x_i = x[i]
+    acc = wp.vec3(0.0, 0.0, 0.0)
+    for m in range(nf.count[i]):
+        j = nf.index[entry(nf, i, m)]
+        acc -= dij_pj_term(mass, p[j], rho[j], cubic_grad_W(x_i - x[j], radius))
+    sum_dij_pj[i] = dt * dt * acc
+
+
+@wp.kernel
+def pressure_jacobi_index(
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    radius: float,
+    rho: wp.array(dtype=float),
+    rho_adv: wp.array(dtype=float),
+    a_ii: wp.array(dtype=float),
+    d_ii: wp.array(dtype=wp.vec3),
+    sum_dij_pj: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    rho0: float,
+    omega: float,
+    p_new: wp.array(dtype=float),
+    density_error: wp.array(dtype=wp.float64),
+):
+    i = wp.tid() + offset
+    dt = dt_step[0]
+    x_i = x[i]
+    rho_i = rho[i]
+    p_i = p[i]
+    sdp_i = sum_dij_pj[i]
+    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    sigma = float(0.0)
+    for m in range(nf.count[i]):
+        j = nf.index[entry(nf, i, m)]
+        g = cubic_grad_W(x_i - x[j], radius)
+        sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
+    sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
+    jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
+
+
+@wp.kernel
+def count_neighbors_strided(offset: int, grid: CellGrid, points: wp.array(dtype=wp.vec3), radius: float, wanted: wp.array(dtype=wp.int32)):
+    """The fill's twin that only counts: the same candidate loop without the list's stores, so
+    the difference to the fill is what writing the lists costs."""
+    i = wp.tid() + offset
+    x_i = points[i]
+    r2 = radius * radius
+    k = int(0)
+    cx = cell_range(grid, x_i, radius, 0)
+    cy = cell_range(grid, x_i, radius, 1)
+    cz = cell_range(grid, x_i, radius, 2)
+    for z in range(cz[0], cz[1] + 1):
+        for y in range(cy[0], cy[1] + 1):
+            for x in range(cx[0], cx[1] + 1):
+                c = cell_hash(x, y, z)
+                s = cell_first(grid, c)
+                while s < grid.n and grid.keys[s] == c:
+                    x_ij = x_i - grid.points[s]
+                    s += 1
+                    if wp.dot(x_ij, x_ij) < r2:
+                        k += 1
+    wanted[i] = k - 1  # itself
+
+
 def timed(fn, device, repeats: int) -> float:
     """Median wall seconds of ``fn`` over ``repeats`` synchronised calls (after one untimed)."""
     fn()
@@ -172,6 +258,20 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     t_lists = timed(iteration_lists, device, repeats)
     t_query = timed(iteration_query, device, repeats)
     t_other = timed(lambda: iteration_lists(other.lists, sum_other, p_other), device, repeats)
+    sum_index, p_index = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
+
+    def iteration_index():
+        launch_particles(pressure_sum_dij_pj_index, n, [state.x, H, state.rho, state.p, nf, model.mass, solver.dt, sum_index], device)
+        launch_particles(pressure_jacobi_index, n,
+                         [state.x, H, state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_index, state.p, model.boundary_psi, nf,
+                          nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_index, solver.density_error], device)
+
+    t_index = timed(iteration_index, device, repeats)
+    index_difference = float(np.abs(p_list.numpy()[:n] - p_index.numpy()[:n]).max())
+    counted = wp.zeros(n, dtype=wp.int32, device=device)
+    t_count = timed(lambda: launch_particles(count_neighbors_strided, n, [search.grid.grid, state.x, search.radius, counted], device),
+                    device, repeats)
+    assert np.array_equal(counted.numpy(), nf.count.numpy()[:n])
     layout_difference = float(np.abs(p_list.numpy()[:n] - p_other.numpy()[:n]).max())
     t_slot, t_particle = (t_lists, t_other) if slot_major else (t_other, t_lists)
     # both give the same iteration (same neighbours in the same order, same grad W)
@@ -201,6 +301,11 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
         "layout_iteration_ms": {"slot-major": 1e3 * t_slot, "particle-major": 1e3 * t_particle},
         "particle_major_over_slot_major": t_particle / t_slot,
         "layout_max_difference": layout_difference,
+        # the same iteration reading only the lists' indices, grad W recomputed from positions
+        "index_only_iteration_ms": 1e3 * t_index,
+        "index_only_max_difference": index_difference,
+        # the fill's candidate loop alone (no list stores): the rest of the fill is its writes
+        "count_only_ms": 1e3 * t_count,
         "query_over_lists_per_iteration": t_query / t_lists,
         "walks_per_step": walks,
         "modelled_step_ms": {"lists": 1e3 * step_lists, "query": 1e3 * step_query},
@@ -251,13 +356,14 @@ def main():
         warm_up(dev)
         rows += [run(dev, int(c), args.settle, args.repeats) for c in args.counts.split(",")]
     print(f"{'device':>6} {'particles':>9} {'iters':>5} {'grid ms':>7} {'fill ms':>7} {'it lists':>8} {'it query':>8}"
-          f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8} {'slot-major':>10} {'part-major':>10}")
+          f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8} {'slot-major':>10} {'part-major':>10}"
+          f" {'index-only':>10} {'count-only':>10}")
     for r in rows:
         it, st = r["jacobi_iteration_ms"], r["modelled_step_ms"]
         print(f"{r['device']:>6} {r['particles']:>9} {r['mean_iterations']:>5.2f} {r['grid_build_ms']:>7.2f} {r['list_fill_ms']:>7.2f}"
               f" {it['lists']:>8.2f} {it['query']:>8.2f} {st['lists']:>10.2f} {st['query']:>10.2f} {r['faster']:>6}"
               f" {r['max_relative_difference']['pressure']:>8.1e} {r['layout_iteration_ms']['slot-major']:>10.2f}"
-              f" {r['layout_iteration_ms']['particle-major']:>10.2f}")
+              f" {r['layout_iteration_ms']['particle-major']:>10.2f} {r['index_only_iteration_ms']:>10.2f} {r['count_only_ms']:>10.2f}")
     record = header("neighbor_access", devices[0], scene="dam_break_cube", settle=args.settle, repeats=args.repeats,
                     devices_missing=missing, walks_outside_jacobi=WALKS_OUTSIDE_JACOBI, results=rows)
     if "cuda" in devices:
