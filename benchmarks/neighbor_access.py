@@ -48,7 +48,9 @@ def pressure_sum_dij_pj_query(
     p: wp.array(dtype=float),
     mass: float,
     dt_step: wp.array(dtype=float),
+    d_ii: wp.array(dtype=wp.vec3),
     sum_dij_pj: wp.array(dtype=wp.vec3),
+    displacement: wp.array(dtype=wp.vec3),
 ):
     i = wp.tid() + offset
     dt = dt_step[0]
@@ -62,7 +64,9 @@ def pressure_sum_dij_pj_query(
             x_ij = x_i - x[j]
             if wp.dot(x_ij, x_ij) < r2:
                 acc -= dij_pj_term(mass, p[j], rho[j], cubic_grad_W(x_ij, radius))
-    sum_dij_pj[i] = dt * dt * acc
+    sdp = dt * dt * acc
+    sum_dij_pj[i] = sdp
+    displacement[i] = d_ii[i] * p[i] + sdp
 
 
 @wp.kernel
@@ -74,7 +78,7 @@ def pressure_jacobi_query(
     rho: wp.array(dtype=float),
     rho_adv: wp.array(dtype=float),
     a_ii: wp.array(dtype=float),
-    d_ii: wp.array(dtype=wp.vec3),
+    displacement: wp.array(dtype=wp.vec3),
     sum_dij_pj: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=float),
     psi: wp.array(dtype=float),
@@ -102,7 +106,7 @@ def pressure_jacobi_query(
             x_ij = x_i - x[j]
             if wp.dot(x_ij, x_ij) < r2:
                 g = cubic_grad_W(x_ij, radius)
-                sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
+                sigma += jacobi_sigma_term(mass, sdp_i, displacement[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
     jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
 
@@ -117,7 +121,9 @@ def pressure_sum_dij_pj_index(
     nf: NeighborList,
     mass: float,
     dt_step: wp.array(dtype=float),
+    d_ii: wp.array(dtype=wp.vec3),
     sum_dij_pj: wp.array(dtype=wp.vec3),
+    displacement: wp.array(dtype=wp.vec3),
 ):
     """The list twin that reads only the lists' indices and recomputes grad W from positions
     (a quarter of the list bytes streamed, a position gathered per entry)."""
@@ -128,7 +134,9 @@ def pressure_sum_dij_pj_index(
     for m in range(nf.count[i]):
         j = nf.index[entry(nf, i, m)]
         acc -= dij_pj_term(mass, p[j], rho[j], cubic_grad_W(x_i - x[j], radius))
-    sum_dij_pj[i] = dt * dt * acc
+    sdp = dt * dt * acc
+    sum_dij_pj[i] = sdp
+    displacement[i] = d_ii[i] * p[i] + sdp
 
 
 @wp.kernel
@@ -139,7 +147,7 @@ def pressure_jacobi_index(
     rho: wp.array(dtype=float),
     rho_adv: wp.array(dtype=float),
     a_ii: wp.array(dtype=float),
-    d_ii: wp.array(dtype=wp.vec3),
+    displacement: wp.array(dtype=wp.vec3),
     sum_dij_pj: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=float),
     psi: wp.array(dtype=float),
@@ -163,7 +171,7 @@ def pressure_jacobi_index(
     for m in range(nf.count[i]):
         j = nf.index[entry(nf, i, m)]
         g = cubic_grad_W(x_i - x[j], radius)
-        sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
+        sigma += jacobi_sigma_term(mass, sdp_i, displacement[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
     jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
 
@@ -223,14 +231,15 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
 
     sum_list, sum_query = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.sum_dij_pj)
     p_list, p_query = wp.zeros_like(solver.p_next), wp.zeros_like(solver.p_next)
+    disp = wp.zeros_like(solver.sum_dij_pj)  # each iteration writes it before it reads it
 
     def iteration_lists(lists=nf, sums=sum_list, p_out=p_list):
         # the fluid part of an iteration (the walls' pressures off, wall_weight 0; a_ii as the
         # diagonal), as the query twins compute it
         launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, 0.0, solver.smoothing_weight, solver.W0, lists,
-                                                  nb, model.mass, solver.dt, sums], device)
+                                                  nb, model.mass, solver.dt, solver.d_ii, sums, disp], device)
         launch_particles(pressure_jacobi, n,
-                         [state.rho, solver.rho_adv, solver.a_ii, solver.a_ii, solver.d_ii, sums, state.p, model.boundary_psi, lists,
+                         [state.rho, solver.rho_adv, solver.a_ii, solver.a_ii, disp, sums, state.p, model.boundary_psi, lists,
                           nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_out, solver.density_error], device)
 
     # the same lists in the other layout: slot-major (slot m of particle i at m * n + i, what a
@@ -247,9 +256,10 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
 
     def iteration_query():
         grid = query_grid.id
-        launch_particles(pressure_sum_dij_pj_query, n, [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, sum_query], device)
+        launch_particles(pressure_sum_dij_pj_query, n, [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, solver.d_ii, sum_query,
+                                                        disp], device)
         launch_particles(pressure_jacobi_query, n,
-                         [grid, state.x, H, state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_query, state.p,
+                         [grid, state.x, H, state.rho, solver.rho_adv, solver.a_ii, disp, sum_query, state.p,
                           model.boundary_psi, nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_query, solver.density_error],
                          device)
 
@@ -261,9 +271,10 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     sum_index, p_index = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
 
     def iteration_index():
-        launch_particles(pressure_sum_dij_pj_index, n, [state.x, H, state.rho, state.p, nf, model.mass, solver.dt, sum_index], device)
+        launch_particles(pressure_sum_dij_pj_index, n, [state.x, H, state.rho, state.p, nf, model.mass, solver.dt, solver.d_ii, sum_index,
+                                                        disp], device)
         launch_particles(pressure_jacobi_index, n,
-                         [state.x, H, state.rho, solver.rho_adv, solver.a_ii, solver.d_ii, sum_index, state.p, model.boundary_psi, nf,
+                         [state.x, H, state.rho, solver.rho_adv, solver.a_ii, disp, sum_index, state.p, model.boundary_psi, nf,
                           nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_index, solver.density_error], device)
 
     t_index = timed(iteration_index, device, repeats)

@@ -156,9 +156,11 @@ def dij_pj_term(mass: float, p_j: float, rho_j: float, grad_W: wp.vec3) -> wp.ve
 
 
 @wp.func
-def jacobi_sigma_term(mass: float, sdp_i: wp.vec3, d_jj_p_j: wp.vec3, sdp_j: wp.vec3, d_ji_p_i: wp.vec3, grad_W: wp.vec3) -> float:
-    """Fluid neighbour j's part of ``s_i``."""
-    return mass * wp.dot(sdp_i - d_jj_p_j - (sdp_j - d_ji_p_i), grad_W)
+def jacobi_sigma_term(mass: float, sdp_i: wp.vec3, disp_j: wp.vec3, d_ji_p_i: wp.vec3, grad_W: wp.vec3) -> float:
+    """Fluid neighbour j's part of ``s_i``: ``m (sum_k d_ik p_k - d_jj p_j - sum_{k != i} d_jk p_k)
+    . grad W_ij``, with ``disp_j = d_jj p_j + sum_k d_jk p_k`` (j's whole pressure displacement,
+    one gathered vector instead of three) less i's part ``d_ji p_i``."""
+    return mass * wp.dot(sdp_i - disp_j + d_ji_p_i, grad_W)
 
 
 @wp.func
@@ -219,11 +221,14 @@ def pressure_sum_dij_pj(
     nb: NeighborList,
     mass: float,
     dt_step: wp.array(dtype=float),
+    d_ii: wp.array(dtype=wp.vec3),
     sum_dij_pj: wp.array(dtype=wp.vec3),
+    displacement: wp.array(dtype=wp.vec3),
 ):
     """``sum_j d_ij p_j``: the displacement the neighbours' pressures give particle i over the
     step, with the walls' pressures extrapolated from this iteration's (``wall_weight`` = 1/rho0^2;
-    0 for Akinci's walls, whose term is i's own pressure, in ``d_ii``)."""
+    0 for Akinci's walls, whose term is i's own pressure, in ``d_ii``); and ``displacement``, that
+    plus i's own ``d_ii p_i``, which the Jacobi update gathers from each neighbour."""
     i = wp.tid() + offset
     dt = dt_step[0]
     acc = wp.vec3(0.0, 0.0, 0.0)
@@ -240,7 +245,9 @@ def pressure_sum_dij_pj(
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
             acc -= (psi[nb.index[k]] * wall_weight * wp.max(p_c + nb.head[k], 0.0)) * nb.grad_W[k]
-    sum_dij_pj[i] = dt * dt * acc
+    sdp = dt * dt * acc
+    sum_dij_pj[i] = sdp
+    displacement[i] = d_ii[i] * p[i] + sdp
 
 
 @wp.kernel
@@ -250,7 +257,7 @@ def pressure_jacobi(
     rho_adv: wp.array(dtype=float),
     a_ii: wp.array(dtype=float),
     a_diag: wp.array(dtype=float),
-    d_ii: wp.array(dtype=wp.vec3),
+    displacement: wp.array(dtype=wp.vec3),
     sum_dij_pj: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=float),
     psi: wp.array(dtype=float),
@@ -274,7 +281,7 @@ def pressure_jacobi(
         k = entry(nf, i, m)
         j = nf.index[k]
         g = nf.grad_W[k]
-        sigma += jacobi_sigma_term(mass, sdp_i, d_ii[j] * p[j], sum_dij_pj[j], (d_ji_scale * g) * p_i, g)
+        sigma += jacobi_sigma_term(mass, sdp_i, displacement[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
     jacobi_update(i, sigma, p_i, a_ii[i], a_diag[i], rho_adv[i], rho0, omega, p_new, density_error)
 
@@ -343,6 +350,7 @@ class IISPHSolver(SPHSolver):
         self.a_diag = wp.zeros(n, dtype=float, device=dev) if self.extrapolated else self.a_ii
         self.rho_adv = wp.zeros(n, dtype=float, device=dev)
         self.sum_dij_pj = wp.zeros(n, dtype=wp.vec3, device=dev)
+        self.displacement = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.p_next = wp.zeros(n, dtype=float, device=dev)
         self.push = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.density_error = wp.zeros(n, dtype=wp.float64, device=dev)
@@ -386,11 +394,11 @@ class IISPHSolver(SPHSolver):
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = state.n, model.device
         launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, self.wall_weight, self.smoothing_weight, self.W0,
-                                                  nf, nb, model.mass, self.dt, self.sum_dij_pj], dev)
+                                                  nf, nb, model.mass, self.dt, self.d_ii, self.sum_dij_pj, self.displacement], dev)
         launch_particles(
             pressure_jacobi,
             n,
-            [state.rho, self.rho_adv, self.a_ii, self.a_diag, self.d_ii, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
+            [state.rho, self.rho_adv, self.a_ii, self.a_diag, self.displacement, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
              model.mass, self.dt, ph.rho0, float(ph.omega), self.p_next, self.density_error],
             dev,
         )
