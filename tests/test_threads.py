@@ -109,3 +109,20 @@ def test_chunks_cover_the_range_once():
 def test_thread_setting_is_validated():
     with pytest.raises(ValueError, match=r"threads = 0: must be an integer in \[1, 1024\]"):
         launch.set_threads(0)
+
+
+@pytest.mark.parametrize("n", [1, 255, 256, 1000, 70001])
+def test_reductions_by_tiles(n):
+    """engine.reduce: the sum in index order (array_sum's bits) and the exact maximum by tiles,
+    over a length that is no multiple of the tile (the tail's lanes load zeros)."""
+    import warp as wp
+
+    from warp_iisph.engine.reduce import max_into, sum_into
+
+    rng = np.random.default_rng(n)
+    values = rng.random(n + 7) * 3.0
+    total, top = wp.zeros(1, dtype=wp.float64), wp.full(1, 0.5, dtype=float)
+    sum_into(wp.array(values, dtype=wp.float64), n, total)
+    assert total.numpy()[0] == wp.utils.array_sum(wp.array(values[:n], dtype=wp.float64))
+    max_into(wp.array(values.astype(np.float32), dtype=float), n, top)
+    assert top.numpy()[0] == max(np.float32(0.5), values[:n].astype(np.float32).max())

@@ -22,6 +22,22 @@ def sum_tiles(values: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.float64
     wp.tile_atomic_add(out, wp.tile_sum(t))
 
 
+@wp.kernel
+def max_tiles(values: wp.array(dtype=float), out: wp.array(dtype=float)):
+    # one atomic per tile of TILE values (out-of-range lanes load zeros: values are >= 0); a
+    # million atomics on one word, one per particle, took 0.15-0.2 ms on an H200
+    b = wp.tid()
+    t = wp.tile_load(values, shape=TILE, offset=b * TILE)
+    wp.atomic_max(out, 0, wp.tile_extract(wp.tile_max(t), 0))
+
+
+def max_into(values: wp.array, n: int, out: wp.array) -> None:
+    """``out[0] = max(out[0], max(values[:n]))`` for values that are never negative, by tiles
+    (on the CPU one thread per tile): exact, so the same on every device and path."""
+    if n > 0:
+        wp.launch_tiled(max_tiles, dim=[(n + TILE - 1) // TILE], inputs=[values[:n], out], block_dim=TILE, device=values.device)
+
+
 def sum_into(values: wp.array, n: int, out: wp.array) -> None:
     """``out[0] = sum(values[:n])`` in float64: in index order on the CPU (deterministic, the same
     bits as ``wp.utils.array_sum``), by tiles on CUDA."""

@@ -16,6 +16,7 @@ from contextlib import nullcontext
 
 import warp as wp
 
+from ..engine.reduce import max_into
 from ..engine.timing import StageTimes
 from ..sph.solvers import STAGES
 
@@ -134,21 +135,21 @@ def check_state(
     v: wp.array(dtype=wp.vec3),
     lower: wp.vec3,
     upper: wp.vec3,
-    max_speed2: wp.array(dtype=float),
+    speed2: wp.array(dtype=float),
     counts: wp.array(dtype=wp.int32),
 ):
-    """Largest squared speed, particles outside the domain (counts[0]) and non-finite ones (counts[1])."""
+    """Each particle's squared speed (0 where not finite; reduce.max_into takes the largest),
+    particles outside the domain (counts[0]) and non-finite ones (counts[1])."""
     i = wp.tid()
     x_i = x[i]
     v_i = v[i]
-    s2 = wp.dot(v_i, v_i)
+    speed2[i] = 0.0
     if not (wp.isfinite(x_i) and wp.isfinite(v_i)):
         wp.atomic_add(counts, 1, 1)
         return
-    wp.atomic_max(max_speed2, 0, s2)
+    speed2[i] = wp.dot(v_i, v_i)
     if x_i[0] < lower[0] or x_i[1] < lower[1] or x_i[2] < lower[2] or x_i[0] > upper[0] or x_i[1] > upper[1] or x_i[2] > upper[2]:
         wp.atomic_add(counts, 0, 1)
-
 
 
 @wp.kernel
@@ -247,6 +248,7 @@ class TimeLoop:
         self.needed = wp.zeros(2, dtype=wp.int32, device=dev)
         self.max_speed2 = wp.zeros(1, dtype=float, device=dev)  # the last step's top speed, squared: the CFL rule's
         self.counts = wp.zeros(2, dtype=wp.int32, device=dev)  # particles out of the domain, non-finite
+        self.speed2 = wp.zeros(max(state.capacity, 1), dtype=float, device=dev)
         # a fixed dt cut into substeps: what is left of the one being cut, substeps taken of it, and
         # how many it is cut into (logged)
         self.sub_left = wp.zeros(1, dtype=f64, device=dev)
@@ -288,7 +290,8 @@ class TimeLoop:
             self.max_speed2.zero_()
             self.counts.zero_()
             wp.launch(check_state, dim=state.n, device=dev, inputs=[
-                state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self.max_speed2, self.counts])
+                state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self.speed2, self.counts])
+            max_into(self.speed2, state.n, self.max_speed2)
         for column, (name, value) in enumerate(self.extra.items(), len(LOG_FIELDS)):  # before record_step moves the slot on
             if value.dtype == wp.float64:
                 wp.launch(record_mean, dim=1, device=dev, inputs=[self.slot, max(state.n, 1), value, column, self.log])
