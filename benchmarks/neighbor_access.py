@@ -285,6 +285,13 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     assert np.array_equal(counted.numpy(), nf.count.numpy()[:n])
     layout_difference = float(np.abs(p_list.numpy()[:n] - p_other.numpy()[:n]).max())
     t_slot, t_particle = (t_lists, t_other) if slot_major else (t_other, t_lists)
+    # 32 particles (a GPU warp's) interleaved slot by slot: reads coalesce as slot-major's do,
+    # while a warp's fill writes stay within its own few kilobytes
+    warp = StridedListBuffer(n, device, stride=search.fluid.stride, block=32)
+    t_warp_fill = timed(lambda: warp.build(search.grid, state.x, n, search.radius, sync=False), device, repeats)
+    sum_warp, p_warp = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
+    t_warp = timed(lambda: iteration_lists(warp.lists, sum_warp, p_warp), device, repeats)
+    warp_difference = float(np.abs(p_list.numpy()[:n] - p_warp.numpy()[:n]).max())
     # both give the same iteration (same neighbours in the same order, same grad W)
     scale = max(float(np.abs(p_list.numpy()[:n]).max()), 1.0)
     p_difference = float(np.abs(p_list.numpy()[:n] - p_query.numpy()[:n]).max()) / scale
@@ -309,7 +316,9 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
         "jacobi_iteration_ms": {"lists": 1e3 * t_lists, "query": 1e3 * t_query},
         "solver_layout": "slot-major" if slot_major else "particle-major",
         # the same iteration on the same lists in each layout (bitwise the same pressures)
-        "layout_iteration_ms": {"slot-major": 1e3 * t_slot, "particle-major": 1e3 * t_particle},
+        "layout_iteration_ms": {"slot-major": 1e3 * t_slot, "particle-major": 1e3 * t_particle, "warp-blocked": 1e3 * t_warp},
+        "warp_blocked_fill_ms": 1e3 * t_warp_fill,
+        "warp_blocked_max_difference": warp_difference,
         "particle_major_over_slot_major": t_particle / t_slot,
         "layout_max_difference": layout_difference,
         # the same iteration reading only the lists' indices, grad W recomputed from positions
@@ -368,13 +377,14 @@ def main():
         rows += [run(dev, int(c), args.settle, args.repeats) for c in args.counts.split(",")]
     print(f"{'device':>6} {'particles':>9} {'iters':>5} {'grid ms':>7} {'fill ms':>7} {'it lists':>8} {'it query':>8}"
           f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8} {'slot-major':>10} {'part-major':>10}"
-          f" {'index-only':>10} {'count-only':>10}")
+          f" {'index-only':>10} {'count-only':>10} {'warp it':>8} {'warp fill':>9}")
     for r in rows:
         it, st = r["jacobi_iteration_ms"], r["modelled_step_ms"]
         print(f"{r['device']:>6} {r['particles']:>9} {r['mean_iterations']:>5.2f} {r['grid_build_ms']:>7.2f} {r['list_fill_ms']:>7.2f}"
               f" {it['lists']:>8.2f} {it['query']:>8.2f} {st['lists']:>10.2f} {st['query']:>10.2f} {r['faster']:>6}"
               f" {r['max_relative_difference']['pressure']:>8.1e} {r['layout_iteration_ms']['slot-major']:>10.2f}"
-              f" {r['layout_iteration_ms']['particle-major']:>10.2f} {r['index_only_iteration_ms']:>10.2f} {r['count_only_ms']:>10.2f}")
+              f" {r['layout_iteration_ms']['particle-major']:>10.2f} {r['index_only_iteration_ms']:>10.2f} {r['count_only_ms']:>10.2f}"
+              f" {r['layout_iteration_ms']['warp-blocked']:>8.2f} {r['warp_blocked_fill_ms']:>9.2f}")
     record = header("neighbor_access", devices[0], scene="dam_break_cube", settle=args.settle, repeats=args.repeats,
                     devices_missing=missing, walks_outside_jacobi=WALKS_OUTSIDE_JACOBI, results=rows)
     if "cuda" in devices:

@@ -93,9 +93,10 @@ def test_wall_mask_skips_far_particles_and_keeps_every_wall_neighbour():
     assert (~near).mean() > 0.3
 
 
-def test_slot_major_lists_hold_the_same_entries_and_give_the_same_run():
-    """Slot-major storage (slot m of particle i at m * n + i, CUDA's default) against
-    particle-major (the CPU's): the same neighbours in the same order, so a run is bitwise the same."""
+def test_list_layouts_hold_the_same_entries_and_give_the_same_run():
+    """Slot-major storage (slot m of particle i at m * n + i, CUDA's default) and warp-blocked
+    storage (32 particles interleaved slot by slot) against particle-major (the CPU's): the same
+    neighbours in the same order, so a run is bitwise the same."""
     from warp_iisph import Simulation, scenes
     from warp_iisph.sph.neighbors import StridedListBuffer
 
@@ -103,24 +104,29 @@ def test_slot_major_lists_hold_the_same_entries_and_give_the_same_run():
     H = 0.04
     x = rng.uniform(0, 0.3, size=(2000, 3)).astype(np.float32)
     xd = wp.array(x, dtype=wp.vec3, device="cpu")
-    searches = {}
-    for slot_major in (False, True):
-        s = NeighborSearch(len(x), None, H, "cpu")
-        s.fluid = StridedListBuffer(len(x), "cpu", slot_major=slot_major)
+    n = len(x)
+    layouts = {"particle": {"slot_major": False}, "slot": {"slot_major": True}, "warp": {"block": 32}}
+    built = {}
+    for name, kw in layouts.items():
+        s = NeighborSearch(n, None, H, "cpu")
+        s.fluid = StridedListBuffer(n, "cpu", **kw)
         s.build(xd)
-        searches[slot_major] = s
-    a, b = searches[False].fluid, searches[True].fluid
-    assert a.lists.step == 1 and b.lists.step == len(x)
-    assert b.to_sets(len(x)) == a.to_sets(len(x)) == _brute(x, x, H, same=True)
-    n, stride = len(x), a.stride
+        built[name] = s.fluid
+    a, b, w = built["particle"], built["slot"], built["warp"]
+    assert a.lists.step == 1 and b.lists.step == n and w.lists.step == 32
+    assert b.to_sets(n) == a.to_sets(n) == w.to_sets(n) == _brute(x, x, H, same=True)
+    stride = a.stride
     pm = a.lists.index.numpy().reshape(n, stride)
     sm = b.lists.index.numpy().reshape(stride, n).T
+    wm = w.lists.index.numpy().reshape(-1, stride, 32).transpose(0, 2, 1).reshape(-1, stride)[:n]
     counts = a.lists.count.numpy()
     assert all(np.array_equal(pm[i, : counts[i]], sm[i, : counts[i]]) for i in range(n))  # same order
+    assert all(np.array_equal(pm[i, : counts[i]], wm[i, : counts[i]]) for i in range(n))
     runs = []
-    for slot_major in (False, True):
+    for kw in layouts.values():
         sim = Simulation(scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1), "cpu")
-        sim.solver.search.fluid = StridedListBuffer(sim.n_particles, "cpu", slot_major=slot_major)
+        sim.solver.search.fluid = StridedListBuffer(sim.n_particles, "cpu", **kw)
         sim.advance(0.1)
         runs.append(sim.positions)
     np.testing.assert_array_equal(runs[0], runs[1])
+    np.testing.assert_array_equal(runs[0], runs[2])

@@ -171,15 +171,15 @@ def fill_neighbors_strided(
     wanted: wp.array(dtype=wp.int32),
 ):
     """One pass, no count: particle i's neighbours in its own ``stride`` slots (in the same order
-    as ``fill_neighbors``), from ``i * stride`` one after the other, or slot-major (``nbrs.step``
-    is n: slot m at ``m * n + i``); ``wanted`` says how many it found, the count is cut to the
+    as ``fill_neighbors``): with ``B = nbrs.step`` particles interleaved slot by slot, slot m of
+    particle i at ``(i // B) B stride + m B + i % B`` (B = 1: particle-major, ``i * stride + m``;
+    B = n: slot-major, ``m n + i``); ``wanted`` says how many it found, the count is cut to the
     stride (``stride_needed`` flags it; the step is redone with a longer stride)."""
     i = wp.tid() + offset
     x_i = points[i]
     r2 = radius * radius
-    k0 = i * stride
-    if nbrs.step != 1:
-        k0 = i
+    b = nbrs.step
+    k0 = (i // b) * b * stride + i % b
     nbrs.start[i] = k0
     k = int(0)
     cx = cell_range(grid, x_i, radius, 0)
@@ -300,17 +300,24 @@ class StridedListBuffer(NeighborListBuffer):
     stride, 48, is above the ~41 a dam break reaches (a lattice has 26 within 2h): a graph replay
     that outgrows it is redone whole, which would cost a frame."""
 
-    def __init__(self, n: int, device, stride: int = 48, slot_major: bool | None = None):
+    def __init__(self, n: int, device, stride: int = 48, slot_major: bool | None = None, block: int | None = None):
+        """``block``: how many particles' lists interleave slot by slot (``NeighborList.step``):
+        1 is particle-major, ``n`` slot-major, 32 a GPU warp's particles per block of slots;
+        ``slot_major`` chooses between the first two; by default slot-major on CUDA."""
         self.n = max(n, 1)
+        if block is None:
+            if slot_major is None:
+                slot_major = wp.get_device(device).is_cuda
+            block = self.n if slot_major else 1
+        self.block = min(max(1, int(block)), self.n)
+        self.padded = -(-self.n // self.block) * self.block  # particles the storage has slots for
         self.wanted = wp.zeros(self.n, dtype=wp.int32, device=device)
-        super().__init__(n, device, capacity=stride * self.n)
-        if slot_major is None:
-            slot_major = wp.get_device(device).is_cuda  # see slot_major_default
-        self.lists.step = self.n if slot_major else 1
+        super().__init__(n, device, capacity=stride * self.padded)
+        self.lists.step = self.block
 
     def _reserve(self, capacity: int) -> None:
-        self.stride = max(1, -(-capacity // self.n))
-        super()._reserve(self.stride * self.n)
+        self.stride = max(1, -(-capacity // self.padded))
+        super()._reserve(self.stride * self.padded)
 
     def build(self, grid: ParticleGrid, points, n: int, radius: float, sync: bool = True):
         """Each of the ``n`` ``points``' neighbours among the others (``grid``: built over them);
