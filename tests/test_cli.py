@@ -132,3 +132,5 @@ def test_a_failed_write_is_one_line_and_keeps_earlier_frames(tmp_path, monkeypat
     assert frames == ["frame_00000.ply", "frame_00001.ply"]
     for f in frames:
         read_particles(out / "particles" / f)
+    # the failed frame's checkpoint, written beside the particle file, was never put in place
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name]

@@ -23,12 +23,27 @@ FILE_MODE = 0o666 & ~_umask()
 def atomic_write(path: Path, write) -> None:
     """``write(tmp)`` to a temporary file beside ``path``, flushed to disk, then renamed into
     place: a file that exists is whole."""
-    staged_write(path, write)()
+    staged_write(path, write).commit()
 
 
-def staged_write(path: Path, write):
-    """:func:`atomic_write` in two halves: the file written and flushed beside ``path`` now, and
-    the returned call renames it into place (so that it appears only after other files)."""
+class StagedFile:
+    """A file written and flushed beside its place (:func:`staged_write`): ``commit`` renames it
+    in, ``discard`` removes it."""
+
+    def __init__(self, tmp: str, path: Path):
+        self.tmp, self.path = tmp, path
+
+    def commit(self) -> None:
+        os.replace(self.tmp, self.path)
+
+    def discard(self) -> None:
+        if os.path.exists(self.tmp):
+            os.remove(self.tmp)
+
+
+def staged_write(path: Path, write) -> StagedFile:
+    """:func:`atomic_write` in two halves: the file written and flushed beside ``path`` now, put
+    in place by the returned file's ``commit`` (so that it appears only after other files)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
     try:
@@ -44,11 +59,7 @@ def staged_write(path: Path, write):
         if os.path.exists(tmp):
             os.remove(tmp)
         raise
-
-    def commit() -> None:
-        os.replace(tmp, path)
-
-    return commit
+    return StagedFile(tmp, path)
 
 
 def write_json(path, obj) -> None:

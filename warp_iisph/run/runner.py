@@ -151,7 +151,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     moving_obstacles = any(o.motion is not None for o in scene.obstacles)
 
     def write_frame(k: int) -> None:
-        files, then = [], []  # written side by side; then what must appear after them
+        files, then, staged = [], [], []  # written side by side; then what must appear after them
         if scene.output.particles:
             with times("export"):  # the main thread only downloads; the writer orders by id
                 frame_file = run.particle_frame(k)
@@ -171,12 +171,16 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         every = scene.output.checkpoint_every
         if every and (k % every == 0 or k == plan.frames - 1):
             state = {**sim.checkpoint(), "frame": np.int64(k)}
-            staged = []
             files.append(lambda: staged.append(stage_checkpoint(run, state)))
-            then.append(lambda: staged[0]())  # renamed in after the frame's files: never ahead of them
+            then.append(lambda: staged[0].commit())  # renamed in after the frame's files: never ahead of them
 
         def job():
-            queue.together(files)
+            try:
+                queue.together(files)
+            except BaseException:
+                for f in staged:  # a frame that failed leaves no checkpoint half-way
+                    f.discard()
+                raise
             for j in then:
                 j()
             written[0] = k + 1
@@ -307,7 +311,7 @@ def load_checkpoint(run: RunFolder) -> dict:
 
 
 def stage_checkpoint(run: RunFolder, state: dict):
-    """Write the checkpoint beside its place; the returned call renames it in."""
+    """Write the checkpoint beside its place; the returned file's ``commit`` renames it in."""
     def write(tmp):
         with open(tmp, "wb") as f:
             np.savez(f, **state)
