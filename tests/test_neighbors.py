@@ -1,6 +1,7 @@
 """Per-step neighbour lists against brute force."""
 
 import numpy as np
+import pytest
 import warp as wp
 
 from warp_iisph.sph.neighbors import NeighborSearch
@@ -130,3 +131,24 @@ def test_list_layouts_hold_the_same_entries_and_give_the_same_run():
         runs.append(sim.positions)
     np.testing.assert_array_equal(runs[0], runs[1])
     np.testing.assert_array_equal(runs[0], runs[2])
+
+
+@pytest.mark.parametrize("layout", [{"slot_major": False}, {"slot_major": True}, {"block": 32}])
+def test_a_stride_too_short_grows_when_few_particles_fill_a_large_storage(layout):
+    """Storage sized for 5,000 particles holding 216 with up to 56 neighbours each (over the
+    first stride, 48): the stride grows and no list is cut (an emitter's first particles in a
+    scene's full capacity; the check once compared 216 x 56 with 48 x 5,000 and let it pass)."""
+    from warp_iisph.sph.grid import ParticleGrid
+    from warp_iisph.sph.neighbors import StridedListBuffer
+
+    g = np.arange(6, dtype=np.float32)
+    x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    H = 2.45
+    lists = StridedListBuffer(5000, "cpu", **layout)
+    grid = ParticleGrid(5000, "cpu")
+    xd = wp.array(np.concatenate([x, np.zeros((5000 - len(x), 3), np.float32)]), dtype=wp.vec3, device="cpu")
+    grid.build(xd, H, len(x))
+    lists.build(grid, xd, len(x), H)
+    want = [len(s) for s in _brute(x, x, H, same=True)]
+    assert max(want) > 48 and lists.stride >= max(want)
+    assert lists.lists.count.numpy()[: len(x)].tolist() == want

@@ -326,7 +326,8 @@ class StridedListBuffer(NeighborListBuffer):
             return
         self.needed.zero_()
         launch_particles(fill_neighbors_strided, n, [grid.grid, points, radius, self.stride, self.lists, self.wanted], self.device)
-        wp.launch(stride_needed, dim=n, inputs=[n, self.wanted, self.needed], device=self.device)
+        # slots for every particle the storage is laid out for (padded to whole blocks)
+        wp.launch(stride_needed, dim=n, inputs=[self.padded, self.wanted, self.needed], device=self.device)
         if sync:
             needed = int(self.needed.numpy()[0])
             if needed > self.capacity:
