@@ -343,3 +343,23 @@ def test_blender_script_imports_the_obstacles(obstacle_run, tiny_run):
     compile(text, "scene.py", "exec")
     assert f"OBSTACLES = {str((obstacle_run / 'obstacles.obj').resolve())!r}" in text
     assert "OBSTACLES = None" in blender_script(tiny_run).read_text()
+
+
+def test_preview_obstacles_are_see_through():
+    """Liquid behind an obstacle (inside a glass, behind a post) shows through it, tinted;
+    liquid in front of it is drawn as it is."""
+    from warp_iisph.view.preview import OBSTACLE_OPACITY, ObstacleLayer, OrthoView, splat
+
+    view = OrthoView((-1, -1, -1), (1, 1, 1), 64, 48, yaw=0.0, pitch=0.0)  # looking along -z
+    layer = ObstacleLayer(view, trimesh.creation.box(extents=(1.0, 1.0, 0.1)))  # a slab at z = 0
+    blue = np.array([0.1, 0.3, 0.9])
+    for z, behind in ((-0.5, True), (0.5, False)):
+        image, depth = np.ones((48, 64, 3)), np.full((48, 64), -np.inf)
+        splat(image, depth, view, np.array([[0.0, 0.0, z]]), blue[None], 0.1, shade_spheres=False)
+        drawn = image[24, 32].copy()
+        layer.over(image, depth)
+        if behind:
+            assert np.allclose(image[24, 32], (1 - OBSTACLE_OPACITY) * drawn + OBSTACLE_OPACITY * layer.image[24, 32])
+            assert image[24, 32][2] > layer.image[24, 32][2] + 0.2  # the liquid's blue shows through
+        else:
+            assert np.array_equal(image[24, 32], drawn)

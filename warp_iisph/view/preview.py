@@ -1,7 +1,8 @@
 """A fast look at a run without the render extra: each frame's particles (coloured by speed) or
 its mesh's vertices (shaded by their normals) are splatted as small spheres through an
-orthographic camera with a z-buffer in NumPy, over the tank's edges and the run's obstacles
-(drawn once, as dense surface samples), and the frames go into ``preview.mp4``."""
+orthographic camera with a z-buffer in NumPy, over the tank's edges, and the run's obstacles
+(dense surface samples, drawn once unless they move) are laid over them see-through, so liquid
+inside a glass or behind a post shows; the frames go into ``preview.mp4``."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from .video import parse_resolution, write_video
 # Speed colour ramp (slow -> fast): deep blue, blue, cyan, pale yellow, orange.
 RAMP = np.array([[0.05, 0.15, 0.45], [0.10, 0.40, 0.85], [0.30, 0.80, 0.95], [0.95, 0.95, 0.60], [0.95, 0.55, 0.15]])
 WATER = np.array([0.25, 0.55, 0.90])
-STONE = np.array([0.62, 0.58, 0.52])
+CLAY = np.array([0.72, 0.50, 0.32])  # obstacles: warm, so they stay apart from water and sky when see-through
 LIGHT = np.array([0.35, 0.8, 0.5]) / np.linalg.norm([0.35, 0.8, 0.5])
 
 
@@ -100,7 +101,7 @@ def box_edges(lower, upper, step: float) -> np.ndarray:
     return np.concatenate(pts)
 
 
-def splat_surface(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, mesh, color=STONE, max_points: int = 500_000) -> None:
+def splat_surface(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, mesh, color=CLAY, max_points: int = 500_000) -> None:
     """Draw a triangle mesh as random surface samples, about two per pixel of its area, each a
     3x3-pixel square (no gaps) lit by its triangle's normal; the z-buffer hides its far side."""
     import trimesh
@@ -109,6 +110,24 @@ def splat_surface(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, 
     points, face = trimesh.sample.sample_surface(mesh, count, seed=0)
     lam = np.clip(mesh.face_normals[face] @ LIGHT, 0.0, 1.0)[:, None]
     splat(image, depth_buffer, view, points, color * (0.35 + 0.65 * lam), 1.5 / view.scale, shade_spheres=False)
+
+
+# how much of an obstacle's colour covers what lies behind it (liquid, edges, background)
+OBSTACLE_OPACITY = 0.55
+
+
+class ObstacleLayer:
+    """An obstacle mesh drawn on its own (colour and depth per pixel), laid over a frame where
+    it is nearer than what the frame drew there."""
+
+    def __init__(self, view: OrthoView, mesh):
+        self.image = np.zeros((view.H, view.W, 3))
+        self.depth = np.full((view.H, view.W), -np.inf)
+        splat_surface(self.image, self.depth, view, mesh)
+
+    def over(self, image: np.ndarray, depth: np.ndarray) -> None:
+        front = self.depth > depth
+        image[front] = (1.0 - OBSTACLE_OPACITY) * image[front] + OBSTACLE_OPACITY * self.image[front]
 
 
 def background(width: int, height: int) -> np.ndarray:
@@ -158,8 +177,7 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
     still, still_depth = background(width, height), np.full((height, width), -np.inf)
     splat(still, still_depth, view, edges, np.full((len(edges), 3), 0.45), 0.5 / view.scale, shade_spheres=False)
     moving = run.obstacles_move
-    if obstacles is not None and not moving:
-        splat_surface(still, still_depth, view, obstacles)
+    still_obstacles = ObstacleLayer(view, obstacles) if obstacles is not None and not moving else None
     g = 9.81
     v_ref = math.sqrt(2 * g * max(float(bounds[1][1] - bounds[0][1]), h))
     out = Path(out) if out else run.path / ("preview.gif" if gif else "preview.mp4")
@@ -172,10 +190,10 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
                 t0 = time.perf_counter()
                 data = first if k == 0 else load(path)
                 img, zb = still.copy(), still_depth.copy()
+                layer = still_obstacles
                 if moving:
                     solid = run.obstacle_mesh(frame_index(path))
-                    if solid is not None:
-                        splat_surface(img, zb, view, solid)
+                    layer = ObstacleLayer(view, solid) if solid is not None else None
                 if source == PARTICLES:
                     speed = np.linalg.norm(data["v"], axis=1) if data["v"] is not None else np.zeros(len(data["x"]))
                     colors = ramp(speed / v_ref)
@@ -183,6 +201,8 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
                 else:
                     lam = np.clip(data["n"] @ LIGHT, 0.0, 1.0)[:, None]
                     splat(img, zb, view, data["x"], WATER * (0.35 + 0.65 * lam), 0.3 * h, shade_spheres=False)
+                if layer is not None:
+                    layer.over(img, zb)
                 pil = Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8))
                 label = f"frame {frame_index(path)}   t = {frame_index(path) / fps:.3f} s   {len(data['x']):,} {'particles' if source == PARTICLES else 'vertices'}"
                 ImageDraw.Draw(pil).text((8, 6), label, fill=(30, 30, 30))
