@@ -138,3 +138,23 @@ def test_particle_frames_hold_each_particles_own_id(tmp_path):
     assert sim.flows.removed > 0 and ids[-1] > len(ids) - 1  # gaps
     np.testing.assert_array_equal(frame["id"], ids)
     np.testing.assert_array_equal(frame["x"], sim.positions)
+
+
+def test_an_emitter_under_the_liquid_is_blocked_not_forced_in():
+    """A nozzle inside a full tank: a layer there would overlap the liquid (and the pressure
+    solve would blow the two apart), so each one due is skipped and counted, and the water
+    stays at rest; the same nozzle above the water emits every layer."""
+    def tank(nozzle_y):
+        scene = Scene(spacing=H, tank=Box((0, 0, 0), (0.3, 0.4, 0.2)), name="submerged")
+        scene.add_fluid_box((0, 0, 0), (0.3, 0.2, 0.2))
+        scene.add_emitter(Emitter(center=(0.15, nozzle_y, 0.1), direction=(0.0, -1.0, 0.0), speed=0.5, radius=0.03, end=0.2))
+        return scene
+
+    under = Simulation(tank(0.1), "cpu")
+    n0 = under.n_particles
+    under.advance(0.2)
+    assert under.n_particles == n0 and under.flows.emitted == 0 and under.flows.blocked > 0
+    assert max(s["max_velocity"] for s in under.stats) < 0.2  # no layer forced in: no burst
+    above = Simulation(tank(0.35), "cpu")
+    above.advance(0.2)
+    assert above.flows.blocked == 0 and above.flows.emitted > 0

@@ -228,7 +228,8 @@ def _run(args) -> int:
     summary = (
         f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated{cut} in {t['wall_seconds']:.1f} s wall, "
         f"{t['frames']} frames of {wrote}, {t.get('particles', record['particles']['fluid'])} particles"
-        + (f" ({t['emitted']} emitted, {t['removed']} removed by sinks)" if "emitted" in t else "")
+        + (f" ({t['emitted']} emitted, {t['removed']} removed by sinks"
+           + (f", {t['blocked']} not emitted: liquid at the nozzle" if t.get("blocked") else "") + ")" if "emitted" in t else "")
         + f", mean {t['mean_iterations']:.1f} iterations, "
         f"mean compression {100 * t['mean_compression']:.3f} %"
         + (f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back within the walls in {t['corrected_steps']} steps"

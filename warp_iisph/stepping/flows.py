@@ -1,5 +1,8 @@
 """Liquid entering and leaving during a run: emitters add a layer of particles at their nozzle
-each time the last layer has moved one spacing; sinks remove the particles inside them.
+each time the last layer has moved one spacing, unless liquid sits at the nozzle (a particle
+closer than :data:`BLOCKED` spacings to a new one: the layer would overlap it and the pressure
+solve would blow the two apart), when the layer is skipped and counted; sinks remove the
+particles inside them.
 
 Emission happens between steps, so a step (or a replayed graph of steps) always sees one
 particle count; the time loop is told when the next layer is due, and a graph is recorded again
@@ -13,6 +16,25 @@ import math
 
 import numpy as np
 import warp as wp
+
+
+# A liquid particle this close to a new one (in spacings) blocks the nozzle. The last layer
+# emitted has moved one spacing when the next is due, so a free stream never blocks it.
+BLOCKED = 0.75
+
+
+@wp.kernel
+def count_blocking(
+    x: wp.array(dtype=wp.vec3), centre: wp.vec3, offsets: wp.array(dtype=wp.vec3), reach: float, blocking: wp.array(dtype=wp.int32)
+):
+    """How many liquid particles are within ``reach`` of a position of the next layer."""
+    x_i = x[wp.tid()]
+    r2 = reach * reach
+    for k in range(offsets.shape[0]):
+        d = x_i - (centre + offsets[k])
+        if wp.dot(d, d) < r2:
+            wp.atomic_add(blocking, 0, 1)
+            return
 
 
 @wp.kernel
@@ -53,7 +75,10 @@ class Flows:
         self.next_time = [e.start for e in self.emitters]
         self.emitted = 0
         self.refused = 0  # particles an emitter could not add: the state was full
+        self.blocked = 0  # particles of layers skipped: liquid sat at the nozzle
         self.removed = 0
+        self.reach = BLOCKED * h
+        self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
 
     def __bool__(self) -> bool:
         return bool(self.emitters or self.sinks)
@@ -74,6 +99,8 @@ class Flows:
                 m = layer.shape[0]
                 if s.count + m > s.capacity:
                     self.refused += m
+                elif self._blocked(e, layer):
+                    self.blocked += m
                 else:
                     velocity = wp.vec3(*(e.speed * np.asarray(e.direction)))
                     wp.launch(emit_layer, dim=m, device=self.device, inputs=[
@@ -85,6 +112,16 @@ class Flows:
                 self.next_time[k] += self.period[k]
         self.emitted += added
         return added
+
+    def _blocked(self, emitter, layer) -> bool:
+        """Whether liquid sits where the layer would go (one launch over the liquid, one read)."""
+        s = self.state
+        if s.count == 0:
+            return False
+        self._blocking.zero_()
+        wp.launch(count_blocking, dim=s.count, device=self.device,
+                  inputs=[s.x, wp.vec3(*emitter.center), layer, float(self.reach), self._blocking])
+        return int(self._blocking.numpy()[0]) > 0
 
     def drain(self) -> int:
         """Remove the particles inside a sink; returns how many left."""
@@ -103,9 +140,10 @@ class Flows:
 
     def checkpoint(self) -> dict:
         return {"flows_next_time": np.asarray(self.next_time, dtype=np.float64),
-                "flows_counts": np.asarray([self.emitted, self.refused, self.removed], dtype=np.int64)}
+                "flows_counts": np.asarray([self.emitted, self.refused, self.removed, self.blocked], dtype=np.int64)}
 
     def restore(self, checkpoint: dict) -> None:
         if "flows_next_time" in checkpoint:
             self.next_time = [float(t) for t in checkpoint["flows_next_time"]]
-            self.emitted, self.refused, self.removed = (int(c) for c in checkpoint["flows_counts"])
+            counts = [int(c) for c in checkpoint["flows_counts"]] + [0]  # checkpoints before the blocked count had three
+            self.emitted, self.refused, self.removed, self.blocked = counts[:4]
