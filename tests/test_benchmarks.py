@@ -124,9 +124,13 @@ def test_neighbor_access_quick_mode(tmp_path):
     assert r["walks_per_step"] == pytest.approx(4 + 2 * r["mean_iterations"]) and r["mean_iterations"] >= 1
     assert step["lists"] == pytest.approx(r["list_fill_ms"] + r["walks_per_step"] * it["lists"] / 2)
     assert step["query"] == pytest.approx(r["walks_per_step"] * it["query"] / 2)
-    # on a CPU, filtering ~6x as many candidates and recomputing grad W costs several list walks
-    assert it["query"] > 2 * it["lists"] and r["faster"] == "lists"
-    assert r["break_even_walks"] == pytest.approx(r["list_fill_ms"] / ((it["query"] - it["lists"]) / 2))
+    # the verdict follows the model (timings themselves are not asserted: a loaded machine moves them)
+    assert r["faster"] == ("lists" if step["lists"] <= step["query"] else "query")
+    if it["query"] > it["lists"]:
+        assert r["break_even_walks"] == pytest.approx(r["list_fill_ms"] / ((it["query"] - it["lists"]) / 2))
+    # every other layout and the index-only twin give bitwise the solver's pressures
+    assert r["layout_max_difference"] == 0.0 and r["warp_blocked_max_difference"] == 0.0 and r["index_only_max_difference"] == 0.0
+    assert set(r["layout_iteration_ms"]) == {"slot-major", "particle-major", "warp-blocked"} and r["count_only_ms"] > 0
 
 
 def test_soak_quick_mode(tmp_path):
