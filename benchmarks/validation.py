@@ -30,6 +30,7 @@ import warp as wp
 from common import RESULTS, header, pyplot, save
 from warp_iisph import Box, DivergenceError, Scene, Simulation
 from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
+from warp_iisph.analysis.hydrostatic import hydrostatic_slope
 
 G, RHO0 = 9.81, 1000.0
 
@@ -83,7 +84,6 @@ def resting_tank(h: float = 0.02, size=(0.4, 0.8, 0.2), depth: float = 0.6, sett
     sim = Simulation(scene, "cpu", history=16)
     t0 = time.perf_counter()
     rows, diverged = [], None
-    lo, hi = np.array([0.0, 0.0]), np.array([size[0], size[2]])
     try:
         while sim.time < settle - 1e-9:
             sim.step()
@@ -91,10 +91,9 @@ def resting_tank(h: float = 0.02, size=(0.4, 0.8, 0.2), depth: float = 0.6, sett
             rec = sim.step()
             x, p, rho = sim.state.x.numpy(), sim.state.p.numpy(), sim.state.rho.numpy()
             speed = np.linalg.norm(sim.state.v.numpy(), axis=1)
-            interior = np.all((x[:, [0, 2]] > lo + 2 * h) & (x[:, [0, 2]] < hi - 2 * h), axis=1) & (x[:, 1] > 2 * h)
             bottom = x[:, 1] < h
             rows.append({"t": sim.time, "dt": rec["dt"], "iterations": rec["iterations"],
-                         "slope": float(-np.polyfit(x[interior, 1], p[interior], 1)[0] / (RHO0 * G)),
+                         "slope": hydrostatic_slope(x, p, h, (0.0, 0.0, 0.0), size, RHO0, G),
                          "mean_speed": float(speed.mean()), "max_speed": float(speed.max()),
                          "bottom_compression": float(rho[bottom].mean() / RHO0 - 1.0), "compression": rec["compression"],
                          "wall_corrections": rec["wall_corrections"]})
