@@ -32,7 +32,7 @@ FPS = 30.0
 # fixed per-particle bytes of one step's passes (arrays read and written once each): neighbour
 # count and fill 72, density 20, advection 96, integration and state check 80
 PARTICLE_BYTES = 268
-PARTICLE_BYTES_PER_ITERATION = 88  # sum_dij_pj 20, jacobi 52, p copy 8, error sum 8
+PARTICLE_BYTES_PER_ITERATION = 112  # sum_dij_pj 44 (with d_ii read, displacement written), jacobi 52, p copy 8, error sum 8
 ENTRY_BYTES = 16  # one neighbour-list entry: index (4) and grad W (12)
 
 

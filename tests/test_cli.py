@@ -132,5 +132,10 @@ def test_a_failed_write_is_one_line_and_keeps_earlier_frames(tmp_path, monkeypat
     assert frames == ["frame_00000.ply", "frame_00001.ply"]
     for f in frames:
         read_particles(out / "particles" / f)
-    # the failed frame's checkpoint, written beside the particle file, was never put in place
+    # the failed frame's checkpoint, written beside the particle file, was never put in place:
+    # the last one is the last whole frame's, and nothing staged is left
+    from warp_iisph.run.folder import RunFolder
+    from warp_iisph.run.runner import load_checkpoint
+
+    assert int(load_checkpoint(RunFolder(out, "ply"))["frame"]) == 1
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]

@@ -69,8 +69,12 @@ def test_an_interrupted_run_resumes_bitwise(whole, tmp_path):
 def test_a_finished_run_extends_bitwise(whole, tmp_path):
     out = tmp_path / "short"
     assert main(["run", "martin_moyce", "--duration", "0.1", "--out", str(out), *SMALL]) == 0
+    # a checkpoint staged by a run killed mid-frame (written beside its place, never renamed in)
+    stale = out / ".checkpoint.npz.k1ll3d.tmp.npz"
+    stale.write_bytes(b"half a checkpoint")
     assert main(["run", "--resume", str(out), "--duration", "0.4", "--no-progress"]) == 0
     same_run(out, whole)
+    assert not stale.exists()
 
 
 def test_a_diverged_run_resumes_once_fixed(whole, tmp_path):

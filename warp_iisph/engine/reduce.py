@@ -1,4 +1,4 @@
-"""Sums over particles into a float64 scalar the caller keeps: no allocation, so they may run
+"""Sums and maxima over particles into a scalar the caller keeps: no allocation, so they may run
 inside the conditional bodies of a CUDA graph (``wp.utils.array_sum`` allocates there)."""
 
 from __future__ import annotations

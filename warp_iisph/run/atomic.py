@@ -34,7 +34,11 @@ class StagedFile:
         self.tmp, self.path = tmp, path
 
     def commit(self) -> None:
-        os.replace(self.tmp, self.path)
+        try:
+            os.replace(self.tmp, self.path)
+        except BaseException:
+            self.discard()
+            raise
 
     def discard(self) -> None:
         if os.path.exists(self.tmp):

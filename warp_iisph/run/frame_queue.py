@@ -1,7 +1,8 @@
 """Frame output on a background thread, so that the next frame simulates while files are written.
 
 The main thread takes each frame's host copies (the device's work ends there) and hands the
-formatting and writing to one worker thread; Warp's launches release the GIL, so on the CPU the
+formatting and writing to one worker thread (which writes a frame's files side by side on a few
+more, :meth:`FrameQueue.together`); Warp's launches release the GIL, so on the CPU the
 simulation's kernels and the writer share the cores, and on CUDA the copy is all the GPU waits
 for. At most one frame is in flight: a new one first waits for the last, which bounds memory and
 raises a failed write at the next frame. Files appear atomically (see :mod:`.formats`), so a

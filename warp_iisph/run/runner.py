@@ -177,12 +177,12 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         def job():
             try:
                 queue.together(files)
+                for j in then:
+                    j()
             except BaseException:
                 for f in staged:  # a frame that failed leaves no checkpoint half-way
                     f.discard()
                 raise
-            for j in then:
-                j()
             written[0] = k + 1
 
         queue.submit(job)
@@ -206,6 +206,8 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
 
         if resume:  # what the stopped run wrote after its checkpoint goes; the rest is this run's start
             for old in _frames_after(run, first - 1):
+                old.unlink()
+            for old in run.path.glob(f".{run.checkpoint.name}.*.tmp*"):  # staged by a run killed mid-frame
                 old.unlink()
             kept = [r for r in read_stats(run.stats) if r["step"] <= sim.step_count] if run.stats.exists() else []
             for r in kept:

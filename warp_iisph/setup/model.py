@@ -159,18 +159,20 @@ class State:
     def host(self, name: str) -> np.ndarray:
         """Host copy of the liquid's ``name`` in memory order (see :func:`id_order`), its own
         (the simulation may go on while it is read)."""
-        return self._host(name)[: self.count]
+        return self._host(name, self.count)
 
-    def _host(self, name: str) -> np.ndarray:
-        """``name`` on the host. From a GPU it comes through a page-locked buffer kept for it
-        (a copy from pageable memory runs at about half the bus's speed)."""
+    def _host(self, name: str, count: int) -> np.ndarray:
+        """The first ``count`` of ``name`` on the host. From a GPU they come through a
+        page-locked buffer kept for it (a copy from pageable memory runs at about half the bus's
+        speed)."""
         src = getattr(self, name)
         if not src.device.is_cuda:
-            return src.numpy().copy()  # .numpy() is a view of the live array on the CPU
+            return src.numpy()[:count].copy()  # .numpy() is a view of the live array on the CPU
         key = ("pinned", name)
         buf = self._scratch.get(key)
         if buf is None or buf.shape != src.shape:
             buf = self._scratch[key] = wp.empty(src.shape, dtype=src.dtype, device="cpu", pinned=True)
-        wp.copy(buf, src)
-        wp.synchronize_device(src.device)
-        return buf.numpy().copy()
+        if count:
+            wp.copy(buf, src, count=count)
+            wp.synchronize_device(src.device)
+        return buf.numpy()[:count].copy()

@@ -305,6 +305,8 @@ class StridedListBuffer(NeighborListBuffer):
         1 is particle-major, ``n`` slot-major, 32 a GPU warp's particles per block of slots;
         ``slot_major`` chooses between the first two; by default slot-major on CUDA."""
         self.n = max(n, 1)
+        if block is not None and slot_major is not None:
+            raise ValueError("StridedListBuffer: give block or slot_major, not both")
         if block is None:
             if slot_major is None:
                 slot_major = wp.get_device(device).is_cuda

@@ -17,19 +17,33 @@ import math
 import numpy as np
 import warp as wp
 
+from ..engine.launch import launch_particles
 
-# A liquid particle this close to a new one (in spacings) blocks the nozzle. The last layer
-# emitted has moved one spacing when the next is due, so a free stream never blocks it.
+
+# A liquid particle this close to a new one (in spacings) blocks the nozzle. A stream leaving at
+# its speed has moved one spacing when the next layer is due, so it does not block itself; one
+# slowed below sqrt(2 g h) (a slow jet upwards) has moved less than 0.75 h by then, and every
+# other layer is skipped: what it can push out is about what is emitted.
 BLOCKED = 0.75
 
 
 @wp.kernel
 def count_blocking(
-    x: wp.array(dtype=wp.vec3), centre: wp.vec3, offsets: wp.array(dtype=wp.vec3), reach: float, blocking: wp.array(dtype=wp.int32)
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    centre: wp.vec3,
+    offsets: wp.array(dtype=wp.vec3),
+    extent: float,
+    reach: float,
+    blocking: wp.array(dtype=wp.int32),
 ):
-    """How many liquid particles are within ``reach`` of a position of the next layer."""
-    x_i = x[wp.tid()]
+    """How many liquid particles are within ``reach`` of a position of the next layer (those
+    farther than ``extent``, the layer's radius plus ``reach``, from its centre are not)."""
+    x_i = x[wp.tid() + offset]
     r2 = reach * reach
+    c = x_i - centre
+    if wp.dot(c, c) > extent * extent:
+        return
     for k in range(offsets.shape[0]):
         d = x_i - (centre + offsets[k])
         if wp.dot(d, d) < r2:
@@ -78,6 +92,7 @@ class Flows:
         self.blocked = 0  # particles of layers skipped: liquid sat at the nozzle
         self.removed = 0
         self.reach = BLOCKED * h
+        self.extents = [float(np.linalg.norm(e.layer(h), axis=1).max(initial=0.0)) + self.reach for e in self.emitters]
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
 
     def __bool__(self) -> bool:
@@ -99,7 +114,7 @@ class Flows:
                 m = layer.shape[0]
                 if s.count + m > s.capacity:
                     self.refused += m
-                elif self._blocked(e, layer):
+                elif self._blocked(e, layer, self.extents[k]):
                     self.blocked += m
                 else:
                     velocity = wp.vec3(*(e.speed * np.asarray(e.direction)))
@@ -113,14 +128,14 @@ class Flows:
         self.emitted += added
         return added
 
-    def _blocked(self, emitter, layer) -> bool:
-        """Whether liquid sits where the layer would go (one launch over the liquid, one read)."""
+    def _blocked(self, emitter, layer, extent: float) -> bool:
+        """Whether liquid sits where the layer would go (one pass over the liquid, one read)."""
         s = self.state
         if s.count == 0:
             return False
         self._blocking.zero_()
-        wp.launch(count_blocking, dim=s.count, device=self.device,
-                  inputs=[s.x, wp.vec3(*emitter.center), layer, float(self.reach), self._blocking])
+        launch_particles(count_blocking, s.count, [s.x, wp.vec3(*emitter.center), layer, extent, float(self.reach), self._blocking],
+                         self.device)
         return int(self._blocking.numpy()[0]) > 0
 
     def drain(self) -> int:
