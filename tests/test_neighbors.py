@@ -152,3 +152,25 @@ def test_a_stride_too_short_grows_when_few_particles_fill_a_large_storage(layout
     want = [len(s) for s in _brute(x, x, H, same=True)]
     assert max(want) > 48 and lists.stride >= max(want)
     assert lists.lists.count.numpy()[: len(x)].tolist() == want
+
+
+def test_list_storage_beyond_32_bit_indices_is_refused_not_wrapped():
+    """Entries are addressed with 32-bit indices: a need beyond them is held at the limit (not
+    wrapped to a small or negative number that would pass the check and cut lists), and storage
+    that large is refused with a message, before anything is allocated."""
+    from warp_iisph.sph.neighbors import LIST_ENTRIES_LIMIT, StridedListBuffer, stride_needed
+
+    needed = wp.zeros(1, dtype=wp.int32, device="cpu")
+    wp.launch(stride_needed, dim=2, inputs=[45_000_000, wp.array([30, 50], dtype=wp.int32, device="cpu"), needed], device="cpu")
+    assert needed.numpy()[0] == LIST_ENTRIES_LIMIT
+    lists = StridedListBuffer(1000, "cpu")
+    with pytest.raises(MemoryError, match="32-bit indices"):
+        lists.grow(int(needed.numpy()[0]))
+    assert lists.capacity == 48 * 1000  # untouched
+
+
+def test_a_scene_beyond_32_bit_list_indices_is_refused_before_sampling():
+    from warp_iisph import Simulation, scenes
+
+    with pytest.raises(ValueError, match="spacing: 49,836,032 fluid particles need more neighbour-list entries"):
+        Simulation(scenes.dam_break_cube(particles=50_000_000), "cpu")

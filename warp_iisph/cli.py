@@ -288,6 +288,8 @@ def _one_line(e: Exception) -> tuple[int, str]:
     text = " ".join(str(e).split()) or type(e).__name__
     if isinstance(e, ValueError):
         return EXIT_BAD_INPUT, text
+    if isinstance(e, MemoryError):
+        return EXIT_FAILED, text if str(e) else "out of memory"
     if isinstance(e, OSError):
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         return EXIT_FAILED, f"{where}{e.strerror or text}"

@@ -250,6 +250,8 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         ended, message = "interrupted", f"interrupted at step {sim.step_count}, t = {sim.time:.5f} s"
     except OSError as e:
         ended, message = "failed", f"writing the run to {out}: {e}"
+    except MemoryError as e:  # storage that would outgrow the device or its indices: frames so far stay
+        ended, message = "failed", str(e) or "out of memory"
     finally:
         bar.close()
         try:

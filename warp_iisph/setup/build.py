@@ -10,7 +10,7 @@ import warp as wp
 from ..scene import Box, Scene, shape_mesh
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
-from ..sph.neighbors import cell_order, make_grid
+from ..sph.neighbors import LIST_ENTRIES_LIMIT, cell_order, make_grid
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
 from .rasterize import clear_fluid, sample_mesh
@@ -171,6 +171,9 @@ BYTES_PER_BOUNDARY_PARTICLE = 40
 
 
 def _check_memory(n_fluid: int, n_boundary: int, device) -> None:
+    if n_fluid * 48 > LIST_ENTRIES_LIMIT:  # the fluid lists' first stride
+        raise ValueError(f"spacing: {n_fluid:,} fluid particles need more neighbour-list entries than 32-bit indices "
+                         f"address ({LIST_ENTRIES_LIMIT:,}); increase spacing")
     need = n_fluid * BYTES_PER_FLUID_PARTICLE + n_boundary * BYTES_PER_BOUNDARY_PARTICLE
     if device.is_cuda:
         free = device.free_memory

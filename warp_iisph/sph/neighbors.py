@@ -206,10 +206,15 @@ def fill_neighbors_strided(
     wanted[i] = k
 
 
+# entries a list storage may hold: its indices are 32-bit (beyond, a need is reported as this)
+LIST_ENTRIES_LIMIT = 2**31 - 1
+
+
 @wp.kernel
 def stride_needed(n: int, wanted: wp.array(dtype=wp.int32), needed: wp.array(dtype=wp.int32)):
-    # an atomic max: one launch, never split
-    wp.atomic_max(needed, 0, n * wanted[wp.tid()])
+    # an atomic max: one launch, never split; the product in 64 bits, held at the limit
+    total = wp.min(wp.int64(n) * wp.int64(wanted[wp.tid()]), wp.int64(2147483647))
+    wp.atomic_max(needed, 0, wp.int32(total))
 
 
 @wp.kernel
@@ -254,6 +259,9 @@ class NeighborListBuffer:
         self._reserve(capacity or max(32 * n, 1))
 
     def _reserve(self, capacity: int) -> None:
+        if capacity > LIST_ENTRIES_LIMIT:
+            raise MemoryError(f"neighbour lists need {capacity:,} entries, more than 32-bit indices address "
+                              f"({LIST_ENTRIES_LIMIT:,}); use a coarser spacing or fewer particles")
         self.generation += 1
         self.capacity = capacity
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
