@@ -99,14 +99,24 @@ class Simulation:
             for record in self._steps(end):
                 if callback is not None:
                     callback(record)
-        self.flows.drain()  # sinks act once per call: a run's frame
+        self.flows.drain()  # and at the end of every call: a run's frame
 
     def _steps(self, end: float, dt: Optional[float] = None, limit: Optional[int] = None):
         """The next steps towards ``end``: one plain step, or one replay of the graph (up to the
         log's capacity of steps). Yields each step's record; raises DivergenceError at the step
         that diverged (the loop on the device stopped there too)."""
-        self.flows.emit(self.time)  # layers due now; steps land on the next one, so both paths emit alike
-        end = min(end, self.flows.next_emission())
+        # Layers and sink checks due now, or within a quarter of the last step (landing on one that
+        # close would cut a sliver of a step, whose pressure kicks the next step); steps land on
+        # the next ones unless they fall that close before ``end`` (then they are taken there), so
+        # the plain and graph paths act alike.
+        last = self.stats[-1] if self.stats else None
+        slack = 0.25 * last["dt"] if last else 0.0
+        speed = max(last["max_velocity"] if last else 0.0, self.loop.velocity_scale)
+        self.flows.check_sinks(self.time + slack, self.time, speed)
+        self.flows.emit(self.time + slack)
+        event = self.flows.next_event()
+        if event < end - slack:
+            end = event
 
         def restart():
             self.loop.start(self.time, self.step_count, end, dt, limit)
