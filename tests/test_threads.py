@@ -126,3 +126,25 @@ def test_reductions_by_tiles(n):
     assert total.numpy()[0] == wp.utils.array_sum(wp.array(values[:n], dtype=wp.float64))
     max_into(wp.array(values.astype(np.float32), dtype=float), n, top)
     assert top.numpy()[0] == max(np.float32(0.5), values[:n].astype(np.float32).max())
+
+
+def test_warp_debug_mode_launches_in_one_piece(monkeypatch):
+    """Warp's debug build shares one CPU tile-storage pointer across threads, so split launches
+    crashed there (a segfault in the reorder's gather with 2 threads): in debug mode every launch
+    is one piece."""
+    launched = []
+    monkeypatch.setattr(launch, "_submit", lambda parts, jobs: launched.append(parts) or [])
+    monkeypatch.setattr(launch, "get_threads", lambda: 4)
+    out = wp.zeros(100_000, dtype=float)
+    launch.launch_particles(_fill_index, 100_000, [out], "cpu")  # loads the module: one piece
+    launch.launch_particles(_fill_index, 100_000, [out], "cpu")
+    assert launched == [4]  # split in release mode
+    monkeypatch.setattr(wp.config, "mode", "debug")
+    launch.launch_particles(_fill_index, 100_000, [out], "cpu")
+    assert launched == [4] and out.numpy()[-1] == 99_999.0
+
+
+@wp.kernel
+def _fill_index(offset: int, out: wp.array(dtype=float)):
+    i = wp.tid() + offset
+    out[i] = float(i)

@@ -123,7 +123,10 @@ def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None
         return
     device = wp.get_device(device)
     least = MIN_CHUNK if min_chunk is None else max(1, min(int(min_chunk), MIN_CHUNK))
-    parts = min(get_threads(), n // least) if device.is_cpu and not _recording else 1
+    # Warp's debug build keeps the CPU's tile storage in one process-wide pointer (no TLS in its
+    # JIT): concurrent launches then corrupt each other (a segfault in the reorder's gather)
+    split = device.is_cpu and not _recording and wp.config.mode != "debug"
+    parts = min(get_threads(), n // least) if split else 1
     key = (kernel.key, kernel.module.name, device.alias)
     if parts <= 1 or key not in _loaded:
         # the first launch loads (and maybe compiles) the module: never from several threads
