@@ -134,3 +134,15 @@ def test_nothing_in_a_conditional_body_allocates(monkeypatch, method):
     sim.advance(0.05)
     assert sim.graph.captures == 1 and sim.graph.replays >= 1 and not calls
     assert max(s["iterations"] for s in sim.stats) >= 2
+
+
+def test_graphs_are_the_default_on_cuda_only(tmp_path):
+    from warp_iisph.cli import use_graph
+
+    assert use_graph(None, "cuda:0") and not use_graph(None, "cpu")
+    assert not use_graph(False, "cuda:0") and use_graph(True, "cpu")
+    out = tmp_path / "run"
+    assert main(["run", "martin_moyce", "--duration", "0.05", "--spacing", "0.04", "--out", str(out), "--no-progress"]) == 0
+    assert '"graph": false' in (out / "run.json").read_text()
+    assert main(["run", "martin_moyce", "--duration", "0.05", "--spacing", "0.04", "--no-graph", "--overwrite", "--out", str(out),
+                 "--no-progress"]) == 0

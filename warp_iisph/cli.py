@@ -46,7 +46,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--format", choices=("ply", "vtu"), default=None,
                      help="particle files: binary PLY (default; splashsurf reads it) or VTU for ParaView (same as --set output.format=F)")
     run.add_argument("--threads", default=None, help="CPU threads for per-particle kernels (default: all available cores)")
-    run.add_argument("--graph", action="store_true", help="record one time step as a graph and replay it (no per-step Python launches)")
+    run.add_argument("--graph", action=argparse.BooleanOptionalAction, default=None,
+                     help="record the loop over steps as a graph and replay it (no per-step Python launches); "
+                          "default: on with a CUDA device, off on the CPU (a replay there runs on one thread)")
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
@@ -214,7 +216,7 @@ def _run(args) -> int:
 
     try:
         record = run_scene(scene, out, args.duration, args.fps, device, overwrite=args.overwrite, progress=not args.no_progress,
-                           graph=args.graph, resume=bool(args.resume))
+                           graph=use_graph(args.graph, device), resume=bool(args.resume))
     except ValueError as e:
         if str(e).startswith("--") or isinstance(e, RunError):  # an argument, or a run folder's file: named already
             raise
@@ -280,6 +282,13 @@ def main(argv=None) -> int:
         code, text = _one_line(e)
         print(f"warp-iisph: error: {text}", file=sys.stderr)
         return code
+
+
+def use_graph(asked: bool | None, device: str) -> bool:
+    """``--graph`` / ``--no-graph`` as given, else graphs on CUDA (they remove the per-step launch
+    cost: 1.75 against 3.8 ms per step at 97k particles on an H200) and not on the CPU (where
+    a replay runs on one thread and split launches are faster)."""
+    return bool(asked) if asked is not None else device.startswith("cuda")
 
 
 def _one_line(e: Exception) -> tuple[int, str]:
