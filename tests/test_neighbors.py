@@ -169,8 +169,16 @@ def test_list_storage_beyond_32_bit_indices_is_refused_not_wrapped():
     assert lists.capacity == 48 * 1000  # untouched
 
 
-def test_a_scene_beyond_32_bit_list_indices_is_refused_before_sampling():
-    from warp_iisph import Simulation, scenes
+def test_a_liquid_beyond_32_bit_list_indices_is_refused_before_sampling():
+    """On a device with the memory for 50M particles (a large GPU) the lists' 32-bit indices
+    are the limit: refused with a message, as a liquid beyond the free memory is."""
+    from types import SimpleNamespace
 
-    with pytest.raises(ValueError, match="spacing: 49,836,032 fluid particles need more neighbour-list entries"):
-        Simulation(scenes.dam_break_cube(particles=50_000_000), "cpu")
+    from warp_iisph.setup.build import _check_memory
+
+    big_gpu = SimpleNamespace(is_cuda=True, free_memory=140 * 2**30)
+    with pytest.raises(ValueError, match="spacing: 50,000,000 fluid particles need more neighbour-list entries"):
+        _check_memory(50_000_000, 0, big_gpu)
+    _check_memory(40_000_000, 0, big_gpu)  # 1.9e9 entries: fits
+    with pytest.raises(ValueError, match="GiB but"):
+        _check_memory(200_000_000, 0, big_gpu)  # memory first

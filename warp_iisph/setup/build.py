@@ -171,19 +171,22 @@ BYTES_PER_BOUNDARY_PARTICLE = 40
 
 
 def _check_memory(n_fluid: int, n_boundary: int, device) -> None:
-    if n_fluid * 48 > LIST_ENTRIES_LIMIT:  # the fluid lists' first stride
-        raise ValueError(f"spacing: {n_fluid:,} fluid particles need more neighbour-list entries than 32-bit indices "
-                         f"address ({LIST_ENTRIES_LIMIT:,}); increase spacing")
+    """Refuse (``ValueError``) a liquid the device's free memory cannot hold, or whose fluid
+    lists at their first stride would need more entries than 32-bit indices address."""
     need = n_fluid * BYTES_PER_FLUID_PARTICLE + n_boundary * BYTES_PER_BOUNDARY_PARTICLE
+    free = None
     if device.is_cuda:
         free = device.free_memory
     else:
         try:
             free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
         except (ValueError, OSError, AttributeError):
-            return
-    if need > free:
+            pass
+    if free is not None and need > free:
         raise ValueError(
             f"spacing: {n_fluid} fluid and {n_boundary} boundary particles need about "
             f"{need / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is free on {device}; increase spacing"
         )
+    if n_fluid * 48 > LIST_ENTRIES_LIMIT:  # the fluid lists' first stride
+        raise ValueError(f"spacing: {n_fluid:,} fluid particles need more neighbour-list entries than 32-bit indices "
+                         f"address ({LIST_ENTRIES_LIMIT:,}); increase spacing")
