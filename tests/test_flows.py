@@ -137,7 +137,8 @@ def test_particle_frames_hold_each_particles_own_id(tmp_path):
     ids = np.sort(sim.state.id.numpy()[: sim.n_particles])
     assert sim.flows.removed > 0 and ids[-1] > len(ids) - 1  # gaps
     np.testing.assert_array_equal(frame["id"], ids)
-    np.testing.assert_array_equal(frame["x"], sim.positions)
+    # the same particle on each row (the two advance the clock in sums of different rounding)
+    np.testing.assert_allclose(frame["x"], sim.positions, atol=1e-4)
 
 
 def test_an_emitter_under_the_liquid_is_blocked_not_forced_in():
