@@ -365,12 +365,9 @@ def per_node_signed_distance(
             phi[n] = wp.length(p - xbar / wsum) - r0
 
 
-@pytest.mark.parametrize("settings", [{}, {"cell": 0.3, "radius": 2.5}])
-def test_splat_equals_the_per_node_field(settings, monkeypatch):
-    """splat_blocks (each block's nearby particles splatted onto its nodes, a row of 8 at a
-    time) gives the one-node-per-thread gather of the definition to float rounding: exactly R
-    where that gather's narrow-band test finds no particle near, inside where it says "deep
-    inside", the same sums elsewhere. The second settings put blocks across coarse cells."""
+def _splat_field(settings: dict, seed: int, monkeypatch):
+    """A ball and a jittered pool deep enough for FULL nodes, its distance field with
+    ``settings``, and the inputs splat_blocks was launched with (caught by a spy)."""
     launched = {}
     plain = surface.launch_particles
 
@@ -380,11 +377,19 @@ def test_splat_equals_the_per_node_field(settings, monkeypatch):
         return plain(kernel, n, inputs, device, **kw)
 
     monkeypatch.setattr(surface, "launch_particles", spy)
-    rec = SurfaceReconstructor(H, Surface(**settings))
-    pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)  # deep enough for FULL nodes
-    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(1).normal(0, 0.1 * H, pool.shape)]).astype(np.float32)
-    field = rec.distance_field(x)
-    _, f, _, start, cd, R, r0, _ = launched["inputs"]
+    pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)
+    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(seed).normal(0, 0.1 * H, pool.shape)]).astype(np.float32)
+    field = SurfaceReconstructor(H, Surface(**settings)).distance_field(x)
+    return x, field, launched["inputs"]
+
+
+@pytest.mark.parametrize("settings", [{}, {"cell": 0.3, "radius": 2.5}])
+def test_splat_equals_the_per_node_field(settings, monkeypatch):
+    """splat_blocks (each block's nearby particles splatted onto its nodes, a row of 8 at a
+    time) gives the one-node-per-thread gather of the definition to float rounding: exactly R
+    where that gather's narrow-band test finds no particle near, inside where it says "deep
+    inside", the same sums elsewhere. The second settings put blocks across coarse cells."""
+    x, field, (_, f, _, start, cd, R, r0, _) = _splat_field(settings, 1, monkeypatch)
     counts = wp.array(np.diff(start.numpy()).astype(np.int32), dtype=wp.int32)  # particles per coarse cell
     xd = wp.array(x, dtype=wp.vec3)
     grid = wp.HashGrid(128, 128, 128, device="cpu")
@@ -422,19 +427,7 @@ def test_gpu_row_gather_equals_the_splat(settings, monkeypatch):
     """gather_rows (CUDA's field kernel: a thread per row of 8 nodes gathers the particles whose
     ball reaches it) gives bitwise the field splat_blocks (the CPU's) gives: the same terms in
     the same order. Run here on the CPU, so a GPU is not needed to check it."""
-    launched = {}
-    plain = surface.launch_particles
-
-    def spy(kernel, n, inputs, device, **kw):
-        if kernel is surface.splat_blocks:
-            launched["inputs"] = inputs
-        return plain(kernel, n, inputs, device, **kw)
-
-    monkeypatch.setattr(surface, "launch_particles", spy)
-    pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)
-    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(2).normal(0, 0.1 * H, pool.shape)]).astype(np.float32)
-    field = SurfaceReconstructor(H, Surface(**settings)).distance_field(x)
-    _, f, xs, start, cd, R, r0, _ = launched["inputs"]
+    _, field, (_, f, xs, start, cd, R, r0, _) = _splat_field(settings, 2, monkeypatch)
     splat = f.phi.numpy().copy()
     f.phi.fill_(np.nan)
     wp.launch(surface.gather_rows, dim=field.n_stored * surface.ROWS, inputs=[0, f, xs, start, cd, R, r0], device="cpu")

@@ -10,7 +10,7 @@ import warp as wp
 from ..scene import Box, Scene, shape_mesh
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
-from ..sph.neighbors import LIST_ENTRIES_LIMIT, cell_order, make_grid
+from ..sph.neighbors import FIRST_STRIDE, LIST_ENTRIES_LIMIT, cell_order, make_grid
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
 from .rasterize import clear_fluid, sample_mesh
@@ -187,6 +187,6 @@ def _check_memory(n_fluid: int, n_boundary: int, device) -> None:
             f"spacing: {n_fluid} fluid and {n_boundary} boundary particles need about "
             f"{need / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is free on {device}; increase spacing"
         )
-    if n_fluid * 48 > LIST_ENTRIES_LIMIT:  # the fluid lists' first stride
+    if n_fluid * FIRST_STRIDE > LIST_ENTRIES_LIMIT:
         raise ValueError(f"spacing: {n_fluid:,} fluid particles need more neighbour-list entries than 32-bit indices "
                          f"address ({LIST_ENTRIES_LIMIT:,}); increase spacing")

@@ -44,8 +44,8 @@ def entry(nbrs: NeighborList, i: int, m: int) -> int:
 
 
 @wp.func
-def count_in_cells(g: CellGrid, points: wp.array(dtype=wp.vec3), first: int, x_i: wp.vec3, radius: float) -> int:
-    """How many of the points ``first + ids`` a :class:`CellGrid` holds lie within ``radius`` of ``x_i``."""
+def count_in_cells(g: CellGrid, x_i: wp.vec3, radius: float) -> int:
+    """How many of the points a :class:`CellGrid` holds lie within ``radius`` of ``x_i``."""
     n = int(0)
     if g.n == 0:
         return n
@@ -119,7 +119,7 @@ def count_neighbors(
             d = x_i - points[j]
             if wp.dot(d, d) < r2:
                 n += 1
-    count[i] = n + count_in_cells(moving, points, moving_first, x_i, radius)
+    count[i] = n + count_in_cells(moving, x_i, radius)
 
 
 @wp.kernel
@@ -301,6 +301,10 @@ class NeighborListBuffer:
         return [set(index[s : s + c * step : step].tolist()) for s, c in zip(start, count)]
 
 
+# the fluid lists' slots per particle before any list outgrows them (see StridedListBuffer)
+FIRST_STRIDE = 48
+
+
 class StridedListBuffer(NeighborListBuffer):
     """Fluid-fluid lists with a fixed number of slots per particle, filled in one grid query
     per particle (the CSR buffer queries twice: count, then fill). Every fluid particle has
@@ -308,7 +312,7 @@ class StridedListBuffer(NeighborListBuffer):
     stride, 48, is above the ~41 a dam break reaches (a lattice has 26 within 2h): a graph replay
     that outgrows it is redone whole, which would cost a frame."""
 
-    def __init__(self, n: int, device, stride: int = 48, slot_major: bool | None = None, block: int | None = None):
+    def __init__(self, n: int, device, stride: int = FIRST_STRIDE, slot_major: bool | None = None, block: int | None = None):
         """``block``: how many particles' lists interleave slot by slot (``NeighborList.step``):
         1 is particle-major, ``n`` slot-major, 32 a GPU warp's particles per block of slots;
         ``slot_major`` chooses between the first two; by default slot-major on CUDA."""

@@ -82,7 +82,7 @@ class Flows:
         h = scene.spacing
         self.emitters = scene.emitters
         self.sinks = [s.bounds for s in scene.sinks]
-        # sink checks: every `thinnest / (2 v)` seconds for the top speed v (at least `floor_speed`)
+        # sink checks: every `thinnest / (2 v)` seconds for the top speed v (check_sinks' `speed`)
         self.thinnest = min((float(np.min(hi - lo)) for lo, hi in self.sinks), default=math.inf)
         self.next_check = math.inf if not self.sinks else 0.0
         self.rho0 = float(scene.physics.rho0)
@@ -159,7 +159,7 @@ class Flows:
         s = self.state
         if not self.sinks or s.count == 0:
             return 0
-        x = s.x.numpy()[: s.count]
+        x = s.host("x")
         inside = np.zeros(len(x), dtype=bool)
         for lo, hi in self.sinks:
             inside |= np.all((x >= lo) & (x <= hi), axis=1)
