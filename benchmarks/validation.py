@@ -15,7 +15,10 @@ quotes.
 Writes benchmarks/results/validation.json and validation.png (Z against T beside the experiment;
 the slope per step within the +-3 % band).
 
-    python benchmarks/validation.py [--nx 20,30,40] [--quick]
+    python benchmarks/validation.py [--nx 20,30,40] [--quick] [--peer]
+
+--peer runs SPlisHSPlasH's IISPH (the `bench` extra, peer_splishsplash.py) on the same Martin &
+Moyce set-up at each nx in the same run, its front measured and scored as ours.
 
 --quick (the test suite's): nx 10 up to T = 1.5, and a 0.24 x 0.4 x 0.2 m tank at 4 cm settled
 0.5 s and measured 0.2 s.
@@ -27,6 +30,7 @@ import time
 import numpy as np
 import warp as wp
 
+import peer_splishsplash
 from common import RESULTS, header, pyplot, save
 from warp_iisph import Box, DivergenceError, Scene, Simulation
 from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
@@ -61,15 +65,34 @@ def martin_moyce(nx: int, a: float = 0.3, t_max: float = 3.0) -> dict:
            "diverged": diverged, "steps": sim.step_count, "wall_seconds": time.perf_counter() - t0,
            "mean_compression": float(np.mean(compression)), "mean_iterations": float(np.mean(iterations)),
            "wall_corrections": int(sum(s["wall_corrections"] for s in sim.stats))}
+    return {**row, **front_scores(T_sim, Z_sim, ref, t_max, diverged)}
+
+
+def front_scores(T_sim, Z_sim, ref, t_max, diverged=None) -> dict:
+    """Mean |Z_sim / Z_exp - 1| against each series' points with T <= t_max, and the point errors."""
+    out = {}
     for name, pts in ref.items():
         pts = pts[pts[:, 0] <= t_max]
         if diverged and T_sim[-1] < pts[-1, 0]:
-            row[f"error_{name}"] = None
+            out[f"error_{name}"] = None
             continue
         err = np.interp(pts[:, 0], T_sim, Z_sim) / pts[:, 1] - 1.0
-        row[f"error_{name}"] = float(np.mean(np.abs(err)))
-        row[f"errors_{name}"] = err.tolist()
-    return row
+        out[f"error_{name}"] = float(np.mean(np.abs(err)))
+        out[f"errors_{name}"] = err.tolist()
+    return out
+
+
+def peer_martin_moyce(nx: int, a: float = 0.3, t_max: float = 3.0) -> dict | None:
+    """SPlisHSPlasH's IISPH on the same set-up, scored as ours; ``None`` when it is not installed."""
+    duration = t_max / np.sqrt(2 * G / a) + 0.01
+    t0 = time.perf_counter()
+    rec = peer_splishsplash.run(duration=duration, scene="martin_moyce", nx=nx)
+    if rec is None:
+        return None
+    T, Z = np.array(rec.pop("T")), np.array(rec.pop("Z"))
+    keep = np.searchsorted(T, np.arange(0.0, t_max + 1e-9, 0.05))  # the curve, thinned for the record
+    return {**rec, "T": T[keep.clip(0, len(T) - 1)].tolist(), "Z": Z[keep.clip(0, len(T) - 1)].tolist(),
+            "run_seconds": time.perf_counter() - t0, **front_scores(T, Z, load_martin_moyce(), t_max)}
 
 
 def resting_tank(h: float = 0.02, size=(0.4, 0.8, 0.2), depth: float = 0.6, settle: float = 2.0, measure: float = 0.5,
@@ -120,6 +143,7 @@ def main():
     ap.add_argument("--nx", default="20,30,40", help="particles across the Martin & Moyce column")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--peer", action="store_true", help="SPlisHSPlasH's IISPH on the same Martin & Moyce set-up")
     args = ap.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     t_max = 3.0
@@ -135,16 +159,27 @@ def main():
         print(f"Martin & Moyce nx {nx} ({r['particles']} particles): front error {errs} (T <= {t_max:g}); "
               f"mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps, {r['wall_seconds']:.0f} s"
               + (f"; DIVERGED: {r['diverged']}" if r["diverged"] else ""))
+    peers = []
+    for nx in (int(v) for v in args.nx.split(",")) if args.peer else ():
+        r = peer_martin_moyce(nx, t_max=t_max)
+        if r is None:
+            print("SPlisHSPlasH is not installed (the bench extra): no peer runs")
+            break
+        peers.append(r)
+        print(f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx} ({r['particles']} particles): front error "
+              + ", ".join(f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None)
+              + f"; mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps")
     rest = resting_tank(**tank)
     print(f"resting tank ({rest['particles']} particles), {len(rest['steps'])} steps after {rest['settle_s']:g} s: "
           f"slope / rho0 g {rest['slope_min']:.3f} .. {rest['slope_max']:.3f} ({100 * rest['steps_within_3_percent']:.0f} % of "
           f"steps within 3 %), mean speed <= {100 * rest['mean_speed_max']:.2f} cm/s, max speed <= {100 * rest['max_speed_max']:.1f} cm/s, "
           f"bottom compression <= {100 * rest['bottom_compression_max']:.3f} %")
-    record = header("validation", reference="Martin & Moyce 1952; hydrostatics", t_max=t_max, runs=runs, resting_tank=rest)
-    chart(runs, rest, load_martin_moyce(), t_max, save(record, args.out, "validation", args.quick))
+    record = header("validation", reference="Martin & Moyce 1952; hydrostatics", t_max=t_max, runs=runs, resting_tank=rest,
+                    peer_runs=peers)
+    chart(runs, rest, load_martin_moyce(), t_max, save(record, args.out, "validation", args.quick), peers)
 
 
-def chart(runs, rest, ref, t_max, path):
+def chart(runs, rest, ref, t_max, path, peers=()):
     plt = pyplot()
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [1.2, 1]})
@@ -153,7 +188,11 @@ def chart(runs, rest, ref, t_max, path):
         ax.plot(pts[:, 0], pts[:, 1], marker, mfc="none", ms=7, color="k", label=f"Martin & Moyce, a = {name[2]}.{name[3:]} in")
     for r in runs:
         errs = ", ".join(f"{100 * r[k]:.1f} %" for k in sorted(r) if k.startswith("error_") and r[k] is not None)
-        ax.plot(r["T"], r["Z"], "-", label=f"IISPH nx = {r['nx']} ({r['particles']} particles): {errs}")
+        line, = ax.plot(r["T"], r["Z"], "-", label=f"IISPH nx = {r['nx']} ({r['particles']} particles): {errs}")
+        for q in peers:
+            if q["nx"] == r["nx"]:
+                errs = ", ".join(f"{100 * q[k]:.1f} %" for k in sorted(q) if k.startswith("error_") and q[k] is not None)
+                ax.plot(q["T"], q["Z"], "--", color=line.get_color(), lw=1, label=f"SPlisHSPlasH IISPH nx = {q['nx']}: {errs}")
     ax.set_xlabel("T = t sqrt(2g/a)")
     ax.set_ylabel("Z = front / a")
     ax.set_xlim(0, t_max + 0.1)
