@@ -168,7 +168,8 @@ def main():
         peers.append(r)
         print(f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx} ({r['particles']} particles): front error "
               + ", ".join(f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None)
-              + f"; mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps")
+              + f"; mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps"
+              + (f"; {r['escaped']} particles left the tank through its walls" if r["escaped"] else ""))
     rest = resting_tank(**tank)
     print(f"resting tank ({rest['particles']} particles), {len(rest['steps'])} steps after {rest['settle_s']:g} s: "
           f"slope / rho0 g {rest['slope_min']:.3f} .. {rest['slope_max']:.3f} ({100 * rest['steps_within_3_percent']:.0f} % of "
@@ -192,7 +193,8 @@ def chart(runs, rest, ref, t_max, path, peers=()):
         for q in peers:
             if q["nx"] == r["nx"]:
                 errs = ", ".join(f"{100 * q[k]:.1f} %" for k in sorted(q) if k.startswith("error_") and q[k] is not None)
-                ax.plot(q["T"], q["Z"], "--", color=line.get_color(), lw=1, label=f"SPlisHSPlasH IISPH nx = {q['nx']}: {errs}")
+                leak = f" ({q['escaped']} particles left the tank)" if q["escaped"] else ""
+                ax.plot(q["T"], q["Z"], "--", color=line.get_color(), lw=1, label=f"SPlisHSPlasH IISPH nx = {q['nx']}: {errs}{leak}")
     ax.set_xlabel("T = t sqrt(2g/a)")
     ax.set_ylabel("Z = front / a")
     ax.set_xlim(0, t_max + 0.1)
