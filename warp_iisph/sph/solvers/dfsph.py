@@ -13,28 +13,36 @@ A step (stages as :data:`~.base.STAGES`):
 - density: ``rho_i`` (Akinci), then ``alpha_i / rho_i``.
 - pressure (divergence solve), on the velocity the last step ended with: until the mean of
   ``max(D rho_i/Dt, 0) dt / rho0`` is at most ``eta_divergence`` (at least one iteration, at most
-  ``max_iterations``), ``kappa_v_i / rho_i += (D rho_i/Dt) / dt * alpha_i / rho_i`` with
-  ``D rho_i/Dt = sum_j m v_ij . grad W_ij + sum_b psi_b (v_i - v_b) . grad W_ib``; a particle with
-  fewer than :data:`MIN_NEIGHBORS` neighbours (fluid and wall) is left out: at a free surface its
-  density rate says nothing about compression.
+  ``max_iterations``), ``kappa_v_i / rho_i = max(kappa_v_i / rho_i + omega (D rho_i/Dt) / dt
+  * alpha_i / rho_i, 0)`` with ``D rho_i/Dt = sum_j m v_ij . grad W_ij + sum_b psi_b (v_i - v_b)
+  . grad W_ib``; a particle with fewer than :data:`MIN_NEIGHBORS` neighbours (fluid and wall) is
+  left out: at a free surface its density rate says nothing about compression.
 - advection: ``v_adv = v + dt a_nonpressure`` (:mod:`.forces`).
 - pressure (constant-density solve), on ``v_adv``: until the mean predicted compression
   ``max(rho*_i / rho0 - 1, 0)``, ``rho*_i = rho_i + dt D rho_i/Dt``, is at most ``eta`` (at least
-  ``min_iterations``, at most ``max_iterations``), ``kappa_i / rho_i += (rho*_i - rho0) / dt^2
-  * alpha_i / rho_i``.
+  ``min_iterations``, at most ``max_iterations``), ``kappa_i / rho_i = max(kappa_i / rho_i +
+  omega (rho*_i - rho0) / dt^2 * alpha_i / rho_i, 0)``.
 - integration: ``v = v_adv``, ``x += dt v``; ``p_i = (kappa_i + kappa_v_i) rho_i`` (the pressure
   both solves applied this step) for frames, viewers and the hydrostatic check.
 
 Each iteration computes the increments from the velocities so far (a gather), then moves the
 velocities by the increments (a second gather), so the loop's error is that of its input
-velocities. Both solves start from half of the last step's stiffness (a warm start; IISPH here
-starts from half its last pressure): the constant-density solve from ``kappa / rho`` itself
-(``p / rho^2``, which does not depend on dt), the divergence solve from ``kappa_v / rho * dt``
-over this step's dt (the velocity change it made does not depend on dt). The increments are
-the paper's, with the error's sign, but a negative one may only take back what is left of the
-warm start: the iterations never remove pressure they added (the paper clamps the sources at
-zero, which leaves a warm start that proves too much in place; on the 32,768-particle dam break
-at a fixed 10 ms step that diverged within 0.35 s, see benchmarks/dfsph.py).
+velocities. Both solves are relaxed Jacobi iterations (omega :data:`OMEGA`) on the total
+stiffness, kept at or above zero, as IISPH's on the pressure (and SPlisHSPlasH's DFSPH since it
+left the paper's increments): an iteration takes back stiffness the error says is too much.
+Both start from half of the last step's stiffness (a warm start, as IISPH's) where the velocity
+they start from compresses the particle, and from zero elsewhere: the constant-density solve
+from ``kappa / rho`` itself (``p / rho^2``, which does not depend on dt), the divergence solve
+from ``kappa_v / rho * dt`` over this step's dt (the velocity change it made does not depend on
+dt).
+
+Why not the paper's increments (omega 1, the error's sign, sources clamped at zero): they can
+only add stiffness, so a warm start that proves too much stays in place (the 32,768-particle dam
+break at a fixed 10 ms diverged within 0.35 s), and letting them take back only the warm start
+(this module's form until 2026-11-26) leaves the pressure a step adds there for good: water at
+rest bounced as a whole column (0.6 m tank: mean speed 15 cm/s, max 92 cm/s; now 0.3 and 4 cm/s,
+docs/physics.md 4.13). Unrelaxed iterations that may take back (omega 1, or 0.75) diverge
+within ten steps.
 """
 
 from __future__ import annotations
@@ -54,6 +62,8 @@ from .base import SPHSolver
 MIN_NEIGHBORS = wp.constant(20)
 # Both solves start from this share of the last step's stiffness (see the module's docstring).
 WARM_START = wp.constant(0.5)
+# The Jacobi relaxation of both solves (0.75 and 1 diverge, see the module's docstring).
+OMEGA = wp.constant(0.5)
 
 
 @wp.kernel
@@ -104,45 +114,59 @@ def take_part(i: int, nf: NeighborList, nb: NeighborList) -> bool:
 
 
 @wp.func
-def stiffness_step(i: int, increment: float, warm: wp.array(dtype=float)) -> float:
-    """The Jacobi increment the error asks for, where only the warm start may be taken back:
-    a negative increment removes what is left of it, never more."""
-    if increment < 0.0:
-        increment = wp.max(increment, -warm[i])
-        warm[i] = warm[i] + increment
-    return increment
+def relaxed_step(k: float, increment: float) -> float:
+    """The change of a stiffness ``k`` by a relaxed Jacobi step, the total kept at or above zero."""
+    return wp.max(k + OMEGA * increment, 0.0) - k
 
 
 @wp.kernel
 def start_divergence_solve(
     offset: int,
+    v: wp.array(dtype=wp.vec3),
     kappa_v_dt: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    vb: wp.array(dtype=wp.vec3),
     nf: NeighborList,
     nb: NeighborList,
+    mass: float,
     dt_step: wp.array(dtype=float),
     kappa_v: wp.array(dtype=float),
-    warm: wp.array(dtype=float),
     delta: wp.array(dtype=float),
 ):
     """The warm start: a share of the last step's ``kappa_v / rho * dt`` over this step's dt,
-    for the particles that take part."""
+    for the particles that take part and whose density the velocity ``v`` increases."""
     i = wp.tid() + offset
     k = float(0.0)
     if take_part(i, nf, nb):
-        k = WARM_START * kappa_v_dt[i] / dt_step[0]
-    kappa_v[i] = k
-    warm[i] = k
-    delta[i] = k
+        if density_rate(i, v, vb, psi, nf, nb, mass) > 0.0:
+            k = WARM_START * kappa_v_dt[i] / dt_step[0]
+    kappa_v[i] = 0.0
+    delta[i] = k  # applied as the solve's first increment
 
 
 @wp.kernel
-def start_density_solve(offset: int, kappa: wp.array(dtype=float), warm: wp.array(dtype=float), delta: wp.array(dtype=float)):
-    """The warm start: a share of the last step's ``kappa / rho``, which ``kappa`` holds."""
+def start_density_solve(
+    offset: int,
+    v: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
+    psi: wp.array(dtype=float),
+    vb: wp.array(dtype=wp.vec3),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+    dt_step: wp.array(dtype=float),
+    rho0: float,
+    kappa: wp.array(dtype=float),
+    delta: wp.array(dtype=float),
+):
+    """The warm start: a share of the last step's ``kappa / rho``, which ``kappa`` holds, where
+    the advected velocity ``v`` alone would compress the particle; zero elsewhere."""
     i = wp.tid() + offset
-    k = WARM_START * kappa[i]
-    kappa[i] = k
-    warm[i] = k
-    delta[i] = k
+    k = float(0.0)
+    if rho[i] + dt_step[0] * density_rate(i, v, vb, psi, nf, nb, mass) > rho0:
+        k = WARM_START * kappa[i]
+    kappa[i] = 0.0
+    delta[i] = k  # applied as the solve's first increment
 
 
 @wp.kernel
@@ -158,20 +182,17 @@ def divergence_jacobi(
     dt_step: wp.array(dtype=float),
     rho0: float,
     kappa_v: wp.array(dtype=float),
-    warm: wp.array(dtype=float),
     delta: wp.array(dtype=float),
     error: wp.array(dtype=wp.float64),
 ):
-    """The stiffness increment that cancels particle i's density rate, and its compression rate
-    as the density it would add in one step, a fraction of rho0."""
+    """The stiffness change towards cancelling particle i's density rate, and its compression
+    rate as the density it would add in one step, a fraction of rho0."""
     i = wp.tid() + offset
     dt = dt_step[0]
     rate = float(0.0)
     if take_part(i, nf, nb):
         rate = density_rate(i, v, vb, psi, nf, nb, mass)
-    dk = stiffness_step(i, rate / dt * factor[i], warm)
-    kappa_v[i] = kappa_v[i] + dk
-    delta[i] = dk
+    delta[i] = relaxed_step(kappa_v[i], rate / dt * factor[i])
     error[i] = wp.float64(wp.max(rate, 0.0) * dt / rho0)
 
 
@@ -189,18 +210,15 @@ def density_jacobi(
     dt_step: wp.array(dtype=float),
     rho0: float,
     kappa: wp.array(dtype=float),
-    warm: wp.array(dtype=float),
     delta: wp.array(dtype=float),
     error: wp.array(dtype=wp.float64),
 ):
-    """The stiffness increment that brings particle i's predicted density ``rho*_i`` to rho0,
+    """The stiffness change towards bringing particle i's predicted density ``rho*_i`` to rho0,
     and the predicted compression ``max(rho*_i / rho0 - 1, 0)``."""
     i = wp.tid() + offset
     dt = dt_step[0]
     rho_star = rho[i] + dt * density_rate(i, v, vb, psi, nf, nb, mass)
-    dk = stiffness_step(i, (rho_star - rho0) / (dt * dt) * factor[i], warm)
-    kappa[i] = kappa[i] + dk
-    delta[i] = dk
+    delta[i] = relaxed_step(kappa[i], (rho_star - rho0) / (dt * dt) * factor[i])
     error[i] = wp.max(wp.float64(rho_star / rho0) - wp.float64(1.0), wp.float64(0.0))
 
 
@@ -208,15 +226,18 @@ def density_jacobi(
 def apply_stiffness(
     offset: int,
     delta: wp.array(dtype=float),
+    share: wp.array(dtype=float),
     psi: wp.array(dtype=float),
     nf: NeighborList,
     nb: NeighborList,
     mass: float,
     dt_step: wp.array(dtype=float),
+    kappa: wp.array(dtype=float),
     v: wp.array(dtype=wp.vec3),
 ):
-    """``v_i -= dt (sum_j m (d_i + d_j) grad W_ij + sum_b psi_b d_i grad W_ib)`` for the
-    stiffness increments ``d`` (the wall pushes with the particle's own)."""
+    """Add ``share`` of the stiffness increments ``d`` to the stiffness and their velocity change,
+    ``v_i -= dt (sum_j m (d_i + d_j) grad W_ij + sum_b psi_b d_i grad W_ib)``, to the velocities
+    (the wall pushes with the particle's own)."""
     i = wp.tid() + offset
     d_i = delta[i]
     a = wp.vec3(0.0, 0.0, 0.0)
@@ -226,7 +247,9 @@ def apply_stiffness(
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         a += psi[nb.index[k]] * d_i * nb.grad_W[k]
-    v[i] = v[i] - dt_step[0] * a
+    b = share[0]
+    kappa[i] = kappa[i] + b * d_i
+    v[i] = v[i] - (dt_step[0] * b) * a
 
 
 @wp.kernel
@@ -238,13 +261,28 @@ def solve_convergence(
     max_iterations: int,
     iterations: wp.array(dtype=wp.int32),
     keep_going: wp.array(dtype=wp.int32),
+    last_error_sum: wp.array(dtype=wp.float64),
+    share: wp.array(dtype=float),
+    end_at_eta: int,
 ):
-    """Count the iteration; stop once the mean error is at most eta (after ``min_iterations``)
-    or at ``max_iterations``."""
+    """Count the iteration; stop once the mean error (of the velocities the iteration started
+    from) is at most eta (after ``min_iterations``) or at ``max_iterations``. ``share`` is the
+    part of this iteration's increments to apply: all of them, but with ``end_at_eta``, where the
+    error crossed eta in this iteration, the share that ends the solve where the error (taken as
+    linear between the last iterate and this one) reaches eta, as IISPH's solve ends (the update
+    is affine in the stiffness, but for the clamp at zero); the error sum reported is then eta's."""
     it = iterations[0] + 1
     iterations[0] = it
-    converged = it >= min_iterations and error_sum[0] / wp.float64(n) <= eta
+    mean = error_sum[0] / wp.float64(n)
+    converged = it >= min_iterations and mean <= eta
     keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
+    last = last_error_sum[0] / wp.float64(n)
+    b = float(1.0)
+    if end_at_eta != 0 and converged and it > 1 and last > eta and last > mean:
+        b = float((last - eta) / (last - mean))
+        error_sum[0] = eta * wp.float64(n)
+    share[0] = b
+    last_error_sum[0] = error_sum[0]
 
 
 @wp.kernel
@@ -285,7 +323,6 @@ class DFSPHSolver(SPHSolver):
         self.kappa = wp.zeros(n, dtype=float, device=dev)  # kappa / rho of the constant-density solve, its running sum
         self.kappa_v_dt = wp.zeros(n, dtype=float, device=dev)  # kappa_v / rho * dt of the last divergence solve
         self.kappa_v = wp.zeros(n, dtype=float, device=dev)  # kappa_v / rho, this step's running sum
-        self.warm = wp.zeros(n, dtype=float, device=dev)  # what is left of the running solve's warm start
         self.delta = wp.zeros(n, dtype=float, device=dev)  # the iteration's stiffness increments
         self.error = wp.zeros(n, dtype=wp.float64, device=dev)
         self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
@@ -293,6 +330,9 @@ class DFSPHSolver(SPHSolver):
         self._divergence_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
         self._divergence_iterations = wp.zeros(1, dtype=wp.int32, device=dev)
         self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._last_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
+        self._share = wp.ones(1, dtype=float, device=dev)  # the share of an iteration's increments it applies
+        self._whole = wp.ones(1, dtype=float, device=dev)
         # a denominator of alpha below this is a particle with next to no neighbours: (m / H^4)^2
         # is the scale of one neighbour's |m grad W|^2, 1e-6 of it a neighbour at the support's edge
         self.least_denominator = 1.0e-6 * (model.mass / model.support_radius**4) ** 2
@@ -321,17 +361,20 @@ class DFSPHSolver(SPHSolver):
         """``v_adv = v + dt a_nonpressure`` from the divergence-free velocity."""
         self.advect_velocity(model, state)
 
-    def _apply(self, model, state, v) -> None:
-        launch_particles(apply_stiffness, state.n, [self.delta, model.boundary_psi, self.search.fluid.lists, self.search.boundary.lists,
-                                                    model.mass, self.dt, v], model.device)
+    def _apply(self, model, state, kappa, v, share=None) -> None:
+        launch_particles(apply_stiffness, state.n, [self.delta, self._whole if share is None else share, model.boundary_psi,
+                                                    self.search.fluid.lists, self.search.boundary.lists, model.mass, self.dt, kappa, v],
+                         model.device)
 
     def divergence_solve(self, model, state) -> None:
         """Make the velocity the last step ended with divergence-free (compression rates only);
         the loop's test runs on the device (``wp.capture_while``), as IISPH's."""
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        launch_particles(start_divergence_solve, state.n, [self.kappa_v_dt, nf, nb, self.dt, self.kappa_v, self.warm, self.delta], model.device)
-        self._apply(model, state, state.v)
+        launch_particles(start_divergence_solve, state.n, [state.v, self.kappa_v_dt, model.boundary_psi, model.boundary_v, nf, nb, model.mass,
+                                                           self.dt, self.kappa_v, self.delta], model.device)
+        self._apply(model, state, self.kappa_v, state.v)
         self._divergence_iterations.zero_()
+        self._last_error_sum.zero_()
         self.keep_going.fill_(1)
         wp.capture_while(self.keep_going, self.divergence_iteration, model=model, state=state)
 
@@ -342,20 +385,23 @@ class DFSPHSolver(SPHSolver):
             divergence_jacobi,
             n,
             [state.v, self.factor, model.boundary_psi, model.boundary_v, self.search.fluid.lists, self.search.boundary.lists, model.mass,
-             self.dt, ph.rho0, self.kappa_v, self.warm, self.delta, self.error],
+             self.dt, ph.rho0, self.kappa_v, self.delta, self.error],
             dev,
         )
-        self._apply(model, state, state.v)
         sum_into(self.error, n, self._divergence_error_sum)
         wp.launch(solve_convergence, dim=1, device=dev, inputs=[
             self._divergence_error_sum, max(n, 1), wp.float64(ph.eta_divergence), 1, ph.max_iterations, self._divergence_iterations,
-            self.keep_going])
+            self.keep_going, self._last_error_sum, self._share, 0])
+        self._apply(model, state, self.kappa_v, state.v, self._share)
 
     def pressure_solve(self, model, state) -> None:
         """Bring the predicted density of ``v_adv`` to rho0 (the constant-density solve)."""
-        launch_particles(start_density_solve, state.n, [self.kappa, self.warm, self.delta], model.device)
-        self._apply(model, state, self.v_adv)
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        launch_particles(start_density_solve, state.n, [self.v_adv, state.rho, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt,
+                                                        self.physics.rho0, self.kappa, self.delta], model.device)
+        self._apply(model, state, self.kappa, self.v_adv)
         self._iterations.zero_()
+        self._last_error_sum.zero_()
         self.keep_going.fill_(1)
         wp.capture_while(self.keep_going, self.density_iteration, model=model, state=state)
 
@@ -366,13 +412,14 @@ class DFSPHSolver(SPHSolver):
             density_jacobi,
             n,
             [self.v_adv, state.rho, self.factor, model.boundary_psi, model.boundary_v, self.search.fluid.lists,
-             self.search.boundary.lists, model.mass, self.dt, ph.rho0, self.kappa, self.warm, self.delta, self.error],
+             self.search.boundary.lists, model.mass, self.dt, ph.rho0, self.kappa, self.delta, self.error],
             dev,
         )
-        self._apply(model, state, self.v_adv)
         sum_into(self.error, n, self._error_sum)
         wp.launch(solve_convergence, dim=1, device=dev, inputs=[
-            self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations, self._iterations, self.keep_going])
+            self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations, self._iterations, self.keep_going,
+            self._last_error_sum, self._share, 1])
+        self._apply(model, state, self.kappa, self.v_adv, self._share)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
         return self._error_sum, self._iterations
