@@ -40,7 +40,7 @@ Why not the paper's increments (omega 1, the error's sign, sources clamped at ze
 only add stiffness, so a warm start that proves too much stays in place (the 32,768-particle dam
 break at a fixed 10 ms diverged within 0.35 s), and letting them take back only the warm start
 (this module's form until 2026-11-26) leaves the pressure a step adds there for good: water at
-rest bounced as a whole column (0.6 m tank: mean speed 15 cm/s, max 92 cm/s; now 0.3 and 4 cm/s,
+rest bounced as a whole column (0.6 m tank: mean speed 15 cm/s, max 92 cm/s; now 0.3 and 3 cm/s,
 docs/physics.md 4.13). Unrelaxed iterations that may take back (omega 1, or 0.75) diverge
 within ten steps.
 """
