@@ -58,6 +58,27 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         assert abs(rest["slope_mean"] - 1.0) < 0.1 and rest["mean_speed_max"] < 0.02
 
 
+def test_validation_beside_the_peer_quick_mode(tmp_path):
+    """With the bench extra, validation.py --peer runs SPlisHSPlasH's IISPH on the same Martin &
+    Moyce set-up and scores its front as ours: it leaves the column's foot, moves on, and has an
+    error against both series. Skipped where pysplishsplash is not installed (CI's dev extra)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import peer_splishsplash
+    finally:
+        sys.path.pop(0)
+    if not peer_splishsplash.available():
+        pytest.skip("pysplishsplash (the bench extra) is not installed")
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "validation.py"), "--quick", "--peer", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    (peer,) = json.loads((tmp_path / "validation_quick.json").read_text())["peer_runs"]
+    assert peer["nx"] == 10 and peer["particles"] == 10 * 20 * 5 and peer["escaped"] == 0
+    assert peer["Z"][0] < 1.1 < peer["Z"][-1] and np.all(np.diff(peer["Z"]) > -0.05)
+    assert peer["error_a_1125"] is not None and peer["error_a_2250"] is not None
+    assert "SPlisHSPlasH IISPH, Martin & Moyce nx 10" in proc.stdout
+
+
 def _quick(script: str, tmp_path, stem: str, *extra) -> dict:
     proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path), *extra],
                           capture_output=True, text=True, timeout=300)
