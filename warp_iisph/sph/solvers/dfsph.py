@@ -288,7 +288,8 @@ def solve_convergence(
     b = float(1.0)
     if end_at_eta != 0 and converged and it > 1 and last > eta and last > mean:
         b = float((last - eta) / (last - mean))
-        error_sum[0] = eta * wp.float64(n)
+        # reported as eta: a hair under it, so that the logged mean (sum / n) never rounds above eta
+        error_sum[0] = eta * wp.float64(n) * (wp.float64(1.0) - wp.float64(1.0e-15))
     share[0] = b
     last_error_sum[0] = error_sum[0]
 
