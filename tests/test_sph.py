@@ -67,17 +67,18 @@ def test_a_solve_ending_at_eta_reports_at_most_eta():
     """Where a pressure solve's error crosses eta it ends where the error reaches eta and reports
     eta as its mean error (sum / n). For some particle counts (8,059 at eta 0.1 %) eta * n / n
     rounds one unit above eta in float64, which would read as a solve that stopped above its
-    tolerance; both solvers' convergence kernels report a hair under eta."""
-    from warp_iisph.sph.solvers import dfsph, iisph
+    tolerance; the convergence kernel both solvers' density solves end with (IISPH's and DFSPH's)
+    reports a hair under eta."""
+    from warp_iisph.sph.solvers.base import jacobi_convergence
 
     eta, n = 1e-3, 8059
     assert (eta * n) / n > eta  # the rounding this guards against
-    for kernel, extra in ((iisph.jacobi_convergence, [wp.zeros(1, dtype=float, device="cpu")]),
-                          (dfsph.solve_convergence, [wp.zeros(1, dtype=float, device="cpu"), 1])):
-        error_sum = wp.array([0.5 * eta * n], dtype=wp.float64, device="cpu")
-        last = wp.array([2.0 * eta * n], dtype=wp.float64, device="cpu")
-        iterations = wp.array([3], dtype=wp.int32, device="cpu")
-        keep_going = wp.ones(1, dtype=wp.int32, device="cpu")
-        wp.launch(kernel, dim=1, device="cpu", inputs=[error_sum, n, wp.float64(eta), 2, 100, iterations, keep_going, last, *extra])
-        mean = error_sum.numpy()[0] / n
-        assert keep_going.numpy()[0] == 0 and mean <= eta and abs(mean - eta) < 1e-12 * eta, kernel.key
+    error_sum = wp.array([0.5 * eta * n], dtype=wp.float64, device="cpu")
+    last = wp.array([2.0 * eta * n], dtype=wp.float64, device="cpu")
+    iterations = wp.array([3], dtype=wp.int32, device="cpu")
+    keep_going = wp.ones(1, dtype=wp.int32, device="cpu")
+    blend = wp.zeros(1, dtype=float, device="cpu")
+    wp.launch(jacobi_convergence, dim=1, device="cpu", inputs=[error_sum, n, wp.float64(eta), 2, 100, iterations, keep_going, last, blend])
+    mean = error_sum.numpy()[0] / n
+    assert keep_going.numpy()[0] == 0 and mean <= eta and abs(mean - eta) < 1e-12 * eta
+    assert abs(blend.numpy()[0] - 2.0 / 3.0) < 1e-6  # (2 eta - eta) / (2 eta - eta / 2): where the error reaches eta

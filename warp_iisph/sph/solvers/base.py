@@ -1,5 +1,5 @@
 """What WCSPH and IISPH share: density, pressure acceleration with symplectic Euler and the step
-skeleton.
+skeleton; with DFSPH, the density solves' convergence test and where it ends them.
 
 Density (Akinci boundaries): ``rho_i = sum_j m W_ij + sum_b psi_b W_ib`` (j includes i).
 Pressure acceleration: ``a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij
@@ -97,6 +97,38 @@ def integrate(
     v[i] = v_i
     x[i] = x[i] + dt * v_i
 
+
+@wp.kernel
+def jacobi_convergence(
+    error_sum: wp.array(dtype=wp.float64),
+    n: int,
+    eta: wp.float64,
+    min_iterations: int,
+    max_iterations: int,
+    iterations: wp.array(dtype=wp.int32),
+    keep_going: wp.array(dtype=wp.int32),
+    last_error_sum: wp.array(dtype=wp.float64),
+    blend: wp.array(dtype=float),
+):
+    """Count the iteration; stop once the mean predicted density error is at most eta (after
+    ``min_iterations``) or at ``max_iterations``. Where the error crossed eta in this iteration,
+    ``blend`` is the share of the way from the last iteration's pressures (IISPH) or stiffness
+    (DFSPH) to this one's at which the error (taken as linear between them) reaches eta, and the
+    error sum reported is eta's; otherwise ``blend`` is negative. Both solvers' density solves end
+    there."""
+    it = iterations[0] + 1
+    iterations[0] = it
+    mean = error_sum[0] / wp.float64(n)
+    converged = it >= min_iterations and mean <= eta
+    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
+    last = last_error_sum[0] / wp.float64(n)
+    b = float(-1.0)
+    if converged and it > 1 and last > eta and last > mean:
+        b = float((last - eta) / (last - mean))
+        # reported as eta: a hair under it, so that the logged mean (sum / n) never rounds above eta
+        error_sum[0] = eta * wp.float64(n) * (wp.float64(1.0) - wp.float64(1.0e-15))
+    blend[0] = b
+    last_error_sum[0] = error_sum[0]
 
 class SPHSolver:
     """Skeleton of an SPH time step shared by the methods; subclasses supply

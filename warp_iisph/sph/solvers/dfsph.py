@@ -58,7 +58,7 @@ import warp as wp
 from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
-from .base import SPHSolver
+from .base import SPHSolver, jacobi_convergence
 
 # Fewer neighbours (fluid and wall, self excluded) than this, and a particle takes no part in
 # the divergence solve (the paper's particle deficiency rule; a resting particle has 26 fluid
@@ -232,7 +232,7 @@ def density_jacobi(
 def apply_stiffness(
     offset: int,
     delta: wp.array(dtype=float),
-    share: wp.array(dtype=float),
+    blend: wp.array(dtype=float),
     psi: wp.array(dtype=float),
     nf: NeighborList,
     nb: NeighborList,
@@ -241,9 +241,12 @@ def apply_stiffness(
     kappa: wp.array(dtype=float),
     v: wp.array(dtype=wp.vec3),
 ):
-    """Add ``share`` of the stiffness increments ``d`` to the stiffness and their velocity change,
+    """Add the stiffness increments ``d`` to the stiffness and their velocity change,
     ``v_i -= dt (sum_j m (d_i + d_j) grad W_ij + sum_b psi_b d_i grad W_ib)``, to the velocities
-    (the wall pushes with the particle's own)."""
+    (the wall pushes with the particle's own); where ``blend`` (:func:`~.base.jacobi_convergence`)
+    is not negative, only that share of them: the solve ends at the Jacobi update of the iterate
+    at which its error reaches eta (the update is affine in the stiffness, but for the clamp at
+    zero, so that is the last iterate plus ``blend`` times this iteration's increments)."""
     i = wp.tid() + offset
     d_i = delta[i]
     a = wp.vec3(0.0, 0.0, 0.0)
@@ -253,7 +256,7 @@ def apply_stiffness(
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         a += psi[nb.index[k]] * d_i * nb.grad_W[k]
-    b = share[0]
+    b = wp.where(blend[0] < 0.0, 1.0, blend[0])
     kappa[i] = kappa[i] + b * d_i
     v[i] = v[i] - (dt_step[0] * b) * a
 
@@ -267,31 +270,13 @@ def solve_convergence(
     max_iterations: int,
     iterations: wp.array(dtype=wp.int32),
     keep_going: wp.array(dtype=wp.int32),
-    last_error_sum: wp.array(dtype=wp.float64),
-    share: wp.array(dtype=float),
-    end_at_eta: int,
 ):
-    """Count the iteration; stop once the mean error (of the velocities the iteration started
-    from) is at most eta (after ``min_iterations``) or at ``max_iterations``. ``share`` is the
-    part of this iteration's increments to apply: all of them, but with ``end_at_eta``, where the
-    error crossed eta in this iteration, the share ``b`` that ends the solve at the Jacobi update
-    of the iterate at which the error (taken as linear between the last iterate and this one)
-    reaches eta, as IISPH's solve ends: the update is affine in the stiffness (but for the clamp
-    at zero), so that is the last iterate plus ``b`` times this iteration's increments; the error
-    sum reported is then eta's."""
+    """The divergence solve's test: count the iteration; stop once the mean error is at most eta
+    (after ``min_iterations``) or at ``max_iterations``."""
     it = iterations[0] + 1
     iterations[0] = it
-    mean = error_sum[0] / wp.float64(n)
-    converged = it >= min_iterations and mean <= eta
+    converged = it >= min_iterations and error_sum[0] / wp.float64(n) <= eta
     keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
-    last = last_error_sum[0] / wp.float64(n)
-    b = float(1.0)
-    if end_at_eta != 0 and converged and it > 1 and last > eta and last > mean:
-        b = float((last - eta) / (last - mean))
-        # reported as eta: a hair under it, so that the logged mean (sum / n) never rounds above eta
-        error_sum[0] = eta * wp.float64(n) * (wp.float64(1.0) - wp.float64(1.0e-15))
-    share[0] = b
-    last_error_sum[0] = error_sum[0]
 
 
 @wp.kernel
@@ -340,8 +325,8 @@ class DFSPHSolver(SPHSolver):
         self._divergence_iterations = wp.zeros(1, dtype=wp.int32, device=dev)
         self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
         self._last_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
-        self._share = wp.ones(1, dtype=float, device=dev)  # the share of an iteration's increments it applies
-        self._whole = wp.ones(1, dtype=float, device=dev)
+        self._blend = wp.zeros(1, dtype=float, device=dev)  # where the density solve ends (jacobi_convergence)
+        self._no_blend = wp.full(1, -1.0, dtype=float, device=dev)  # no blend: whole increments
         # a denominator of alpha below this is a particle with next to no neighbours: (m / H^4)^2
         # is the scale of one neighbour's |m grad W|^2, 1e-6 of it a neighbour at the support's edge
         self.least_denominator = 1.0e-6 * (model.mass / model.support_radius**4) ** 2
@@ -370,8 +355,8 @@ class DFSPHSolver(SPHSolver):
         """``v_adv = v + dt a_nonpressure`` from the divergence-free velocity."""
         self.advect_velocity(model, state)
 
-    def _apply(self, model, state, kappa, v, share=None) -> None:
-        launch_particles(apply_stiffness, state.n, [self.delta, self._whole if share is None else share, model.boundary_psi,
+    def _apply(self, model, state, kappa, v, blend=None) -> None:
+        launch_particles(apply_stiffness, state.n, [self.delta, self._no_blend if blend is None else blend, model.boundary_psi,
                                                     self.search.fluid.lists, self.search.boundary.lists, model.mass, self.dt, kappa, v],
                          model.device)
 
@@ -383,7 +368,6 @@ class DFSPHSolver(SPHSolver):
                                                            self.dt, self.kappa_v, self.delta], model.device)
         self._apply(model, state, self.kappa_v, state.v)
         self._divergence_iterations.zero_()
-        self._last_error_sum.zero_()
         self.keep_going.fill_(1)
         wp.capture_while(self.keep_going, self.divergence_iteration, model=model, state=state)
 
@@ -400,8 +384,8 @@ class DFSPHSolver(SPHSolver):
         sum_into(self.error, n, self._divergence_error_sum)
         wp.launch(solve_convergence, dim=1, device=dev, inputs=[
             self._divergence_error_sum, max(n, 1), wp.float64(ph.eta_divergence), 1, ph.max_iterations, self._divergence_iterations,
-            self.keep_going, self._last_error_sum, self._share, 0])
-        self._apply(model, state, self.kappa_v, state.v, self._share)
+            self.keep_going])
+        self._apply(model, state, self.kappa_v, state.v)
 
     def pressure_solve(self, model, state) -> None:
         """Bring the predicted density of ``v_adv`` to rho0 (the constant-density solve)."""
@@ -425,10 +409,10 @@ class DFSPHSolver(SPHSolver):
             dev,
         )
         sum_into(self.error, n, self._error_sum)
-        wp.launch(solve_convergence, dim=1, device=dev, inputs=[
+        wp.launch(jacobi_convergence, dim=1, device=dev, inputs=[
             self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations, self._iterations, self.keep_going,
-            self._last_error_sum, self._share, 1])
-        self._apply(model, state, self.kappa, self.v_adv, self._share)
+            self._last_error_sum, self._blend])
+        self._apply(model, state, self.kappa, self.v_adv, self._blend)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
         return self._error_sum, self._iterations

@@ -37,7 +37,7 @@ from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
 from ..wall_pressure import smoothed_pressure
-from .base import SPHSolver
+from .base import SPHSolver, jacobi_convergence
 from .forces import ViscousTerms, advected_velocity
 
 
@@ -284,38 +284,6 @@ def pressure_jacobi(
         sigma += jacobi_sigma_term(mass, sdp_i, displacement[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
     jacobi_update(i, sigma, p_i, a_ii[i], a_diag[i], rho_adv[i], rho0, omega, p_new, density_error)
-
-
-@wp.kernel
-def jacobi_convergence(
-    error_sum: wp.array(dtype=wp.float64),
-    n: int,
-    eta: wp.float64,
-    min_iterations: int,
-    max_iterations: int,
-    iterations: wp.array(dtype=wp.int32),
-    keep_going: wp.array(dtype=wp.int32),
-    last_error_sum: wp.array(dtype=wp.float64),
-    blend: wp.array(dtype=float),
-):
-    """Count the iteration; stop once the mean predicted density error is at most eta (after
-    ``min_iterations``) or at ``max_iterations``. Where the error crossed eta in this iteration,
-    ``blend`` is the share of the way from the last iteration's pressures to this one's at which
-    the error (taken as linear between them) reaches eta, and the error sum reported is eta's;
-    otherwise ``blend`` is negative."""
-    it = iterations[0] + 1
-    iterations[0] = it
-    mean = error_sum[0] / wp.float64(n)
-    converged = it >= min_iterations and mean <= eta
-    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
-    last = last_error_sum[0] / wp.float64(n)
-    b = float(-1.0)
-    if converged and it > 1 and last > eta and last > mean:
-        b = float((last - eta) / (last - mean))
-        # reported as eta: a hair under it, so that the logged mean (sum / n) never rounds above eta
-        error_sum[0] = eta * wp.float64(n) * (wp.float64(1.0) - wp.float64(1.0e-15))
-    blend[0] = b
-    last_error_sum[0] = error_sum[0]
 
 
 @wp.kernel
