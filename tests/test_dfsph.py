@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import warp_iisph.engine.launch as launch
-from warp_iisph import Box, Physics, Scene, Simulation, scenes
-from warp_iisph.analysis.hydrostatic import hydrostatic_slope
+from warp_iisph import Simulation, scenes
 from warp_iisph.cli import main
 from warp_iisph.scene import Emitter
 from warp_iisph.sph.solvers import dfsph
 
+from test_physics import at_rest, settled_resting_tank
 from test_resume import same_run
 
 G = 9.81
@@ -72,22 +72,11 @@ def test_water_at_rest_rests_at_the_defaults():
 
     Before the solves were relaxed Jacobi iterations that may take stiffness back, the whole
     column bounced: slope 0.07-3.4, mean speed up to 8 cm/s, a particle at 50 cm/s."""
-    h, size, depth = 0.02, (0.2, 0.5, 0.2), 0.4
-    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), size), physics=Physics(method="dfsph"), name="resting_tank")
-    scene.add_fluid_box((0.0, 0.0, 0.0), (size[0], depth, size[2]))
-    sim = Simulation(scene, "cpu")
-    while sim.time < 2.0:
-        sim.step()
-    slopes, mean_speed, max_speed, bottom = [], [], [], []
+    sim = settled_resting_tank(method="dfsph")
+    rows = []
     while sim.time < 2.3:
-        rec = sim.step()
-        assert rec["escaped"] == rec["non_finite"] == rec["wall_corrections"] == 0
-        x, speed = sim.positions, np.linalg.norm(sim.velocities, axis=1)
-        slopes.append(hydrostatic_slope(x, sim.pressures, h, (0.0, 0.0, 0.0), size, 1000.0, G))
-        mean_speed.append(speed.mean())
-        max_speed.append(speed.max())
-        bottom.append(sim.densities[x[:, 1] < h].mean() / 1000.0 - 1.0)
-    slopes = np.asarray(slopes)
+        rows.append(at_rest(sim, sim.step()))
+    slopes, mean_speed, max_speed, bottom = (np.asarray(c) for c in zip(*rows))
     assert np.all(np.abs(slopes - 1.0) <= 0.05), (slopes.min(), slopes.max())
     assert max(mean_speed) < 0.01 and max(max_speed) < 0.05
     assert max(bottom) <= 3 * sim.physics.eta
