@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import warp as wp
-
 from common import RESULTS, header, present_devices, pyplot, save, warm_up
+
 from warp_iisph import Simulation, scenes
 from warp_iisph.run.formats import write_mesh
 from warp_iisph.surface import SurfaceReconstructor
@@ -32,7 +32,9 @@ FPS = 30.0
 # fixed per-particle bytes of one step's passes (arrays read and written once each): neighbour
 # count and fill 72, density 20, advection 96, integration and state check 80
 PARTICLE_BYTES = 268
-PARTICLE_BYTES_PER_ITERATION = 112  # sum_dij_pj 44 (with d_ii read, displacement written), jacobi 52, p copy 8, error sum 8
+PARTICLE_BYTES_PER_ITERATION = (
+    112  # sum_dij_pj 44 (with d_ii read, displacement written), jacobi 52, p copy 8, error sum 8
+)
 ENTRY_BYTES = 16  # one neighbour-list entry: index (4) and grad W (12)
 
 
@@ -152,7 +154,11 @@ def main():
     ap.add_argument("--devices", default="cpu,cuda")
     ap.add_argument("--counts", default="10000,30000,100000")
     ap.add_argument("--duration", type=float, default=0.25, help="simulated seconds per run")
-    ap.add_argument("--graph", action="store_true", help="replay graph-captured steps (warp_iisph.stepping.graph) instead of plain launches")
+    ap.add_argument(
+        "--graph",
+        action="store_true",
+        help="replay graph-captured steps (warp_iisph.stepping.graph) instead of plain launches",
+    )
     ap.add_argument("--mesh", action="store_true", help=f"also rebuild the surface {FPS:g} times per simulated second")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
@@ -173,20 +179,46 @@ def main():
             r["fraction_of_bandwidth_bound"] = r["bandwidth_bound_ms"] / r["ms_per_step"]
             rows.append(r)
     cpu = {r["particles"]: r for r in rows if r["device"] == "cpu"}
-    print(f"{'device':>6} {'particles':>9} {'steps':>5} {'ms/step':>8} {'s/sim s':>8} {'Mpart-steps/s':>13} {'iters':>5} {'vs cpu':>6}"
-          f" {'MB/step':>8} {'bound ms':>8} {'of bound':>8}" + (f" {'mesh ms':>8} {'sim s/s':>8}" if args.mesh else ""))
+    print(
+        f"{'device':>6} {'particles':>9} {'steps':>5} {'ms/step':>8} {'s/sim s':>8} "
+        f"{'Mpart-steps/s':>13} {'iters':>5} {'vs cpu':>6}"
+        f" {'MB/step':>8} {'bound ms':>8} {'of bound':>8}" + (f" {'mesh ms':>8} {'sim s/s':>8}" if args.mesh else "")
+    )
     for r in rows:
-        r["speed_up_over_cpu"] = cpu[r["particles"]]["wall_seconds"] / r["wall_seconds"] if r["device"] != "cpu" and r["particles"] in cpu else None
+        r["speed_up_over_cpu"] = (
+            cpu[r["particles"]]["wall_seconds"] / r["wall_seconds"]
+            if r["device"] != "cpu" and r["particles"] in cpu
+            else None
+        )
         up = f"{r['speed_up_over_cpu']:.1f}x" if r["speed_up_over_cpu"] else "-"
-        print(f"{r['device']:>6} {r['particles']:>9} {r['steps']:>5} {r['ms_per_step']:>8.1f} {r['wall_seconds_per_simulated_second']:>8.1f} "
-              f"{r['particle_steps_per_second'] / 1e6:>13.2f} {r['mean_iterations']:>5.2f} {up:>6} {r['bytes_per_step'] / 1e6:>8.1f} "
-              f"{r['bandwidth_bound_ms']:>8.2f} {r['fraction_of_bandwidth_bound']:>8.1%}"
-              + (f" {r['mesh_ms_per_frame']:>8.1f} {r['realtime_ratio']:>8.3f}  PLY {r['export_ms_per_frame']['ply']:.0f} ms,"
-                 f" OBJ {r['export_ms_per_frame']['obj']:.0f} ms" if args.mesh else ""))
+        print(
+            f"{r['device']:>6} {r['particles']:>9} {r['steps']:>5} {r['ms_per_step']:>8.1f} "
+            f"{r['wall_seconds_per_simulated_second']:>8.1f} "
+            f"{r['particle_steps_per_second'] / 1e6:>13.2f} {r['mean_iterations']:>5.2f} {up:>6} "
+            f"{r['bytes_per_step'] / 1e6:>8.1f} "
+            f"{r['bandwidth_bound_ms']:>8.2f} {r['fraction_of_bandwidth_bound']:>8.1%}"
+            + (
+                f" {r['mesh_ms_per_frame']:>8.1f} {r['realtime_ratio']:>8.3f} "
+                f" PLY {r['export_ms_per_frame']['ply']:.0f} ms,"
+                f" OBJ {r['export_ms_per_frame']['obj']:.0f} ms"
+                if args.mesh
+                else ""
+            )
+        )
     print("copy bandwidth: " + ", ".join(f"{d} {b / 1e9:.1f} GB/s" for d, b in bandwidth.items()))
-    record = header("device_switch", devices[0], scene="dam_break_cube", duration=args.duration, graph=args.graph,
-                    mesh=args.mesh, mesh_fps=FPS if args.mesh else None, devices_missing=missing, copy_bandwidth=bandwidth,
-                    target="1M particles, meshing at 30 fps included: realtime_ratio >= 1 on one H100", results=rows)
+    record = header(
+        "device_switch",
+        devices[0],
+        scene="dam_break_cube",
+        duration=args.duration,
+        graph=args.graph,
+        mesh=args.mesh,
+        mesh_fps=FPS if args.mesh else None,
+        devices_missing=missing,
+        copy_bandwidth=bandwidth,
+        target="1M particles, meshing at 30 fps included: realtime_ratio >= 1 on one H100",
+        results=rows,
+    )
     if "cuda" in devices:
         record["cuda_device_name"] = wp.get_device("cuda:0").name
     stem = "device_switch" + ("_graph" if args.graph else "") + ("_mesh" if args.mesh else "")

@@ -17,8 +17,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from common import RESULTS, header, pyplot, save, warm_up
+
 from warp_iisph import DivergenceError, Simulation, scenes
 from warp_iisph.engine.launch import set_threads
 
@@ -28,7 +28,12 @@ METHODS = ("iisph", "dfsph")
 def run(method: str, case: str, particles: int, duration: float) -> dict:
     """One run of the dam break; ``case`` is a fixed dt in seconds or ``cfl``."""
     dt = None if case == "cfl" else float(case)
-    sim = Simulation(scenes.dam_break_cube(particles=particles, method=method, eta=1e-3, cfl=0.5, dt_max=5e-3, dt=dt, substeps=False), "cpu")
+    sim = Simulation(
+        scenes.dam_break_cube(
+            particles=particles, method=method, eta=1e-3, cfl=0.5, dt_max=5e-3, dt=dt, substeps=False
+        ),
+        "cpu",
+    )
     diverged = None
     t0 = time.perf_counter()
     try:
@@ -50,8 +55,12 @@ def run(method: str, case: str, particles: int, duration: float) -> dict:
         "mean_compression": float(np.mean(comp)),
         "max_compression": float(np.max(comp)),
         "mean_iterations": float(np.mean([s["iterations"] for s in st])),
-        "mean_divergence_iterations": float(np.mean([s["divergence_iterations"] for s in st])) if method == "dfsph" else None,
-        "unconverged_steps": sum(s["iterations"] >= sim.physics.max_iterations and s["density_error"] > sim.physics.eta for s in st),
+        "mean_divergence_iterations": float(np.mean([s["divergence_iterations"] for s in st]))
+        if method == "dfsph"
+        else None,
+        "unconverged_steps": sum(
+            s["iterations"] >= sim.physics.max_iterations and s["density_error"] > sim.physics.eta for s in st
+        ),
         "wall_corrections": sum(s["wall_corrections"] for s in st),
         "obstacle_corrections": sum(s["obstacle_corrections"] for s in st),
         "corrected_steps": sum(bool(s["wall_corrections"] or s["obstacle_corrections"]) for s in st),
@@ -76,8 +85,11 @@ def chart(rows: list, duration: float, path) -> None:
     for k, method in enumerate(METHODS):
         by = {r["case"]: r for r in rows if r["method"] == method}
         pos = x + (k - 0.5) * width
-        for ax, key, scale in ((axes[0], "reached_s", 1.0), (axes[1], "mean_compression", 100.0),
-                               (axes[2], "wall_seconds_per_simulated_second", 1.0)):
+        for ax, key, scale in (
+            (axes[0], "reached_s", 1.0),
+            (axes[1], "mean_compression", 100.0),
+            (axes[2], "wall_seconds_per_simulated_second", 1.0),
+        ):
             vals = [scale * (by[c][key] or 0.0) if c in by else 0.0 for c in cases]
             bars = ax.bar(pos, vals, width, label=method.upper(), color=("tab:blue", "tab:orange")[k])
             for b, c in zip(bars, cases):
@@ -88,7 +100,13 @@ def chart(rows: list, duration: float, path) -> None:
             if c in by:
                 r = by[c]
                 it = r["mean_iterations"] + (r["mean_divergence_iterations"] or 0.0)
-                axes[2].annotate(f"{it:.1f} it", (p, r["wall_seconds_per_simulated_second"] or 0.0), ha="center", va="bottom", fontsize=7)
+                axes[2].annotate(
+                    f"{it:.1f} it",
+                    (p, r["wall_seconds_per_simulated_second"] or 0.0),
+                    ha="center",
+                    va="bottom",
+                    fontsize=7,
+                )
     axes[0].axhline(duration, color="gray", ls=":")
     axes[0].set_ylabel("simulated seconds reached (hatched: diverged)")
     axes[1].set_ylabel("mean compression (%)")
@@ -110,7 +128,9 @@ def main():
     ap.add_argument("--duration", type=float, default=2.0)
     ap.add_argument("--particles", type=int, default=32768, help="in the 0.96 m cube (32,768: a 3 cm spacing)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--cases", default="0.005,0.009,0.01,0.011,cfl", help="fixed steps in seconds, and cfl for the CFL rule")
+    ap.add_argument(
+        "--cases", default="0.005,0.009,0.01,0.011,cfl", help="fixed steps in seconds, and cfl for the CFL rule"
+    )
     ap.add_argument("--quick", action="store_true", help="4,096 particles, 0.1 s (under a minute)")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--replot", action="store_true", help="redraw the chart from the JSON already in --out")
@@ -130,12 +150,25 @@ def main():
             r = run(method, case, args.particles, args.duration)
             rows.append(r)
             div = f"{r['mean_divergence_iterations']:.1f}" if r["mean_divergence_iterations"] is not None else "-"
-            print(f"{label(case):>9} {method:>5}: reached {r['reached_s']:.3f} s{' (diverged: ' + r['diverged'] + ')' if r['diverged'] else ''}, "
-                  f"{r['steps']} steps, compression mean {100 * r['mean_compression']:.3f} % max {100 * r['max_compression']:.2f} %, "
-                  f"iterations {r['mean_iterations']:.1f} + divergence {div}, corrections {r['wall_corrections']} in "
-                  f"{r['corrected_steps']} steps, {r['wall_seconds_per_simulated_second']:.1f} s per simulated s", flush=True)
-    record = header("dfsph", scene="dam_break_cube", spacing=rows[0]["spacing"], duration=args.duration, threads=args.threads, eta=1e-3,
-                    eta_divergence=1e-3, results=rows)
+            print(
+                f"{label(case):>9} {method:>5}: "
+                f"reached {r['reached_s']:.3f} s{' (diverged: ' + r['diverged'] + ')' if r['diverged'] else ''}, "
+                f"{r['steps']} steps, compression mean {100 * r['mean_compression']:.3f} % "
+                f"max {100 * r['max_compression']:.2f} %, "
+                f"iterations {r['mean_iterations']:.1f} + divergence {div}, corrections {r['wall_corrections']} in "
+                f"{r['corrected_steps']} steps, {r['wall_seconds_per_simulated_second']:.1f} s per simulated s",
+                flush=True,
+            )
+    record = header(
+        "dfsph",
+        scene="dam_break_cube",
+        spacing=rows[0]["spacing"],
+        duration=args.duration,
+        threads=args.threads,
+        eta=1e-3,
+        eta_divergence=1e-3,
+        results=rows,
+    )
     chart(rows, args.duration, save(record, args.out, "dfsph", args.quick))
 
 

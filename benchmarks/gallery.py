@@ -13,20 +13,29 @@ import tempfile
 from pathlib import Path
 
 import warp as wp
-
 from common import header
+
 from warp_iisph.cli import main as cli
 from warp_iisph.scene import bundled_scenes, load_scene
 
 GALLERY = Path(__file__).resolve().parents[1] / "docs" / "gallery"
 # the moment each still shows, as a fraction of the scene's duration
-MOMENT = {"dam_break": 0.35, "drop_splash": 0.3, "fluid_flow": 0.6, "martin_moyce": 0.4, "dam_break_cube": 0.5, "wake": 0.6}
+MOMENT = {
+    "dam_break": 0.35,
+    "drop_splash": 0.3,
+    "fluid_flow": 0.6,
+    "martin_moyce": 0.4,
+    "dam_break_cube": 0.5,
+    "wake": 0.6,
+}
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", default=",".join(bundled_scenes()), help="comma-separated bundled scene names")
-    ap.add_argument("--quick", action="store_true", help="a tenth of each scene's duration, coarser, into a temporary folder")
+    ap.add_argument(
+        "--quick", action="store_true", help="a tenth of each scene's duration, coarser, into a temporary folder"
+    )
     ap.add_argument("--out", default=str(GALLERY))
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--graph", action="store_true", help="replay graph-captured steps")
@@ -46,16 +55,43 @@ def main():
             record = json.loads((run / "run.json").read_text())
             frame = max(0, min(record["totals"]["frames"] - 1, round(MOMENT.get(name, 0.5) * duration * record["fps"])))
             still = out / f"{name}.png"
-            cli(["preview", str(run), "--frames", f"{frame}:{frame + 1}", "--out", str(still), "--resolution", "480x270",
-                 "--no-progress"])
+            cli(
+                [
+                    "preview",
+                    str(run),
+                    "--frames",
+                    f"{frame}:{frame + 1}",
+                    "--out",
+                    str(still),
+                    "--resolution",
+                    "480x270",
+                    "--no-progress",
+                ]
+            )
         t = record["totals"]
-        rows.append({"scene": name, "exit": code, "ended": record["ended"], "particles": t["particles"],  # at the end (emitters add)
-                     "simulated_seconds": t["simulated_time"], "steps": t["steps"], "wall_seconds": t["wall_seconds"],
-                     "mean_compression": t["mean_compression"], "wall_corrections": t.get("wall_corrections"),
-                     "obstacle_corrections": t.get("obstacle_corrections"),
-                     "still": still.name, "frame": frame, "device": args.device, "graph": args.graph})
-        print(f"{name:16s} {rows[-1]['particles']:>6} particles, {t['simulated_time']:.2f} s simulated in {t['wall_seconds']:.0f} s "
-              f"({record['ended']}) -> {still}")
+        rows.append(
+            {
+                "scene": name,
+                "exit": code,
+                "ended": record["ended"],
+                "particles": t["particles"],  # at the end (emitters add)
+                "simulated_seconds": t["simulated_time"],
+                "steps": t["steps"],
+                "wall_seconds": t["wall_seconds"],
+                "mean_compression": t["mean_compression"],
+                "wall_corrections": t.get("wall_corrections"),
+                "obstacle_corrections": t.get("obstacle_corrections"),
+                "still": still.name,
+                "frame": frame,
+                "device": args.device,
+                "graph": args.graph,
+            }
+        )
+        print(
+            f"{name:16s} {rows[-1]['particles']:>6} particles, "
+            f"{t['simulated_time']:.2f} s simulated in {t['wall_seconds']:.0f} s "
+            f"({record['ended']}) -> {still}"
+        )
     (out / "gallery.json").write_text(json.dumps(header("gallery", runs=rows, quick=args.quick), indent=2) + "\n")
 
 

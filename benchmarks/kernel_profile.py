@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 import warp as wp
-
 from common import RESULTS, header, pyplot, save, warm_up
+
 from warp_iisph import Simulation, scenes
 from warp_iisph.surface import SurfaceReconstructor
 
@@ -34,7 +34,9 @@ def aggregate(results, per: int) -> list[dict]:
         row[0] += 1
         row[1] += r.elapsed
     total = sum(ms for _, ms in table.values()) or 1.0
-    rows = [{"name": name, "calls": calls / per, "ms": ms / per, "share": ms / total} for name, (calls, ms) in table.items()]
+    rows = [
+        {"name": name, "calls": calls / per, "ms": ms / per, "share": ms / total} for name, (calls, ms) in table.items()
+    ]
     return sorted(rows, key=lambda r: -r["ms"])
 
 
@@ -85,8 +87,11 @@ def chart(rows, path):
         top = r["kernels"][:14]
         ax.barh([k["name"][:40] for k in top][::-1], [k["ms"] for k in top][::-1], color="tab:blue")
         ax.set_xlabel("GPU ms per step")
-        ax.set_title(f"{r['particles']:,} particles: {r['gpu_ms_per_step']:.2f} GPU ms of {r['wall_ms_per_step']:.2f} wall ms per step",
-                     fontsize=9)
+        ax.set_title(
+            f"{r['particles']:,} particles: {r['gpu_ms_per_step']:.2f} GPU ms of "
+            f"{r['wall_ms_per_step']:.2f} wall ms per step",
+            fontsize=9,
+        )
         ax.tick_params(axis="y", labelsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -111,14 +116,27 @@ def main():
     warm_up(device)
     rows = [profile(device, int(c), args.settle, args.steps) for c in args.counts.split(",")]
     for r in rows:
-        print(f"{r['particles']:,} particles, {r['mean_iterations']:.2f} iterations/step: wall {r['wall_ms_per_step']:.2f} ms/step, "
-              f"GPU {r['gpu_ms_per_step']:.2f} ms/step in {r['launches_per_step']:.0f} launches")
+        print(
+            f"{r['particles']:,} particles, {r['mean_iterations']:.2f} iterations/step: "
+            f"wall {r['wall_ms_per_step']:.2f} ms/step, "
+            f"GPU {r['gpu_ms_per_step']:.2f} ms/step in {r['launches_per_step']:.0f} launches"
+        )
         for k in r["kernels"][:20]:
             print(f"    {k['ms']:8.3f} ms {k['share']:6.1%} {k['calls']:6.1f}x  {k['name']}")
-        print(f"  surface: wall {r['surface_wall_ms']:.1f} ms, GPU {r['surface_gpu_ms']:.2f} ms, {r['surface_triangles']:,} triangles")
+        print(
+            f"  surface: wall {r['surface_wall_ms']:.1f} ms, GPU {r['surface_gpu_ms']:.2f} ms, "
+            f"{r['surface_triangles']:,} triangles"
+        )
         for k in r["surface_kernels"][:10]:
             print(f"    {k['ms']:8.3f} ms {k['share']:6.1%} {k['calls']:6.1f}x  {k['name']}")
-    record = header("kernel_profile", device, scene="dam_break_cube", settle=args.settle, activity="kernels, copies, fills", results=rows)
+    record = header(
+        "kernel_profile",
+        device,
+        scene="dam_break_cube",
+        settle=args.settle,
+        activity="kernels, copies, fills",
+        results=rows,
+    )
     record["cuda_device_name"] = wp.get_device(device).name
     chart(rows, save(record, args.out, "kernel_profile", args.quick))
 

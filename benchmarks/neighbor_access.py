@@ -24,15 +24,21 @@ import time
 
 import numpy as np
 import warp as wp
-
 from common import RESULTS, header, present_devices, pyplot, save, warm_up
+
 from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import launch_particles
 from warp_iisph.sph.grid import CellGrid, cell_first, cell_hash, cell_range
-from warp_iisph.sph.neighbors import NeighborList, StridedListBuffer, entry
-from warp_iisph.sph.solvers.iisph import (dij_pj_term, jacobi_boundary_sigma, jacobi_sigma_term, jacobi_update, pressure_jacobi,
-                                     pressure_sum_dij_pj)
 from warp_iisph.sph.kernel import cubic_grad_W
+from warp_iisph.sph.neighbors import NeighborList, StridedListBuffer, entry
+from warp_iisph.sph.solvers.iisph import (
+    dij_pj_term,
+    jacobi_boundary_sigma,
+    jacobi_sigma_term,
+    jacobi_update,
+    pressure_jacobi,
+    pressure_sum_dij_pj,
+)
 
 WALKS_OUTSIDE_JACOBI = 4  # density, advection velocity, advection density, pressure acceleration
 WALKS_PER_ITERATION = 2  # pressure_sum_dij_pj, pressure_jacobi
@@ -177,7 +183,9 @@ def pressure_jacobi_index(
 
 
 @wp.kernel
-def count_neighbors_strided(offset: int, grid: CellGrid, points: wp.array(dtype=wp.vec3), radius: float, wanted: wp.array(dtype=wp.int32)):
+def count_neighbors_strided(
+    offset: int, grid: CellGrid, points: wp.array(dtype=wp.vec3), radius: float, wanted: wp.array(dtype=wp.int32)
+):
     """The fill's twin that only counts: the same candidate loop without the list's stores, so
     the difference to the fill is what writing the lists costs."""
     i = wp.tid() + offset
@@ -236,11 +244,49 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     def iteration_lists(lists=nf, sums=sum_list, p_out=p_list):
         # the fluid part of an iteration (the walls' pressures off, wall_weight 0; a_ii as the
         # diagonal), as the query twins compute it
-        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, 0.0, solver.smoothing_weight, solver.W0, lists,
-                                                  nb, model.mass, solver.dt, solver.d_ii, sums, disp], device)
-        launch_particles(pressure_jacobi, n,
-                         [state.rho, solver.rho_adv, solver.a_ii, solver.a_ii, disp, sums, state.p, model.boundary_psi, lists,
-                          nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_out, solver.density_error], device)
+        launch_particles(
+            pressure_sum_dij_pj,
+            n,
+            [
+                state.rho,
+                state.p,
+                model.boundary_psi,
+                0.0,
+                solver.smoothing_weight,
+                solver.W0,
+                lists,
+                nb,
+                model.mass,
+                solver.dt,
+                solver.d_ii,
+                sums,
+                disp,
+            ],
+            device,
+        )
+        launch_particles(
+            pressure_jacobi,
+            n,
+            [
+                state.rho,
+                solver.rho_adv,
+                solver.a_ii,
+                solver.a_ii,
+                disp,
+                sums,
+                state.p,
+                model.boundary_psi,
+                lists,
+                nb,
+                model.mass,
+                solver.dt,
+                ph.rho0,
+                float(ph.omega),
+                p_out,
+                solver.density_error,
+            ],
+            device,
+        )
 
     # the same lists in the other layout: slot-major (slot m of particle i at m * n + i, what a
     # GPU warp reads coalesced) against particle-major (i * stride + m, one cache line per list)
@@ -256,12 +302,36 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
 
     def iteration_query():
         grid = query_grid.id
-        launch_particles(pressure_sum_dij_pj_query, n, [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, solver.d_ii, sum_query,
-                                                        disp], device)
-        launch_particles(pressure_jacobi_query, n,
-                         [grid, state.x, H, state.rho, solver.rho_adv, solver.a_ii, disp, sum_query, state.p,
-                          model.boundary_psi, nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_query, solver.density_error],
-                         device)
+        launch_particles(
+            pressure_sum_dij_pj_query,
+            n,
+            [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, solver.d_ii, sum_query, disp],
+            device,
+        )
+        launch_particles(
+            pressure_jacobi_query,
+            n,
+            [
+                grid,
+                state.x,
+                H,
+                state.rho,
+                solver.rho_adv,
+                solver.a_ii,
+                disp,
+                sum_query,
+                state.p,
+                model.boundary_psi,
+                nb,
+                model.mass,
+                solver.dt,
+                ph.rho0,
+                float(ph.omega),
+                p_query,
+                solver.density_error,
+            ],
+            device,
+        )
 
     t_grid = timed(grid_build, device, repeats)
     t_fill = timed(list_fill, device, repeats)
@@ -271,17 +341,47 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     sum_index, p_index = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
 
     def iteration_index():
-        launch_particles(pressure_sum_dij_pj_index, n, [state.x, H, state.rho, state.p, nf, model.mass, solver.dt, solver.d_ii, sum_index,
-                                                        disp], device)
-        launch_particles(pressure_jacobi_index, n,
-                         [state.x, H, state.rho, solver.rho_adv, solver.a_ii, disp, sum_index, state.p, model.boundary_psi, nf,
-                          nb, model.mass, solver.dt, ph.rho0, float(ph.omega), p_index, solver.density_error], device)
+        launch_particles(
+            pressure_sum_dij_pj_index,
+            n,
+            [state.x, H, state.rho, state.p, nf, model.mass, solver.dt, solver.d_ii, sum_index, disp],
+            device,
+        )
+        launch_particles(
+            pressure_jacobi_index,
+            n,
+            [
+                state.x,
+                H,
+                state.rho,
+                solver.rho_adv,
+                solver.a_ii,
+                disp,
+                sum_index,
+                state.p,
+                model.boundary_psi,
+                nf,
+                nb,
+                model.mass,
+                solver.dt,
+                ph.rho0,
+                float(ph.omega),
+                p_index,
+                solver.density_error,
+            ],
+            device,
+        )
 
     t_index = timed(iteration_index, device, repeats)
     index_difference = float(np.abs(p_list.numpy()[:n] - p_index.numpy()[:n]).max())
     counted = wp.zeros(n, dtype=wp.int32, device=device)
-    t_count = timed(lambda: launch_particles(count_neighbors_strided, n, [search.grid.grid, state.x, search.radius, counted], device),
-                    device, repeats)
+    t_count = timed(
+        lambda: launch_particles(
+            count_neighbors_strided, n, [search.grid.grid, state.x, search.radius, counted], device
+        ),
+        device,
+        repeats,
+    )
     assert np.array_equal(counted.numpy(), nf.count.numpy()[:n])
     layout_difference = float(np.abs(p_list.numpy()[:n] - p_other.numpy()[:n]).max())
     t_slot, t_particle = (t_lists, t_other) if slot_major else (t_other, t_lists)
@@ -316,7 +416,11 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
         "jacobi_iteration_ms": {"lists": 1e3 * t_lists, "query": 1e3 * t_query},
         "solver_layout": "slot-major" if slot_major else "particle-major",
         # the same iteration on the same lists in each layout (bitwise the same pressures)
-        "layout_iteration_ms": {"slot-major": 1e3 * t_slot, "particle-major": 1e3 * t_particle, "warp-blocked": 1e3 * t_warp},
+        "layout_iteration_ms": {
+            "slot-major": 1e3 * t_slot,
+            "particle-major": 1e3 * t_particle,
+            "warp-blocked": 1e3 * t_warp,
+        },
         "warp_blocked_fill_ms": 1e3 * t_warp_fill,
         "warp_blocked_max_difference": warp_difference,
         "particle_major_over_slot_major": t_particle / t_slot,
@@ -347,7 +451,13 @@ def chart(rows, path):
         walks_lists = [x["modelled_step_ms"]["lists"] - x["list_fill_ms"] for x in r]
         ax.bar(pos - 0.2, fill, 0.4, color="tab:blue", alpha=0.5, label="list fill")
         ax.bar(pos - 0.2, walks_lists, 0.4, bottom=fill, color="tab:blue", label="walks over lists")
-        ax.bar(pos + 0.2, [x["modelled_step_ms"]["query"] for x in r], 0.4, color="tab:orange", label="walks querying the grid")
+        ax.bar(
+            pos + 0.2,
+            [x["modelled_step_ms"]["query"] for x in r],
+            0.4,
+            color="tab:orange",
+            label="walks querying the grid",
+        )
         ax.set_xticks(pos, [f"{x['particles']:,}" for x in r])
         ax.set_xlabel("fluid particles")
         ax.set_ylabel("ms per step (neighbour access)")
@@ -375,18 +485,32 @@ def main():
     for dev in devices:
         warm_up(dev)
         rows += [run(dev, int(c), args.settle, args.repeats) for c in args.counts.split(",")]
-    print(f"{'device':>6} {'particles':>9} {'iters':>5} {'grid ms':>7} {'fill ms':>7} {'it lists':>8} {'it query':>8}"
-          f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8} {'slot-major':>10} {'part-major':>10}"
-          f" {'index-only':>10} {'count-only':>10} {'warp it':>8} {'warp fill':>9}")
+    print(
+        f"{'device':>6} {'particles':>9} {'iters':>5} {'grid ms':>7} {'fill ms':>7} {'it lists':>8} {'it query':>8}"
+        f" {'step lists':>10} {'step query':>10} {'faster':>6} {'max diff':>8} {'slot-major':>10} {'part-major':>10}"
+        f" {'index-only':>10} {'count-only':>10} {'warp it':>8} {'warp fill':>9}"
+    )
     for r in rows:
         it, st = r["jacobi_iteration_ms"], r["modelled_step_ms"]
-        print(f"{r['device']:>6} {r['particles']:>9} {r['mean_iterations']:>5.2f} {r['grid_build_ms']:>7.2f} {r['list_fill_ms']:>7.2f}"
-              f" {it['lists']:>8.2f} {it['query']:>8.2f} {st['lists']:>10.2f} {st['query']:>10.2f} {r['faster']:>6}"
-              f" {r['max_relative_difference']['pressure']:>8.1e} {r['layout_iteration_ms']['slot-major']:>10.2f}"
-              f" {r['layout_iteration_ms']['particle-major']:>10.2f} {r['index_only_iteration_ms']:>10.2f} {r['count_only_ms']:>10.2f}"
-              f" {r['layout_iteration_ms']['warp-blocked']:>8.2f} {r['warp_blocked_fill_ms']:>9.2f}")
-    record = header("neighbor_access", devices[0], scene="dam_break_cube", settle=args.settle, repeats=args.repeats,
-                    devices_missing=missing, walks_outside_jacobi=WALKS_OUTSIDE_JACOBI, results=rows)
+        print(
+            f"{r['device']:>6} {r['particles']:>9} {r['mean_iterations']:>5.2f}"
+            f" {r['grid_build_ms']:>7.2f} {r['list_fill_ms']:>7.2f}"
+            f" {it['lists']:>8.2f} {it['query']:>8.2f} {st['lists']:>10.2f} {st['query']:>10.2f} {r['faster']:>6}"
+            f" {r['max_relative_difference']['pressure']:>8.1e} {r['layout_iteration_ms']['slot-major']:>10.2f}"
+            f" {r['layout_iteration_ms']['particle-major']:>10.2f} {r['index_only_iteration_ms']:>10.2f}"
+            f" {r['count_only_ms']:>10.2f}"
+            f" {r['layout_iteration_ms']['warp-blocked']:>8.2f} {r['warp_blocked_fill_ms']:>9.2f}"
+        )
+    record = header(
+        "neighbor_access",
+        devices[0],
+        scene="dam_break_cube",
+        settle=args.settle,
+        repeats=args.repeats,
+        devices_missing=missing,
+        walks_outside_jacobi=WALKS_OUTSIDE_JACOBI,
+        results=rows,
+    )
     if "cuda" in devices:
         record["cuda_device_name"] = wp.get_device("cuda:0").name
     chart(rows, save(record, args.out, "neighbor_access", args.quick))

@@ -9,7 +9,8 @@ the mean actual compression mean(max(rho/rho0 - 1, 0)) sampled every 20 steps.
 
 Run it through :func:`run` (it sets the environment the wheel needs), or:
 
-    LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0 OMP_NUM_THREADS=2 python benchmarks/peer_splishsplash.py --duration 1
+    LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0 OMP_NUM_THREADS=2 \\
+        python benchmarks/peer_splishsplash.py --duration 1
 
 ``--scene martin_moyce --nx N`` runs validation.py's Martin & Moyce set-up instead (a column a = 0.3 m
 wide, 2a high and 0.5a deep against the x = 0 wall of a 6a x 3a x 0.5a tank, N particles across, the
@@ -35,9 +36,33 @@ from warp_iisph.analysis.dam_break import surge_front
 PRELOAD = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
 G = 9.81
 MM_WIDTH = 0.3  # validation.py's Martin & Moyce column width a (m)
-BOX = "\n".join(["v -0.5 -0.5 -0.5", "v 0.5 -0.5 -0.5", "v 0.5 0.5 -0.5", "v -0.5 0.5 -0.5", "v -0.5 -0.5 0.5", "v 0.5 -0.5 0.5",
-                 "v 0.5 0.5 0.5", "v -0.5 0.5 0.5", "f 1 3 2", "f 1 4 3", "f 5 6 7", "f 5 7 8", "f 1 2 6", "f 1 6 5", "f 4 8 7",
-                 "f 4 7 3", "f 1 5 8", "f 1 8 4", "f 2 3 7", "f 2 7 6"]) + "\n"
+BOX = (
+    "\n".join(
+        [
+            "v -0.5 -0.5 -0.5",
+            "v 0.5 -0.5 -0.5",
+            "v 0.5 0.5 -0.5",
+            "v -0.5 0.5 -0.5",
+            "v -0.5 -0.5 0.5",
+            "v 0.5 -0.5 0.5",
+            "v 0.5 0.5 0.5",
+            "v -0.5 0.5 0.5",
+            "f 1 3 2",
+            "f 1 4 3",
+            "f 5 6 7",
+            "f 5 7 8",
+            "f 1 2 6",
+            "f 1 6 5",
+            "f 4 8 7",
+            "f 4 7 3",
+            "f 1 5 8",
+            "f 1 8 4",
+            "f 2 3 7",
+            "f 2 7 6",
+        ]
+    )
+    + "\n"
+)
 
 
 def available() -> bool:
@@ -50,17 +75,41 @@ def available() -> bool:
         return False
 
 
-def run(duration: float = 1.0, threads: int = 2, method: str = "iisph", spacing: float = 0.03, timeout: float = 3600,
-        scene: str = "dam_break", nx: int = 20) -> dict | None:
+def run(
+    duration: float = 1.0,
+    threads: int = 2,
+    method: str = "iisph",
+    spacing: float = 0.03,
+    timeout: float = 3600,
+    scene: str = "dam_break",
+    nx: int = 20,
+) -> dict | None:
     """The peer's record (see the module), in a subprocess; ``None`` when it is not installed."""
     if not available():
         return None
     env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
     if Path(PRELOAD).exists():
         env["LD_PRELOAD"] = PRELOAD
-    p = subprocess.run([sys.executable, __file__, "--duration", str(duration), "--method", method, "--spacing", str(spacing),
-                        "--scene", scene, "--nx", str(nx)],
-                       capture_output=True, text=True, env=env, timeout=timeout)
+    p = subprocess.run(
+        [
+            sys.executable,
+            __file__,
+            "--duration",
+            str(duration),
+            "--method",
+            method,
+            "--spacing",
+            str(spacing),
+            "--scene",
+            scene,
+            "--nx",
+            str(nx),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+    )
     if p.returncode != 0:
         raise RuntimeError(f"SPlisHSPlasH failed: {p.stderr.strip()[-500:]}")
     return json.loads(p.stdout.strip().splitlines()[-1])
@@ -86,18 +135,42 @@ def main():
     folder = tempfile.mkdtemp(prefix="peer_db_")
     (Path(folder) / "box.obj").write_text(BOX)
     lo, hi = np.zeros(3) - 0.6 * h, tank + 0.6 * h
-    conf = {"particleRadius": 0.5 * h, "simulationMethod": {"iisph": 3, "dfsph": 4}[args.method], "gravitation": [0, -G, 0],
-            "timeStepSize": 0.001, "cflMethod": 1, "cflFactor": 0.5, "cflMaxTimeStepSize": 0.005,
-            "boundaryHandlingMethod": 0,
-            "stopAt": args.duration, "enableZSort": True, "maxIterations": 100, "minIterations": 2, "maxError": 0.1,
-            "DFSPH": {"maxError": 0.1, "maxErrorV": 0.1, "enableDivergenceSolver": True}}
+    conf = {
+        "particleRadius": 0.5 * h,
+        "simulationMethod": {"iisph": 3, "dfsph": 4}[args.method],
+        "gravitation": [0, -G, 0],
+        "timeStepSize": 0.001,
+        "cflMethod": 1,
+        "cflFactor": 0.5,
+        "cflMaxTimeStepSize": 0.005,
+        "boundaryHandlingMethod": 0,
+        "stopAt": args.duration,
+        "enableZSort": True,
+        "maxIterations": 100,
+        "minIterations": 2,
+        "maxError": 0.1,
+        "DFSPH": {"maxError": 0.1, "maxErrorV": 0.1, "enableDivergenceSolver": True},
+    }
     wall = {"geometryFile": "box.obj", "isDynamic": False, "isWall": True, "mapInvert": True}
-    scene = {"Configuration": conf, "Materials": [{"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "viscosity": 0.01}],
-             "RigidBodies": [{**wall, "translation": ((lo + hi) / 2).tolist(), "scale": (hi - lo).tolist()}],
-             "FluidBlocks": [{"denseMode": 0, "start": [-0.5 * h] * 3, "end": (block + 0.5 * h).tolist()}]}
+    scene = {
+        "Configuration": conf,
+        "Materials": [{"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "viscosity": 0.01}],
+        "RigidBodies": [{**wall, "translation": ((lo + hi) / 2).tolist(), "scale": (hi - lo).tolist()}],
+        "FluidBlocks": [{"denseMode": 0, "start": [-0.5 * h] * 3, "end": (block + 0.5 * h).tolist()}],
+    }
     path = Path(folder) / "scene.json"
     path.write_text(json.dumps(scene))
-    state = {"steps": 0, "iterations": [], "compression": [], "t0": None, "t1": None, "n": 0, "T": [], "Z": [], "escaped": 0}
+    state = {
+        "steps": 0,
+        "iterations": [],
+        "compression": [],
+        "t0": None,
+        "t1": None,
+        "n": 0,
+        "T": [],
+        "Z": [],
+        "escaped": 0,
+    }
 
     def on_step():
         sim = sph.Simulation.getCurrent()
@@ -128,11 +201,27 @@ def main():
     base.setValueFloat(base.STOP_AT, float(args.duration))
     base.run()
     wall = state["t1"] - state["t0"]
-    print(json.dumps({"tool": f"SPlisHSPlasH {sph.__version__ if hasattr(sph, '__version__') else '2.19'}", "method": args.method,
-                      "particles": state["n"], "steps": state["steps"], "wall_seconds": wall,
-                      "wall_seconds_per_simulated_second": wall / args.duration, "mean_iterations": float(np.mean(state["iterations"])),
-                      "mean_compression": float(np.mean(state["compression"])) if state["compression"] else None,
-                      "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0), "spacing": h, **({"nx": args.nx, "T": state["T"], "Z": state["Z"], "escaped": state["escaped"]} if args.scene == "martin_moyce" else {})}))
+    print(
+        json.dumps(
+            {
+                "tool": f"SPlisHSPlasH {sph.__version__ if hasattr(sph, '__version__') else '2.19'}",
+                "method": args.method,
+                "particles": state["n"],
+                "steps": state["steps"],
+                "wall_seconds": wall,
+                "wall_seconds_per_simulated_second": wall / args.duration,
+                "mean_iterations": float(np.mean(state["iterations"])),
+                "mean_compression": float(np.mean(state["compression"])) if state["compression"] else None,
+                "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0),
+                "spacing": h,
+                **(
+                    {"nx": args.nx, "T": state["T"], "Z": state["Z"], "escaped": state["escaped"]}
+                    if args.scene == "martin_moyce"
+                    else {}
+                ),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

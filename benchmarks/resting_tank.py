@@ -25,7 +25,6 @@ benchmarks/results/resting_tank.json and resting_tank.png.
 import argparse
 
 import warp as wp
-
 from common import RESULTS, header, pyplot, save
 from validation import resting_tank
 
@@ -54,11 +53,14 @@ def main():
         r["label"] = label
         rows.append(r)
         if r["steps"]:
-            print(f"{label} ({r['particles']} particles): slope / rho0 g {r['slope_min']:.3f} .. {r['slope_max']:.3f} "
-                  f"({100 * r['steps_within_3_percent']:.0f} % of steps within 3 %), step number {r['step_number']:.2f}, "
-                  f"{r['mean_iterations']:.1f} iterations, mean speed <= {100 * r['mean_speed_max']:.2f} cm/s, "
-                  f"max <= {100 * r['max_speed_max']:.1f} cm/s, bottom compression <= {100 * r['bottom_compression_max']:.3f} %, "
-                  f"{r['wall_seconds']:.0f} s" + (f"; DIVERGED: {r['diverged']}" if r["diverged"] else ""))
+            print(
+                f"{label} ({r['particles']} particles): slope / rho0 g {r['slope_min']:.3f} .. {r['slope_max']:.3f} "
+                f"({100 * r['steps_within_3_percent']:.0f} % of steps within 3 %), step number {r['step_number']:.2f}, "
+                f"{r['mean_iterations']:.1f} iterations, mean speed <= {100 * r['mean_speed_max']:.2f} cm/s, "
+                f"max <= {100 * r['max_speed_max']:.1f} cm/s, "
+                f"bottom compression <= {100 * r['bottom_compression_max']:.3f} %, "
+                f"{r['wall_seconds']:.0f} s" + (f"; DIVERGED: {r['diverged']}" if r["diverged"] else "")
+            )
         else:
             print(f"{label}: DIVERGED before the measurement: {r['diverged']}")
     record = header("resting_tank", spacing=h, settle_s=settle, measure_s=measure, runs=rows)
@@ -73,8 +75,14 @@ def chart(rows, path):
         if not r["steps"]:
             continue
         t = [s["t"] for s in r["steps"]]
-        ax.plot(t, [s["slope"] for s in r["steps"]], ".-", ms=2, lw=0.6,
-                label=f"{r['label']}: {r['slope_min']:.2f}..{r['slope_max']:.2f} (dt^2 gH/h^2 {r['step_number']:.2f})")
+        ax.plot(
+            t,
+            [s["slope"] for s in r["steps"]],
+            ".-",
+            ms=2,
+            lw=0.6,
+            label=f"{r['label']}: {r['slope_min']:.2f}..{r['slope_max']:.2f} (dt^2 gH/h^2 {r['step_number']:.2f})",
+        )
         bx.semilogy(t, [s["mean_speed"] for s in r["steps"]], "-", lw=0.8, label=r["label"])
     ax.set_ylim(0.8, 1.2)
     ax.set_xlabel("t (s)")

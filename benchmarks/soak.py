@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 import warp as wp
-
 from common import RESULTS, header, pyplot, save
+
 from warp_iisph import scenes
 from warp_iisph.run.runner import run_scene
 
@@ -65,15 +65,26 @@ def main():
     tenth = max(1, steady.sum() // 10)
     first, last = rss[steady][:tenth], rss[steady][-tenth:]
     result = {
-        "scene": "martin_moyce, spacing 0.02 m", "particles": record["particles"]["fluid"], "steps": record["totals"]["steps"],
-        "frames": record["totals"]["frames"], "ended": record["ended"], "wall_seconds": record["totals"]["wall_seconds"],
-        "rss_mib_first_tenth": float(np.median(first)), "rss_mib_last_tenth": float(np.median(last)),
-        "rss_slope_mib_per_minute": 60.0 * slope, "open_files_min": int(fds[steady].min()), "open_files_max": int(fds[steady].max()),
+        "scene": "martin_moyce, spacing 0.02 m",
+        "particles": record["particles"]["fluid"],
+        "steps": record["totals"]["steps"],
+        "frames": record["totals"]["frames"],
+        "ended": record["ended"],
+        "wall_seconds": record["totals"]["wall_seconds"],
+        "rss_mib_first_tenth": float(np.median(first)),
+        "rss_mib_last_tenth": float(np.median(last)),
+        "rss_slope_mib_per_minute": 60.0 * slope,
+        "open_files_min": int(fds[steady].min()),
+        "open_files_max": int(fds[steady].max()),
         "samples": {"t": t.tolist(), "rss_mib": rss.tolist(), "open_files": fds.tolist()},
     }
-    print(f"{result['steps']} steps, {result['frames']} frames written ({result['ended']}) in {result['wall_seconds']:.0f} s: "
-          f"resident memory {result['rss_mib_first_tenth']:.0f} -> {result['rss_mib_last_tenth']:.0f} MiB "
-          f"(slope {result['rss_slope_mib_per_minute']:+.2f} MiB/min), open files {result['open_files_min']}-{result['open_files_max']}")
+    print(
+        f"{result['steps']} steps, {result['frames']} frames written ({result['ended']}) "
+        f"in {result['wall_seconds']:.0f} s: "
+        f"resident memory {result['rss_mib_first_tenth']:.0f} -> {result['rss_mib_last_tenth']:.0f} MiB "
+        f"(slope {result['rss_slope_mib_per_minute']:+.2f} MiB/min), "
+        f"open files {result['open_files_min']}-{result['open_files_max']}"
+    )
     record = header("soak", **result)
     chart(result, save(record, args.out, "soak", args.quick))
 

@@ -14,8 +14,8 @@ import argparse
 
 import numpy as np
 import warp as wp
-
 from common import RESULTS, header, martin_moyce_front, pyplot, save, warm_up
+
 from warp_iisph import DivergenceError
 from warp_iisph.analysis.dam_break import front_errors
 
@@ -39,7 +39,7 @@ def label(c: dict) -> str:
 
 
 def measure(resolution: int, config: dict) -> dict:
-    physics = {k: v for k, v in config.items()}
+    physics = dict(config)
     if "dt" not in physics:
         physics["dt_max"] = 5e-3
     row = {**config, "label": label(config)}
@@ -78,17 +78,38 @@ def chart(rows, path):
     plt = pyplot()
     ok = [r for r in rows if "diverged" not in r]
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
-    for ax, key, name in ((axes[0], "mean_density_error", "mean density error (%)"), (axes[1], "front_error", "surge-front error vs experiment (%)")):
+    for ax, key, name in (
+        (axes[0], "mean_density_error", "mean density error (%)"),
+        (axes[1], "front_error", "surge-front error vs experiment (%)"),
+    ):
         for method, marker, color in (("wcsph", "s", "tab:orange"), ("iisph", "o", "tab:blue")):
             r = [x for x in ok if x["method"] == method]
-            ax.scatter([x["wall_seconds_per_simulated_second"] for x in r], [100 * x[key] for x in r], marker=marker, color=color,
-                       label=method.upper(), zorder=3)
+            ax.scatter(
+                [x["wall_seconds_per_simulated_second"] for x in r],
+                [100 * x[key] for x in r],
+                marker=marker,
+                color=color,
+                label=method.upper(),
+                zorder=3,
+            )
             for x in r:
-                ax.annotate(x["label"].split(" ", 1)[1], (x["wall_seconds_per_simulated_second"], 100 * x[key]), fontsize=6,
-                            textcoords="offset points", xytext=(4, 2))
+                ax.annotate(
+                    x["label"].split(" ", 1)[1],
+                    (x["wall_seconds_per_simulated_second"], 100 * x[key]),
+                    fontsize=6,
+                    textcoords="offset points",
+                    xytext=(4, 2),
+                )
         pts = [(x["wall_seconds_per_simulated_second"], x[key]) for x in ok]
         front = [pts[i] for i in pareto(pts)]
-        ax.step([p[0] for p in front], [100 * p[1] for p in front], where="post", color="gray", ls="--", label="Pareto front")
+        ax.step(
+            [p[0] for p in front],
+            [100 * p[1] for p in front],
+            where="post",
+            color="gray",
+            ls="--",
+            label="Pareto front",
+        )
         ax.set_xscale("log")
         ax.set_yscale("log")
         for axis in (ax.xaxis, ax.yaxis):
@@ -127,16 +148,24 @@ def main():
         if "diverged" in r:
             print(f"{r['label']:<38} diverged: {r['diverged']}")
         else:
-            print(f"{r['label']:<38} {r['wall_seconds_per_simulated_second']:>8.2f} {100 * r['mean_density_error']:>13.3f} "
-                  f"{100 * r['front_error']:>11.1f} {r['steps']:>6} {r['mean_iterations']:>5.1f}")
+            print(
+                f"{r['label']:<38} {r['wall_seconds_per_simulated_second']:>8.2f} "
+                f"{100 * r['mean_density_error']:>13.3f} "
+                f"{100 * r['front_error']:>11.1f} {r['steps']:>6} {r['mean_iterations']:>5.1f}"
+            )
     ok = [r for r in rows if "diverged" not in r]
     for key in ("mean_density_error", "front_error"):
         front = pareto([(r["wall_seconds_per_simulated_second"], r[key]) for r in ok])
         for i in front:
             ok[i].setdefault("pareto", []).append(key)
         print(f"Pareto front on {key}: " + ", ".join(ok[i]["label"] for i in front))
-    record = header("speed_accuracy", scene=f"martin_moyce (a = 0.1 m, a/h = {args.resolution}, 4 particles deep)",
-                    wall_friction=FRICTION, reference="Martin & Moyce 1952, T <= 3", results=rows)
+    record = header(
+        "speed_accuracy",
+        scene=f"martin_moyce (a = 0.1 m, a/h = {args.resolution}, 4 particles deep)",
+        wall_friction=FRICTION,
+        reference="Martin & Moyce 1952, T <= 3",
+        results=rows,
+    )
     chart(rows, save(record, args.out, "speed_accuracy", args.quick))
 
 

@@ -8,9 +8,9 @@
    dt * v_ref / h (v_ref = sqrt(2 g 2a)) of each limit.
 2. The 32,768-particle dam break (scenes.dam_break_cube) at a fixed 5 ms and 10 ms for 2 s with
    the defaults, where a fixed step longer than IISPH can take is cut into substeps (counted per
-   step), and with every step taken as it is (substeps off); every step's particles put back within the tank by the last line
-   (warp_iisph/sph/containment.py: what the pressure solver left undone), compression and
-   iterations.
+   step), and with every step taken as it is (substeps off); every step's particles put back
+   within the tank by the last line (warp_iisph/sph/containment.py: what the pressure solver
+   left undone), compression and iterations.
 
 Writes benchmarks/results/stability.json and .png.
 
@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 import warp as wp
-
 from common import RESULTS, header, pyplot, save
+
 from warp_iisph import DivergenceError, Simulation, scenes
 
 G, A = 9.81, 0.2
@@ -76,22 +76,47 @@ def fixed_step_dam_break(dt: float, duration: float, particles: int = 32768, sub
     try:
         while sim.time < duration - 1e-9:
             r = sim.step()
-            steps.append({k: r[k] for k in ("t", "dt", "substeps", "iterations", "density_error", "compression", "max_velocity",
-                                            "wall_corrections", "obstacle_corrections")})
+            steps.append(
+                {
+                    k: r[k]
+                    for k in (
+                        "t",
+                        "dt",
+                        "substeps",
+                        "iterations",
+                        "density_error",
+                        "compression",
+                        "max_velocity",
+                        "wall_corrections",
+                        "obstacle_corrections",
+                    )
+                }
+            )
     except DivergenceError as err:
         stopped = str(err)
     corr = [s["wall_corrections"] + s["obstacle_corrections"] for s in steps]
-    return {"fixed_dt": dt, "substeps": substeps, "spacing": spacing, "particles": sim.n_particles, "duration": duration, "t_reached": sim.time,
-            "stopped": stopped, "steps": len(steps), "wall_seconds": time.perf_counter() - t0,
-            "fixed_steps": int(round(sim.time / dt)), "substepped_steps": sum(s["substeps"] > 1 for s in steps),
-            "most_substeps": max((s["substeps"] for s in steps), default=1),
-            "corrections": int(sum(corr)), "steps_with_corrections": int(sum(c > 0 for c in corr)),
-            "most_corrections_in_a_step": int(max(corr, default=0)),
-            "mean_compression": float(np.mean([s["compression"] for s in steps])) if steps else None,
-            "max_compression": float(np.max([s["compression"] for s in steps])) if steps else None,
-            "mean_iterations": float(np.mean([s["iterations"] for s in steps])) if steps else None,
-            "max_speed": float(np.max([s["max_velocity"] for s in steps])) if steps else None,
-            "per_step": steps}
+    return {
+        "fixed_dt": dt,
+        "substeps": substeps,
+        "spacing": spacing,
+        "particles": sim.n_particles,
+        "duration": duration,
+        "t_reached": sim.time,
+        "stopped": stopped,
+        "steps": len(steps),
+        "wall_seconds": time.perf_counter() - t0,
+        "fixed_steps": int(round(sim.time / dt)),
+        "substepped_steps": sum(s["substeps"] > 1 for s in steps),
+        "most_substeps": max((s["substeps"] for s in steps), default=1),
+        "corrections": int(sum(corr)),
+        "steps_with_corrections": int(sum(c > 0 for c in corr)),
+        "most_corrections_in_a_step": int(max(corr, default=0)),
+        "mean_compression": float(np.mean([s["compression"] for s in steps])) if steps else None,
+        "max_compression": float(np.max([s["compression"] for s in steps])) if steps else None,
+        "mean_iterations": float(np.mean([s["iterations"] for s in steps])) if steps else None,
+        "max_speed": float(np.max([s["max_velocity"] for s in steps])) if steps else None,
+        "per_step": steps,
+    }
 
 
 def main():
@@ -113,8 +138,14 @@ def main():
     for h in (float(s) for s in args.spacings.split(",")):
         for method in ("wcsph", "iisph"):
             r = largest_stable_dt(method, h, 1e-4, 2e-2, args.steps, duration)
-            r.update({"method": method, "spacing": h, "a_over_h": A / h,
-                      "cfl_at_limit": None if r["dt_max"] is None else r["dt_max"] * v_ref / h})
+            r.update(
+                {
+                    "method": method,
+                    "spacing": h,
+                    "a_over_h": A / h,
+                    "cfl_at_limit": None if r["dt_max"] is None else r["dt_max"] * v_ref / h,
+                }
+            )
             rows.append(r)
             dt = "none" if r["dt_max"] is None else f"{1e3 * r['dt_max']:.2f} ms (CFL {r['cfl_at_limit']:.2f})"
             print(f"{method:>5} h = {h:g} m: largest stable dt {dt}; fails by: {r.get('failure', r.get('note', ''))}")
@@ -122,15 +153,26 @@ def main():
     for dt, substeps in ((float(v), s) for v in args.fixed.split(",") for s in (True, False)):
         r = fixed_step_dam_break(dt, dam_duration, dam_particles, substeps)
         dam.append(r)
-        print(f"dam break ({r['particles']} particles) at a fixed {1e3 * dt:g} ms{'' if substeps else ', no substeps'}: reached {r['t_reached']:.3f} s"
-              + (f" (STOPPED: {r['stopped']})" if r["stopped"] else "")
-              + f" in {r['steps']} steps ({r['substepped_steps']} of them substeps, up to {r['most_substeps']} per fixed step); "
-              f"{r['corrections']} particles put back in {r['steps_with_corrections']} steps (at most {r['most_corrections_in_a_step']} "
-              f"in one); mean compression {100 * r['mean_compression']:.3f} %, {r['mean_iterations']:.1f} iterations, "
-              f"{r['wall_seconds']:.0f} s")
-    record = header("stability", scene="martin_moyce (a = 0.2 m, 0.1 m deep)", criteria={**CRITERIA, "duration_s": duration},
-                    wcsph_stiffness_pa=50000, iisph_eta=1e-3, results=rows,
-                    dam_break_fixed_dt={"scene": "dam_break_cube (a 0.96 m cube of water in a 4 x 3 x 1.5 m tank)", "runs": dam})
+        print(
+            f"dam break ({r['particles']} particles) at a fixed {1e3 * dt:g} ms{'' if substeps else ', no substeps'}: "
+            f"reached {r['t_reached']:.3f} s"
+            + (f" (STOPPED: {r['stopped']})" if r["stopped"] else "")
+            + f" in {r['steps']} steps ({r['substepped_steps']} of them substeps, "
+            f"up to {r['most_substeps']} per fixed step); "
+            f"{r['corrections']} particles put back in {r['steps_with_corrections']} steps "
+            f"(at most {r['most_corrections_in_a_step']} "
+            f"in one); mean compression {100 * r['mean_compression']:.3f} %, {r['mean_iterations']:.1f} iterations, "
+            f"{r['wall_seconds']:.0f} s"
+        )
+    record = header(
+        "stability",
+        scene="martin_moyce (a = 0.2 m, 0.1 m deep)",
+        criteria={**CRITERIA, "duration_s": duration},
+        wcsph_stiffness_pa=50000,
+        iisph_eta=1e-3,
+        results=rows,
+        dam_break_fixed_dt={"scene": "dam_break_cube (a 0.96 m cube of water in a 4 x 3 x 1.5 m tank)", "runs": dam},
+    )
     chart(rows, dam, save(record, args.out, "stability", args.quick))
 
 
@@ -144,7 +186,9 @@ def chart(rows, dam, path):
             x, y = zip(*pts)
             ax.plot(x, y, marker, label=method.upper())
             for xi, yi, r in zip(x, y, [r for r in rows if r["method"] == method and r["dt_max"]]):
-                ax.annotate(f"CFL {r['cfl_at_limit']:.2f}", (xi, yi), textcoords="offset points", xytext=(5, 5), fontsize=8)
+                ax.annotate(
+                    f"CFL {r['cfl_at_limit']:.2f}", (xi, yi), textcoords="offset points", xytext=(5, 5), fontsize=8
+                )
     ax.set_yscale("log")
     ax.set_xlabel("resolution a/h")
     ax.set_ylabel("largest stable fixed dt (ms), no substeps")
@@ -154,10 +198,26 @@ def chart(rows, dam, path):
         t = [s["t"] for s in r["per_step"]]
         corr = [s["wall_corrections"] + s["obstacle_corrections"] for s in r["per_step"]]
         name = f"fixed {1e3 * r['fixed_dt']:g} ms" + ("" if r.get("substeps", True) else ", no substeps")
-        bx.plot(t, corr, ".", ms=3, color=colour, label=f"{name}: particles put back per step ({r['corrections']} in all"
-                                                        + ("" if r["stopped"] is None else f"; stopped at {r['t_reached']:.2f} s") + ")")
+        bx.plot(
+            t,
+            corr,
+            ".",
+            ms=3,
+            color=colour,
+            label=f"{name}: particles put back per step ({r['corrections']} in all"
+            + ("" if r["stopped"] is None else f"; stopped at {r['t_reached']:.2f} s")
+            + ")",
+        )
         if r.get("substeps", True):
-            bx.plot(t, [s["substeps"] for s in r["per_step"]], "-", lw=0.8, color=colour, alpha=0.6, label=f"{name}: substeps per fixed step")
+            bx.plot(
+                t,
+                [s["substeps"] for s in r["per_step"]],
+                "-",
+                lw=0.8,
+                color=colour,
+                alpha=0.6,
+                label=f"{name}: substeps per fixed step",
+            )
     bx.set_xlabel("t (s)")
     bx.set_ylabel("count")
     bx.set_title(f"Dam break, {dam[0]['particles']} particles, fixed steps" if dam else "")

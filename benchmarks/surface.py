@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 import warp as wp
-
 from common import RESULTS, header, pyplot, save
+
 from warp_iisph.engine.launch import available_cores, get_threads, set_threads
 from warp_iisph.run.formats import write_mesh
 from warp_iisph.scene import Box, Sphere, SurfaceSettings
@@ -54,8 +54,14 @@ ROOT = Path(__file__).resolve().parent.parent
 A = 0.3  # the Martin & Moyce column's width
 FRAMES = {
     "dam_break_32k": ("scenes.dam_break_cube() after 0.5 s", 0.5),
-    "martin_moyce_nx30": ("scenes.martin_moyce(spacing=0.3/30, a=0.3, depth=0.15, length=1.8, height=0.9) after 0.45 s", 0.45),
-    "martin_moyce_nx40": ("scenes.martin_moyce(spacing=0.3/40, a=0.3, depth=0.15, length=1.8, height=0.9) after 0.45 s", 0.45),
+    "martin_moyce_nx30": (
+        "scenes.martin_moyce(spacing=0.3/30, a=0.3, depth=0.15, length=1.8, height=0.9) after 0.45 s",
+        0.45,
+    ),
+    "martin_moyce_nx40": (
+        "scenes.martin_moyce(spacing=0.3/40, a=0.3, depth=0.15, length=1.8, height=0.9) after 0.45 s",
+        0.45,
+    ),
     "dam_break_200k": ("scenes.dam_break_cube(particles=200000) after 0.3 s", 0.3),
 }
 # stages of SurfaceMesh.detail, grouped for the chart
@@ -110,11 +116,25 @@ def synthetic_frame(n: int = 20000, h: float = 0.01) -> np.ndarray:
 
 def splashsurf(x: np.ndarray, h: float, threads: int, post: bool = False):
     """pysplashsurf's mesh (vertices, triangles) with the settings of the module's docstring."""
-    extra = dict(mesh_smoothing_iters=25, mesh_smoothing_weights=True, compute_normals=True,
-                 normals_smoothing_iters=10) if post else {}
+    extra = (
+        {
+            "mesh_smoothing_iters": 25,
+            "mesh_smoothing_weights": True,
+            "compute_normals": True,
+            "normals_smoothing_iters": 10,
+        }
+        if post
+        else {}
+    )
     mesh, _ = pysplashsurf.reconstruction_pipeline(
-        x, particle_radius=0.5 * h, smoothing_length=2.0, cube_size=1.0, iso_surface_threshold=0.6,
-        multi_threading=threads > 1, **extra)
+        x,
+        particle_radius=0.5 * h,
+        smoothing_length=2.0,
+        cube_size=1.0,
+        iso_surface_threshold=0.6,
+        multi_threading=threads > 1,
+        **extra,
+    )
     return np.asarray(mesh.mesh.vertices, dtype=np.float32), np.asarray(mesh.mesh.triangles, dtype=np.int64)
 
 
@@ -142,10 +162,16 @@ def quality(v: np.ndarray, f: np.ndarray, n_particles: int, h: float) -> dict:
     import trimesh
 
     t = trimesh.Trimesh(v.astype(np.float64), f.astype(np.int64), process=False)
-    return {"vertices": int(len(v)), "triangles": int(len(f)), "watertight": bool(t.is_watertight),
-            "winding_consistent": bool(t.is_winding_consistent), "outward": bool(t.volume > 0),
-            "volume_per_Nh3": float(abs(t.volume) / (n_particles * h**3)), "area": float(t.area),
-            "normal_spread_deg": normal_spread(v, f)}
+    return {
+        "vertices": int(len(v)),
+        "triangles": int(len(f)),
+        "watertight": bool(t.is_watertight),
+        "winding_consistent": bool(t.is_winding_consistent),
+        "outward": bool(t.volume > 0),
+        "volume_per_Nh3": float(abs(t.volume) / (n_particles * h**3)),
+        "area": float(t.area),
+        "normal_spread_deg": normal_spread(v, f),
+    }
 
 
 def median_ms(samples: list) -> float:
@@ -179,11 +205,19 @@ def measure(name: str, x: np.ndarray, h: float, threads: int, reps: int, tmp: Pa
             write_mesh(tmp / name, mesh.vertices, mesh.faces, mesh.normals, fmt)
             export[fmt].append(time.perf_counter() - t0)
     ours = {"total": median_ms(wall["ours"]), **{s: median_ms([d[s] for d in details]) for s in details[0]}}
-    row = {"frame": name, "particles": int(len(x)), "h": h, "threads": threads, "ours_ms": ours,
-           "triangles": int(len(mesh.faces)), "vertices": int(len(mesh.vertices)),
-           "stored_nodes": mesh.stored_nodes, "lattice_nodes": mesh.lattice_nodes,
-           "export_ms": {fmt: median_ms(v) for fmt, v in export.items()},
-           "export_mb": {fmt: (tmp / f"{name}.{fmt}").stat().st_size / 1e6 for fmt in export}}
+    row = {
+        "frame": name,
+        "particles": int(len(x)),
+        "h": h,
+        "threads": threads,
+        "ours_ms": ours,
+        "triangles": int(len(mesh.faces)),
+        "vertices": int(len(mesh.vertices)),
+        "stored_nodes": mesh.stored_nodes,
+        "lattice_nodes": mesh.lattice_nodes,
+        "export_ms": {fmt: median_ms(v) for fmt, v in export.items()},
+        "export_mb": {fmt: (tmp / f"{name}.{fmt}").stat().st_size / 1e6 for fmt in export},
+    }
     if pysplashsurf is not None:
         row["splashsurf_ms"] = median_ms(wall["splashsurf"])
         row["splashsurf_post_ms"] = median_ms(wall["splashsurf+"])
@@ -228,23 +262,40 @@ def main():
             for threads in thread_counts:
                 r = measure(name, x, h, threads, args.reps, tmp)
                 results.append(r)
-                side = (f"; splashsurf {r['splashsurf_ms']:.0f} ms, ours/splashsurf {r['ratio']:.2f}; splashsurf+ "
-                        f"{r['splashsurf_post_ms']:.0f} ms" if "ratio" in r else "")
-                print(f"{name} ({len(x):,} particles), {threads} threads: ours {r['ours_ms']['total']:.0f} ms{side}; "
-                      f"export OBJ {r['export_ms']['obj']:.0f} ms, PLY {r['export_ms']['ply']:.0f} ms", flush=True)
+                side = (
+                    f"; splashsurf {r['splashsurf_ms']:.0f} ms, ours/splashsurf {r['ratio']:.2f}; splashsurf+ "
+                    f"{r['splashsurf_post_ms']:.0f} ms"
+                    if "ratio" in r
+                    else ""
+                )
+                print(
+                    f"{name} ({len(x):,} particles), {threads} threads: ours {r['ours_ms']['total']:.0f} ms{side}; "
+                    f"export OBJ {r['export_ms']['obj']:.0f} ms, PLY {r['export_ms']['ply']:.0f} ms",
+                    flush=True,
+                )
                 print("    " + ", ".join(f"{s} {v:.1f}" for s, v in r["ours_ms"].items() if s != "total"), flush=True)
             qualities[name] = frame_quality(x, h)
             for k, q in qualities[name].items():
-                print(f"    {k:>16}: watertight {q['watertight']}, winding {q['winding_consistent']}, volume/Nh^3 "
-                      f"{q['volume_per_Nh3']:.4f}, area {q['area']:.4f}, normal spread {q['normal_spread_deg']:.2f} deg, "
-                      f"{q['vertices']:,} vertices", flush=True)
-    record = header("surface", "cpu", cell="h/2", smoothing="laplacian x3",
-                    splashsurf=version("pysplashsurf") if pysplashsurf else None,
-                    splashsurf_settings="reconstruction_pipeline(particle_radius=h/2, smoothing_length=2.0, cube_size=1.0, "
-                                        "iso_surface_threshold=0.6); splashsurf+: mesh_smoothing_iters=25, "
-                                        "mesh_smoothing_weights=True, compute_normals=True, normals_smoothing_iters=10",
-                    frames={k: FRAMES.get(k, ("synthetic slab and ball", 0))[0] for k in frames},
-                    reps=args.reps, results=results, quality=qualities)
+                print(
+                    f"    {k:>16}: watertight {q['watertight']}, winding {q['winding_consistent']}, volume/Nh^3 "
+                    f"{q['volume_per_Nh3']:.4f}, area {q['area']:.4f}, normal spread {q['normal_spread_deg']:.2f} deg, "
+                    f"{q['vertices']:,} vertices",
+                    flush=True,
+                )
+    record = header(
+        "surface",
+        "cpu",
+        cell="h/2",
+        smoothing="laplacian x3",
+        splashsurf=version("pysplashsurf") if pysplashsurf else None,
+        splashsurf_settings="reconstruction_pipeline(particle_radius=h/2, smoothing_length=2.0, cube_size=1.0, "
+        "iso_surface_threshold=0.6); splashsurf+: mesh_smoothing_iters=25, "
+        "mesh_smoothing_weights=True, compute_normals=True, normals_smoothing_iters=10",
+        frames={k: FRAMES.get(k, ("synthetic slab and ball", 0))[0] for k in frames},
+        reps=args.reps,
+        results=results,
+        quality=qualities,
+    )
     chart(results, save(record, args.out, "surface" if args.quick else "surface_cpu", args.quick))
 
 
@@ -264,14 +315,22 @@ def chart(results, path):
         if "splashsurf_ms" in rows[0]:
             ax.bar(x + 0.2, [r["splashsurf_ms"] for r in rows], 0.36, color="#8172b3", label="splashsurf")
             for xi, r in zip(x, rows):
-                ax.text(xi, max(r["splashsurf_ms"], r["ours_ms"]["total"]) * 1.02, f"ours / splashsurf {r['ratio']:.2f}",
-                        ha="center", fontsize=8)
+                ax.text(
+                    xi,
+                    max(r["splashsurf_ms"], r["ours_ms"]["total"]) * 1.02,
+                    f"ours / splashsurf {r['ratio']:.2f}",
+                    ha="center",
+                    fontsize=8,
+                )
         ax.set_xticks(x, [f"{r['threads']} thr" for r in rows])
         ax.set_title(f"{name}\n{rows[0]['particles']:,} particles", fontsize=9)
         ax.set_ylabel("ms per frame")
     axes[0][0].legend(fontsize=7)
-    fig.suptitle("Surface per frame on the CPU, both in one process (cell h/2; ours with 3 Laplacian passes and\n"
-                 "normals, splashsurf field and marching cubes only)", fontsize=9)
+    fig.suptitle(
+        "Surface per frame on the CPU, both in one process (cell h/2; ours with 3 Laplacian passes and\n"
+        "normals, splashsurf field and marching cubes only)",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

@@ -6,16 +6,17 @@ the same cores, SPlisHSPlasH's IISPH and DFSPH on the same dam break with 2 thre
 benchmarks/results/thread_scaling.json and .png. ``--matched iisph:3e-4,dfsph:5e-4`` adds runs of
 ours with 2 threads at other methods and tolerances, to set beside the peers at a like compression.
 
-    python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer] [--matched METHOD:ETA,...] [--quick]
+    python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer]
+        [--matched METHOD:ETA,...] [--quick]
 """
 
 import argparse
 import time
 
 import numpy as np
-
 import peer_splishsplash
 from common import RESULTS, header, pyplot, save, warm_up
+
 from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import available_cores, set_threads
 
@@ -47,14 +48,26 @@ def chart(results: list, peers: list, path, matched: list = ()) -> None:
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     th = [r["threads"] for r in results]
-    a.plot(th, [r["wall_seconds_per_simulated_second"] for r in results], "o-",
-           label=f"warp_iisph IISPH ({100 * results[0]['mean_density_error']:.3f} %)")
+    a.plot(
+        th,
+        [r["wall_seconds_per_simulated_second"] for r in results],
+        "o-",
+        label=f"warp_iisph IISPH ({100 * results[0]['mean_density_error']:.3f} %)",
+    )
     for r, marker in zip(matched, "sD^v"):
-        a.plot([r["threads"]], [r["wall_seconds_per_simulated_second"]], marker, label=f"warp_iisph {r['method'].upper()} eta "
-               f"{r['eta']:g} ({100 * r['mean_density_error']:.3f} %)")
+        a.plot(
+            [r["threads"]],
+            [r["wall_seconds_per_simulated_second"]],
+            marker,
+            label=f"warp_iisph {r['method'].upper()} eta {r['eta']:g} ({100 * r['mean_density_error']:.3f} %)",
+        )
     for p, style in zip(peers, ("--", ":")):
-        a.axhline(p["wall_seconds_per_simulated_second"], color="gray", ls=style,
-                  label=f"SPlisHSPlasH {p['method'].upper()}, {p['threads']} threads ({100 * p['mean_compression']:.3f} %)")
+        a.axhline(
+            p["wall_seconds_per_simulated_second"],
+            color="gray",
+            ls=style,
+            label=f"SPlisHSPlasH {p['method'].upper()}, {p['threads']} threads ({100 * p['mean_compression']:.3f} %)",
+        )
     a.set_xlabel("threads")
     a.set_ylabel("wall s per simulated s")
     a.set_xticks(th)
@@ -94,15 +107,20 @@ def main():
     print(f"{'threads':>7} {'s/sim s':>8} {'speed-up':>8} {'steps':>6} {'iters':>6}  median ms per step")
     for r in results:
         ms = ", ".join(f"{k} {v:.1f}" for k, v in r["median_ms_per_step"].items())
-        print(f"{r['threads']:>7} {r['wall_seconds_per_simulated_second']:>8.1f} "
-              f"{results[0]['wall_seconds'] / r['wall_seconds']:>8.2f} {r['steps']:>6} {r['mean_iterations']:>6.2f}  {ms}")
+        print(
+            f"{r['threads']:>7} {r['wall_seconds_per_simulated_second']:>8.1f} "
+            f"{results[0]['wall_seconds'] / r['wall_seconds']:>8.2f} {r['steps']:>6} {r['mean_iterations']:>6.2f}  {ms}"
+        )
     peers = []
     if not args.no_peer and peer_splishsplash.available():
         for method in ("iisph", "dfsph"):
             p = peer_splishsplash.run(args.duration, threads=2, method=method, spacing=args.spacing)
             peers.append(p)
-            print(f"{p['tool']} {method.upper()}, 2 threads: {p['wall_seconds_per_simulated_second']:.1f} s/sim s, {p['steps']} steps, "
-                  f"{p['mean_iterations']:.2f} iterations, mean compression {100 * p['mean_compression']:.3f} %")
+            print(
+                f"{p['tool']} {method.upper()}, 2 threads: "
+                f"{p['wall_seconds_per_simulated_second']:.1f} s/sim s, {p['steps']} steps, "
+                f"{p['mean_iterations']:.2f} iterations, mean compression {100 * p['mean_compression']:.3f} %"
+            )
     elif not args.no_peer:
         print("SPlisHSPlasH: not installed (pip install 'warp_iisph[bench]'), skipped")
     for r in results:
@@ -112,10 +130,22 @@ def main():
         method, eta = item.split(":")
         r = run(2, args.spacing, args.duration, method, float(eta))
         matched.append(r)
-        print(f"warp_iisph {method.upper()} eta {float(eta):g}, 2 threads: {r['wall_seconds_per_simulated_second']:.1f} s/sim s, "
-              f"{r['steps']} steps, {r['mean_iterations']:.2f} iterations, mean compression {100 * r['mean_density_error']:.3f} %")
-    record = header("thread_scaling", scene="dam_break_cube", spacing=args.spacing, duration=args.duration,
-                    available_cores=available_cores(), results=results, peers=peers, matched=matched)
+        print(
+            f"warp_iisph {method.upper()} eta {float(eta):g}, 2 threads: "
+            f"{r['wall_seconds_per_simulated_second']:.1f} s/sim s, "
+            f"{r['steps']} steps, {r['mean_iterations']:.2f} iterations, "
+            f"mean compression {100 * r['mean_density_error']:.3f} %"
+        )
+    record = header(
+        "thread_scaling",
+        scene="dam_break_cube",
+        spacing=args.spacing,
+        duration=args.duration,
+        available_cores=available_cores(),
+        results=results,
+        peers=peers,
+        matched=matched,
+    )
     chart(results, peers, save(record, args.out, "thread_scaling", args.quick), matched)
 
 

@@ -29,10 +29,10 @@ import subprocess
 import time
 
 import numpy as np
-import warp as wp
-
 import peer_splishsplash
+import warp as wp
 from common import RESULTS, header, pyplot, save
+
 from warp_iisph import Box, DivergenceError, Scene, Simulation
 from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
 from warp_iisph.analysis.hydrostatic import hydrostatic_slope
@@ -62,10 +62,20 @@ def martin_moyce(nx: int, a: float = 0.3, t_max: float = 3.0) -> dict:
         compression.append(s["compression"])
         iterations.append(s["iterations"])
     T_sim, Z_sim = (np.array(c) for c in zip(*curve))
-    row = {"nx": nx, "a": a, "spacing": h, "particles": sim.n_particles, "T": T_sim.tolist(), "Z": Z_sim.tolist(),
-           "diverged": diverged, "steps": sim.step_count, "wall_seconds": time.perf_counter() - t0,
-           "mean_compression": float(np.mean(compression)), "mean_iterations": float(np.mean(iterations)),
-           "wall_corrections": int(sum(s["wall_corrections"] for s in sim.stats))}
+    row = {
+        "nx": nx,
+        "a": a,
+        "spacing": h,
+        "particles": sim.n_particles,
+        "T": T_sim.tolist(),
+        "Z": Z_sim.tolist(),
+        "diverged": diverged,
+        "steps": sim.step_count,
+        "wall_seconds": time.perf_counter() - t0,
+        "mean_compression": float(np.mean(compression)),
+        "mean_iterations": float(np.mean(iterations)),
+        "wall_corrections": int(sum(s["wall_corrections"] for s in sim.stats)),
+    }
     return {**row, **front_scores(T_sim, Z_sim, ref, t_max, diverged)}
 
 
@@ -98,12 +108,18 @@ def peer_martin_moyce(nx: int, t_max: float = 3.0) -> dict | None:
         return None
     T, Z = np.array(rec.pop("T")), np.array(rec.pop("Z"))
     keep = np.searchsorted(T, np.arange(0.0, t_max + 1e-9, 0.05)).clip(0, len(T) - 1)
-    return {**rec, "T": T[keep].tolist(), "Z": Z[keep].tolist(), "run_seconds": time.perf_counter() - t0,
-            **front_scores(T, Z, load_martin_moyce(), t_max)}
+    return {
+        **rec,
+        "T": T[keep].tolist(),
+        "Z": Z[keep].tolist(),
+        "run_seconds": time.perf_counter() - t0,
+        **front_scores(T, Z, load_martin_moyce(), t_max),
+    }
 
 
-def resting_tank(h: float = 0.02, size=(0.4, 0.8, 0.2), depth: float = 0.6, settle: float = 2.0, measure: float = 0.5,
-                 **physics) -> dict:
+def resting_tank(
+    h: float = 0.02, size=(0.4, 0.8, 0.2), depth: float = 0.6, settle: float = 2.0, measure: float = 0.5, **physics
+) -> dict:
     """Per-step hydrostatic slope, speeds and bottom compression of water at rest (``physics``:
     settings other than the defaults, for studies; the validation itself uses none)."""
     scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), size), name="resting_tank")
@@ -122,27 +138,51 @@ def resting_tank(h: float = 0.02, size=(0.4, 0.8, 0.2), depth: float = 0.6, sett
             x, p, rho = sim.state.x.numpy(), sim.state.p.numpy(), sim.state.rho.numpy()
             speed = np.linalg.norm(sim.state.v.numpy(), axis=1)
             bottom = x[:, 1] < h
-            rows.append({"t": sim.time, "dt": rec["dt"], "iterations": rec["iterations"],
-                         "slope": hydrostatic_slope(x, p, h, (0.0, 0.0, 0.0), size, RHO0, G),
-                         "mean_speed": float(speed.mean()), "max_speed": float(speed.max()),
-                         "bottom_compression": float(rho[bottom].mean() / RHO0 - 1.0), "compression": rec["compression"],
-                         "wall_corrections": rec["wall_corrections"]})
+            rows.append(
+                {
+                    "t": sim.time,
+                    "dt": rec["dt"],
+                    "iterations": rec["iterations"],
+                    "slope": hydrostatic_slope(x, p, h, (0.0, 0.0, 0.0), size, RHO0, G),
+                    "mean_speed": float(speed.mean()),
+                    "max_speed": float(speed.max()),
+                    "bottom_compression": float(rho[bottom].mean() / RHO0 - 1.0),
+                    "compression": rec["compression"],
+                    "wall_corrections": rec["wall_corrections"],
+                }
+            )
     except DivergenceError as err:
         diverged = str(err)
-    out = {"spacing": h, "tank": list(size), "water_depth": depth, "particles": sim.n_particles, "physics": physics,
-           "diverged": diverged, "settle_s": settle, "measure_s": measure, "eta": sim.physics.eta, "steps": rows,
-           "wall_seconds": time.perf_counter() - t0}
+    out = {
+        "spacing": h,
+        "tank": list(size),
+        "water_depth": depth,
+        "particles": sim.n_particles,
+        "physics": physics,
+        "diverged": diverged,
+        "settle_s": settle,
+        "measure_s": measure,
+        "eta": sim.physics.eta,
+        "steps": rows,
+        "wall_seconds": time.perf_counter() - t0,
+    }
     if not rows:
         return out
     slope = np.array([r["slope"] for r in rows])
     dt = np.array([r["dt"] for r in rows])
-    return {**out, "slope_min": float(slope.min()), "slope_max": float(slope.max()), "slope_mean": float(slope.mean()),
-            "steps_within_3_percent": float(np.mean(np.abs(slope - 1.0) <= 0.03)),
-            "mean_speed_max": max(r["mean_speed"] for r in rows), "max_speed_max": max(r["max_speed"] for r in rows),
-            "bottom_compression_max": max(r["bottom_compression"] for r in rows),
-            "mean_iterations": float(np.mean([r["iterations"] for r in rows])),
-            # dt^2 g H / h^2: how far gravity moves the column's weight in a step, in spacings
-            "step_number": float(np.median(dt) ** 2 * G * depth / h**2)}
+    return {
+        **out,
+        "slope_min": float(slope.min()),
+        "slope_max": float(slope.max()),
+        "slope_mean": float(slope.mean()),
+        "steps_within_3_percent": float(np.mean(np.abs(slope - 1.0) <= 0.03)),
+        "mean_speed_max": max(r["mean_speed"] for r in rows),
+        "max_speed_max": max(r["max_speed"] for r in rows),
+        "bottom_compression_max": max(r["bottom_compression"] for r in rows),
+        "mean_iterations": float(np.mean([r["iterations"] for r in rows])),
+        # dt^2 g H / h^2: how far gravity moves the column's weight in a step, in spacings
+        "step_number": float(np.median(dt) ** 2 * G * depth / h**2),
+    }
 
 
 def main():
@@ -163,9 +203,11 @@ def main():
         r = martin_moyce(nx, t_max=t_max)
         runs.append(r)
         errs = ", ".join(f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None)
-        print(f"Martin & Moyce nx {nx} ({r['particles']} particles): front error {errs} (T <= {t_max:g}); "
-              f"mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps, {r['wall_seconds']:.0f} s"
-              + (f"; DIVERGED: {r['diverged']}" if r["diverged"] else ""))
+        print(
+            f"Martin & Moyce nx {nx} ({r['particles']} particles): front error {errs} (T <= {t_max:g}); "
+            f"mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps, {r['wall_seconds']:.0f} s"
+            + (f"; DIVERGED: {r['diverged']}" if r["diverged"] else "")
+        )
     peers = []
     for nx in (int(v) for v in args.nx.split(",")) if args.peer else ():
         r = peer_martin_moyce(nx, t_max=t_max)
@@ -176,17 +218,29 @@ def main():
         if "failed" in r:
             print(f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx}: failed: {r['failed']}")
             continue
-        print(f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx} ({r['particles']} particles): front error "
-              + ", ".join(f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None)
-              + f"; mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps"
-              + (f"; {r['escaped']} particles left the tank through its walls" if r["escaped"] else ""))
+        print(
+            f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx} ({r['particles']} particles): front error "
+            + ", ".join(f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None)
+            + f"; mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps"
+            + (f"; {r['escaped']} particles left the tank through its walls" if r["escaped"] else "")
+        )
     rest = resting_tank(**tank)
-    print(f"resting tank ({rest['particles']} particles), {len(rest['steps'])} steps after {rest['settle_s']:g} s: "
-          f"slope / rho0 g {rest['slope_min']:.3f} .. {rest['slope_max']:.3f} ({100 * rest['steps_within_3_percent']:.0f} % of "
-          f"steps within 3 %), mean speed <= {100 * rest['mean_speed_max']:.2f} cm/s, max speed <= {100 * rest['max_speed_max']:.1f} cm/s, "
-          f"bottom compression <= {100 * rest['bottom_compression_max']:.3f} %")
-    record = header("validation", reference="Martin & Moyce 1952; hydrostatics", t_max=t_max, runs=runs, resting_tank=rest,
-                    peer_runs=peers)
+    print(
+        f"resting tank ({rest['particles']} particles), {len(rest['steps'])} steps after {rest['settle_s']:g} s: "
+        f"slope / rho0 g {rest['slope_min']:.3f} .. {rest['slope_max']:.3f} "
+        f"({100 * rest['steps_within_3_percent']:.0f} % of "
+        f"steps within 3 %), mean speed <= {100 * rest['mean_speed_max']:.2f} cm/s, "
+        f"max speed <= {100 * rest['max_speed_max']:.1f} cm/s, "
+        f"bottom compression <= {100 * rest['bottom_compression_max']:.3f} %"
+    )
+    record = header(
+        "validation",
+        reference="Martin & Moyce 1952; hydrostatics",
+        t_max=t_max,
+        runs=runs,
+        resting_tank=rest,
+        peer_runs=peers,
+    )
     chart(runs, rest, load_martin_moyce(), t_max, save(record, args.out, "validation", args.quick), peers)
 
 
@@ -196,15 +250,32 @@ def chart(runs, rest, ref, t_max, path, peers=()):
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [1.2, 1]})
     for (name, pts), marker in zip(ref.items(), ("s", "o")):
         pts = pts[pts[:, 0] <= t_max + 0.2]
-        ax.plot(pts[:, 0], pts[:, 1], marker, mfc="none", ms=7, color="k", label=f"Martin & Moyce, a = {name[2]}.{name[3:]} in")
+        ax.plot(
+            pts[:, 0],
+            pts[:, 1],
+            marker,
+            mfc="none",
+            ms=7,
+            color="k",
+            label=f"Martin & Moyce, a = {name[2]}.{name[3:]} in",
+        )
     for r in runs:
         errs = ", ".join(f"{100 * r[k]:.1f} %" for k in sorted(r) if k.startswith("error_") and r[k] is not None)
-        line, = ax.plot(r["T"], r["Z"], "-", label=f"IISPH nx = {r['nx']} ({r['particles']} particles): {errs}")
+        (line,) = ax.plot(r["T"], r["Z"], "-", label=f"IISPH nx = {r['nx']} ({r['particles']} particles): {errs}")
         for q in peers:
             if q["nx"] == r["nx"] and "failed" not in q:
-                errs = ", ".join(f"{100 * q[k]:.1f} %" for k in sorted(q) if k.startswith("error_") and q[k] is not None)
+                errs = ", ".join(
+                    f"{100 * q[k]:.1f} %" for k in sorted(q) if k.startswith("error_") and q[k] is not None
+                )
                 leak = f" ({q['escaped']} particles left the tank)" if q["escaped"] else ""
-                ax.plot(q["T"], q["Z"], "--", color=line.get_color(), lw=1, label=f"SPlisHSPlasH IISPH nx = {q['nx']}: {errs}{leak}")
+                ax.plot(
+                    q["T"],
+                    q["Z"],
+                    "--",
+                    color=line.get_color(),
+                    lw=1,
+                    label=f"SPlisHSPlasH IISPH nx = {q['nx']}: {errs}{leak}",
+                )
     ax.set_xlabel("T = t sqrt(2g/a)")
     ax.set_ylabel("Z = front / a")
     ax.set_xlim(0, t_max + 0.1)

@@ -12,10 +12,16 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.parametrize("script,stem", [("thread_scaling.py", "thread_scaling_quick"), ("surface.py", "surface_quick")])
+@pytest.mark.parametrize(
+    "script,stem", [("thread_scaling.py", "thread_scaling_quick"), ("surface.py", "surface_quick")]
+)
 def test_benchmark_quick_mode(script, stem, tmp_path):
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--threads", "1,2", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--threads", "1,2", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     record = json.loads((tmp_path / f"{stem}.json").read_text())
     assert [r["threads"] for r in record["results"]][:2] == [1, 2]
@@ -30,8 +36,13 @@ def test_surface_benchmark_without_splashsurf(tmp_path):
     hide.mkdir()
     (hide / "pysplashsurf.py").write_text("raise ImportError('hidden for this test')\n")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hide), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "surface.py"), "--quick", "--threads", "1", "--out",
-                           str(tmp_path)], capture_output=True, text=True, timeout=300, env=env)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "surface.py"), "--quick", "--threads", "1", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "pysplashsurf is not installed" in proc.stdout
     record = json.loads((tmp_path / "surface_quick.json").read_text())
@@ -41,8 +52,12 @@ def test_surface_benchmark_without_splashsurf(tmp_path):
 
 @pytest.mark.parametrize("script,stem", [("validation.py", "validation_quick"), ("stability.py", "stability_quick")])
 def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     record = json.loads((tmp_path / f"{stem}.json").read_text())
     rows = record.get("runs") or record.get("results")
@@ -69,8 +84,12 @@ def test_validation_beside_the_peer_quick_mode(tmp_path):
         sys.path.pop(0)
     if not peer_splishsplash.available():
         pytest.skip("pysplishsplash (the bench extra) is not installed")
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "validation.py"), "--quick", "--peer", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "validation.py"), "--quick", "--peer", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     (peer,) = json.loads((tmp_path / "validation_quick.json").read_text())["peer_runs"]
     assert peer["nx"] == 10 and peer["particles"] == 10 * 20 * 5 and peer["escaped"] == 0
@@ -81,8 +100,12 @@ def test_validation_beside_the_peer_quick_mode(tmp_path):
 
 
 def _quick(script: str, tmp_path, stem: str, *extra) -> dict:
-    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path), *extra],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path), *extra],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     record = json.loads((tmp_path / f"{stem}.json").read_text())
     assert record["versions"]["warp"] and record["date"] and record["device"] and record["machine"]
@@ -102,7 +125,9 @@ def test_device_switch_quick_mode(tmp_path):
         assert 0 < r["fraction_of_bandwidth_bound"] < 1
         assert r["realtime_ratio"] == pytest.approx(r["simulated_seconds"] / r["wall_seconds"])
     assert rows[1]["bytes_per_step"] > 2 * rows[0]["bytes_per_step"]
-    graph = _quick("device_switch.py", tmp_path, "device_switch_graph_mesh_quick", "--devices", "cpu", "--graph", "--mesh")
+    graph = _quick(
+        "device_switch.py", tmp_path, "device_switch_graph_mesh_quick", "--devices", "cpu", "--graph", "--mesh"
+    )
     assert graph["graph"] and all(r["graph"] for r in graph["results"])
     assert [r["steps"] for r in graph["results"]] == [r["steps"] for r in rows]  # same steps, replayed
     for r in graph["results"]:  # meshing at 30 frames per simulated second, counted in the real-time ratio
@@ -130,7 +155,17 @@ def test_speed_accuracy_pareto_front():
 def test_breakdown_quick_mode(tmp_path):
     record = _quick("breakdown.py", tmp_path, "breakdown_quick")
     st = record["stage_seconds"]
-    for stage in ("neighbours", "density", "advection", "pressure", "integration", "distance_field", "marching_cubes", "smoothing", "export"):
+    for stage in (
+        "neighbours",
+        "density",
+        "advection",
+        "pressure",
+        "integration",
+        "distance_field",
+        "marching_cubes",
+        "smoothing",
+        "export",
+    ):
         assert st[stage] > 0, stage
     assert sum(record["share"].values()) == pytest.approx(1.0, abs=1e-6)
     assert record["frames"] == 4
@@ -151,7 +186,11 @@ def test_neighbor_access_quick_mode(tmp_path):
     if it["query"] > it["lists"]:
         assert r["break_even_walks"] == pytest.approx(r["list_fill_ms"] / ((it["query"] - it["lists"]) / 2))
     # every other layout and the index-only twin give bitwise the solver's pressures
-    assert r["layout_max_difference"] == 0.0 and r["warp_blocked_max_difference"] == 0.0 and r["index_only_max_difference"] == 0.0
+    assert (
+        r["layout_max_difference"] == 0.0
+        and r["warp_blocked_max_difference"] == 0.0
+        and r["index_only_max_difference"] == 0.0
+    )
     assert set(r["layout_iteration_ms"]) == {"slot-major", "particle-major", "warp-blocked"} and r["count_only_ms"] > 0
 
 
@@ -165,7 +204,9 @@ def test_soak_quick_mode(tmp_path):
 
 def test_dfsph_benchmark_quick_mode(tmp_path):
     rows = _quick("dfsph.py", tmp_path, "dfsph_quick")["results"]
-    assert [(r["case"], r["method"]) for r in rows] == [(c, m) for c in ("0.005", "0.01", "cfl") for m in ("iisph", "dfsph")]
+    assert [(r["case"], r["method"]) for r in rows] == [
+        (c, m) for c in ("0.005", "0.01", "cfl") for m in ("iisph", "dfsph")
+    ]
     for r in rows:  # a run's record says how far it got and what it cost
         assert r["particles"] == 4096 and r["steps"] > 0 and r["wall_seconds_per_simulated_second"] > 0
         assert (r["diverged"] is None) == (abs(r["reached_s"] - 0.1) < 1e-9)

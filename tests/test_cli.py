@@ -15,7 +15,21 @@ STAT_KEYS = {"step", "t", "dt", "iterations", "density_error", "max_velocity", "
 
 def test_run_dam_break_writes_frames_and_stats(tmp_path, capsys):
     out = tmp_path / "run"
-    code = main(["run", "dam_break", "--duration", "0.1", "--fps", "20", "--spacing", "0.04", "--out", str(out), "--no-progress"])
+    code = main(
+        [
+            "run",
+            "dam_break",
+            "--duration",
+            "0.1",
+            "--fps",
+            "20",
+            "--spacing",
+            "0.04",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert code == 0
     frames = sorted((out / "particles").glob("frame_*.ply"))
     assert [f.name for f in frames] == [f"frame_{k:05d}.ply" for k in range(3)]
@@ -31,7 +45,9 @@ def test_run_dam_break_writes_frames_and_stats(tmp_path, capsys):
     run = json.loads((out / "run.json").read_text())
     assert run["ended"] == "completed" and run["totals"]["frames"] == 3
     # a second run into the same folder refuses without --overwrite
-    assert main(["run", "dam_break", "--duration", "0.05", "--spacing", "0.04", "--out", str(out), "--no-progress"]) == 2
+    assert (
+        main(["run", "dam_break", "--duration", "0.05", "--spacing", "0.04", "--out", str(out), "--no-progress"]) == 2
+    )
     assert "--overwrite" in capsys.readouterr().err
 
 
@@ -125,9 +141,25 @@ def test_a_failed_write_is_one_line_and_keeps_earlier_frames(tmp_path, monkeypat
 
     monkeypatch.setattr(runner, "write_particles", fail_third)
     out = tmp_path / "run"
-    code = main(["run", "dam_break", "--duration", "0.2", "--fps", "20", "--spacing", "0.05", "--out", str(out), "--no-progress"])
+    code = main(
+        [
+            "run",
+            "dam_break",
+            "--duration",
+            "0.2",
+            "--fps",
+            "20",
+            "--spacing",
+            "0.05",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     err = capsys.readouterr().err
-    assert code == 1 and "No space left on device" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert (
+        code == 1 and "No space left on device" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    )
     frames = sorted(p.name for p in (out / "particles").iterdir())
     assert frames == ["frame_00000.ply", "frame_00001.ply"]
     for f in frames:

@@ -6,15 +6,14 @@ import json
 
 import numpy as np
 import pytest
+from test_physics import at_rest, settled_resting_tank
+from test_resume import same_run
 
 import warp_iisph.engine.launch as launch
 from warp_iisph import Simulation, scenes
 from warp_iisph.cli import main
 from warp_iisph.scene import Emitter
 from warp_iisph.sph.solvers import dfsph
-
-from test_physics import at_rest, settled_resting_tank
-from test_resume import same_run
 
 G = 9.81
 
@@ -28,8 +27,12 @@ def test_resting_tank_settles_to_hydrostatic_pressure():
     a wall pushes with the particle's own stiffness, which raises the pressure there (6 % of the
     bottom pressure measured in that layer; IISPH's is 5 %)."""
     h, width, height = 0.02, 0.2, 0.4
-    sim = Simulation(scenes.hydrostatic_tank(spacing=h, width=width, depth=width, water_height=height, dt=0.002, viscosity=0.01,
-                                             method="dfsph"), "cpu")
+    sim = Simulation(
+        scenes.hydrostatic_tank(
+            spacing=h, width=width, depth=width, water_height=height, dt=0.002, viscosity=0.01, method="dfsph"
+        ),
+        "cpu",
+    )
     speeds, p_sum, n_sum = [], 0.0, 0
     while sim.time < 1.2 - 1e-9:
         rec = sim.step()
@@ -102,9 +105,16 @@ def _density_rate(sim) -> np.ndarray:
     s, n, m = sim.solver, sim.n_particles, sim.model
     v = sim.state.v.numpy()[:n].astype(np.float64)
     rate = np.zeros(n)
-    for lists, other, weight in ((s.search.fluid.lists, v, np.full(len(v), m.mass)),
-                                 (s.search.boundary.lists, m.boundary_v.numpy(), m.boundary_psi.numpy())):
-        count, start, index, grad = lists.count.numpy()[:n], lists.start.numpy()[:n], lists.index.numpy(), lists.grad_W.numpy()
+    for lists, other, weight in (
+        (s.search.fluid.lists, v, np.full(len(v), m.mass)),
+        (s.search.boundary.lists, m.boundary_v.numpy(), m.boundary_psi.numpy()),
+    ):
+        count, start, index, grad = (
+            lists.count.numpy()[:n],
+            lists.start.numpy()[:n],
+            lists.index.numpy(),
+            lists.grad_W.numpy(),
+        )
         for i in range(n):
             k = start[i] + np.arange(count[i]) * lists.step
             j = index[k]
@@ -123,7 +133,9 @@ def test_divergence_solve_brings_the_compression_rate_below_eta_divergence():
     s.search.build(st.x, st.n)
     nf, nb = s.search.fluid.lists, s.search.boundary.lists
     s.compute_densities(model, st)
-    launch.launch_particles(dfsph.dfsph_factor, st.n, [model.boundary_psi, nf, nb, model.mass, s.least_denominator, s.factor], "cpu")
+    launch.launch_particles(
+        dfsph.dfsph_factor, st.n, [model.boundary_psi, nf, nb, model.mass, s.least_denominator, s.factor], "cpu"
+    )
     dt = float(s.dt.numpy()[0])
     part = nf.count.numpy()[: st.n] + nb.count.numpy()[: st.n] >= dfsph.MIN_NEIGHBORS
 
@@ -159,9 +171,16 @@ def test_two_threads_give_the_one_thread_run(monkeypatch):
     runs = {}
     for threads in (1, 2):
         launch.set_threads(threads)
-        sim = Simulation(scenes.martin_moyce(spacing=0.03, method="dfsph", viscosity=1e-3, boundary_viscosity=1e-3), "cpu")
+        sim = Simulation(
+            scenes.martin_moyce(spacing=0.03, method="dfsph", viscosity=1e-3, boundary_viscosity=1e-3), "cpu"
+        )
         sim.advance(0.1)
-        runs[threads] = (sim.positions, sim.velocities, sim.pressures, [{k: v for k, v in s.items() if k != "ms"} for s in sim.stats])
+        runs[threads] = (
+            sim.positions,
+            sim.velocities,
+            sim.pressures,
+            [{k: v for k, v in s.items() if k != "ms"} for s in sim.stats],
+        )
     launch.set_threads(launch.available_cores())
     for a, b in zip(runs[1][:3], runs[2][:3]):
         assert np.array_equal(a, b)
@@ -200,7 +219,9 @@ def test_captured_graph_equals_plain_steps():
     assert graph.graph.redone == 1 and graph.step_count == plain.step_count > 20
     np.testing.assert_array_equal(graph.positions, plain.positions)
     np.testing.assert_array_equal(graph.pressures, plain.pressures)
-    assert [{k: v for k, v in s.items() if k != "ms"} for s in graph.stats] == [{k: v for k, v in s.items() if k != "ms"} for s in plain.stats]
+    assert [{k: v for k, v in s.items() if k != "ms"} for s in graph.stats] == [
+        {k: v for k, v in s.items() if k != "ms"} for s in plain.stats
+    ]
 
 
 def test_emitted_particles_start_without_a_warm_start():
@@ -215,14 +236,29 @@ def test_emitted_particles_start_without_a_warm_start():
     sim.solver.kappa.fill_(1.0)  # stale values beyond the liquid, where the next layer goes
     sim.solver.kappa_v_dt.fill_(1.0)
     assert sim.flows.emit(0.1) > 0
-    assert not np.any(sim.solver.kappa.numpy()[first:sim.n_particles])
-    assert not np.any(sim.solver.kappa_v_dt.numpy()[first:sim.n_particles])
+    assert not np.any(sim.solver.kappa.numpy()[first : sim.n_particles])
+    assert not np.any(sim.solver.kappa_v_dt.numpy()[first : sim.n_particles])
     assert np.all(sim.solver.kappa.numpy()[:first] == 1.0)
 
 
 def test_eta_divergence_is_validated(tmp_path, capsys):
     out = tmp_path / "bad"
-    assert main(["run", "martin_moyce", "--method", "dfsph", "--set", "physics.eta_divergence=0", "--out", str(out), "--no-progress"]) == 2
+    assert (
+        main(
+            [
+                "run",
+                "martin_moyce",
+                "--method",
+                "dfsph",
+                "--set",
+                "physics.eta_divergence=0",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "physics.eta_divergence = 0: must be in (0, 0.5]" in err
@@ -231,8 +267,28 @@ def test_eta_divergence_is_validated(tmp_path, capsys):
 def test_run_record_counts_unconverged_dfsph_steps(tmp_path):
     """A cap of 2 iterations cannot reach eta on a falling column: the run's totals say so, as for IISPH."""
     out = tmp_path / "capped"
-    assert main(["run", "martin_moyce", "--method", "dfsph", "--duration", "0.2", "--set", "spacing=0.04", "--set",
-                 "physics.max_iterations=2", "--set", "physics.eta=1e-5", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "martin_moyce",
+                "--method",
+                "dfsph",
+                "--duration",
+                "0.2",
+                "--set",
+                "spacing=0.04",
+                "--set",
+                "physics.max_iterations=2",
+                "--set",
+                "physics.eta=1e-5",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     totals = json.loads((out / "run.json").read_text())["totals"]
     assert totals["unconverged_steps"] > 0
     stats = [json.loads(line) for line in (out / "stats.jsonl").read_text().splitlines()]

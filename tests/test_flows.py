@@ -9,9 +9,9 @@ from scipy.spatial import cKDTree
 
 from warp_iisph import Box, Scene, Simulation
 from warp_iisph.cli import main
-from warp_iisph.scene import Emitter, Sink
 from warp_iisph.run.formats import read_particles
 from warp_iisph.run.runner import run_scene
+from warp_iisph.scene import Emitter, Sink
 
 H = 0.02
 
@@ -109,13 +109,16 @@ def test_a_run_with_emitters_resumes_bitwise(tmp_path):
     assert len(a["x"]) == len(b["x"]) and np.array_equal(a["x"], b["x"]) and np.array_equal(a["id"], b["id"])
 
 
-@pytest.mark.parametrize("bad, message", [
-    ({"speed": 0.0}, "emitters[0].speed = 0.0"),
-    ({"direction": [0, 0, 0]}, "emitters[0].direction = [0.0, 0.0, 0.0]: must not be zero"),
-    ({"shape": "rectangle"}, "emitters[0].size: required"),
-    ({"center": [5, 0.3, 0.15]}, "emitters[0].center = [5.0, 0.3, 0.15]: must lie inside the tank"),
-    ({"end": -1.0}, "emitters[0].end = -1.0"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ({"speed": 0.0}, "emitters[0].speed = 0.0"),
+        ({"direction": [0, 0, 0]}, "emitters[0].direction = [0.0, 0.0, 0.0]: must not be zero"),
+        ({"shape": "rectangle"}, "emitters[0].size: required"),
+        ({"center": [5, 0.3, 0.15]}, "emitters[0].center = [5.0, 0.3, 0.15]: must lie inside the tank"),
+        ({"end": -1.0}, "emitters[0].end = -1.0"),
+    ],
+)
 def test_emitter_errors_are_one_line(bad, message):
     scene = jet_scene()
     e = scene.emitters[0]
@@ -145,10 +148,13 @@ def test_an_emitter_under_the_liquid_is_blocked_not_forced_in():
     """A nozzle inside a full tank: a layer there would overlap the liquid (and the pressure
     solve would blow the two apart), so each one due is skipped and counted, and the water
     stays at rest; the same nozzle above the water emits every layer."""
+
     def tank(nozzle_y):
         scene = Scene(spacing=H, tank=Box((0, 0, 0), (0.3, 0.4, 0.2)), name="submerged")
         scene.add_fluid_box((0, 0, 0), (0.3, 0.2, 0.2))
-        scene.add_emitter(Emitter(center=(0.15, nozzle_y, 0.1), direction=(0.0, -1.0, 0.0), speed=0.5, radius=0.03, end=0.2))
+        scene.add_emitter(
+            Emitter(center=(0.15, nozzle_y, 0.1), direction=(0.0, -1.0, 0.0), speed=0.5, radius=0.03, end=0.2)
+        )
         return scene
 
     under = Simulation(tank(0.1), "cpu")

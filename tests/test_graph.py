@@ -3,11 +3,10 @@
 
 import numpy as np
 import pytest
+from conftest import requires_cuda
 
 from warp_iisph import DivergenceError, Simulation, scenes
 from warp_iisph.cli import main
-
-from conftest import requires_cuda
 
 
 def run(scene, graph: bool, duration: float = 0.15, device: str = "cpu", shrink_lists: bool = False):
@@ -21,11 +20,17 @@ def run(scene, graph: bool, duration: float = 0.15, device: str = "cpu", shrink_
 
 @pytest.mark.parametrize("method", ["iisph", "wcsph", "dfsph"])
 def test_captured_step_equals_plain_launches(method):
-    scene = lambda: scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method, viscosity=1e-4, boundary_viscosity=0.003)  # noqa: E731
+    def scene():
+        return scenes.martin_moyce(
+            spacing=0.02, a=0.2, depth=0.1, method=method, viscosity=1e-4, boundary_viscosity=0.003
+        )
+
     plain, graph = run(scene(), False), run(scene(), True)
     replays = graph.graph
     assert replays.captures == 1 and graph.step_count == plain.step_count > 20
-    assert replays.replays == -(-(graph.step_count - 1) // graph.loop.capacity)  # one per 256 steps, no host sync between
+    assert replays.replays == -(
+        -(graph.step_count - 1) // graph.loop.capacity
+    )  # one per 256 steps, no host sync between
     np.testing.assert_array_equal(graph.positions, plain.positions)
     np.testing.assert_array_equal(graph.velocities, plain.velocities)
     for key in ("dt", "iterations", "density_error", "compression", "max_velocity"):
@@ -66,7 +71,9 @@ def test_single_captured_steps_and_a_short_log_match_plain():
 
 
 def test_divergence_is_caught_in_graph_mode():
-    sim = Simulation(scenes.martin_moyce(spacing=0.04, a=0.2, depth=0.1, method="wcsph", dt=0.02, substeps=False), "cpu", graph=True)
+    sim = Simulation(
+        scenes.martin_moyce(spacing=0.04, a=0.2, depth=0.1, method="wcsph", dt=0.02, substeps=False), "cpu", graph=True
+    )
     with pytest.raises(DivergenceError) as e:
         sim.advance(1.0)
     assert e.value.step == sim.step_count < 50  # the loop on the device stopped at the failing step
@@ -74,7 +81,23 @@ def test_divergence_is_caught_in_graph_mode():
 
 def test_cli_graph_flag(tmp_path):
     out = tmp_path / "run"
-    assert main(["run", "martin_moyce", "--duration", "0.05", "--spacing", "0.04", "--graph", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "martin_moyce",
+                "--duration",
+                "0.05",
+                "--spacing",
+                "0.04",
+                "--graph",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert '"graph": true' in (out / "run.json").read_text()
 
 
@@ -91,9 +114,10 @@ def test_cuda_graph_matches_cpu(method):
 @pytest.mark.parametrize("method", ["iisph", "dfsph"])
 def test_nothing_in_a_conditional_body_allocates(monkeypatch, method):
     """On CUDA, a conditional body of a graph (the loop over steps, the reorder's capture_if, the
-    Jacobi loops of IISPH and of DFSPH's two solves) may not allocate: wp.utils.array_sum and array_scan fail there, and so does
-    HashGrid.build. On the CPU they work, so this test makes them fail while a conditional body is
-    being recorded: the CPU catches a regression without a GPU."""
+    Jacobi loops of IISPH and of DFSPH's two solves) may not allocate: wp.utils.array_sum and
+    array_scan fail there, and so does HashGrid.build. On the CPU they work, so this test makes
+    them fail while a conditional body is being recorded: the CPU catches a regression without a
+    GPU."""
     import warp as wp
 
     import warp_iisph.engine.launch as launch
@@ -108,6 +132,7 @@ def test_nothing_in_a_conditional_body_allocates(monkeypatch, method):
                 return real(condition, *args, **kwargs)
             finally:
                 depth[0] -= 1
+
         return wrapped
 
     def forbidden(name, real):
@@ -116,6 +141,7 @@ def test_nothing_in_a_conditional_body_allocates(monkeypatch, method):
                 calls.append(name)
                 raise RuntimeError(f"{name} inside a conditional graph body: it allocates on CUDA")
             return real(*args, **kwargs)
+
         return wrapped
 
     monkeypatch.setattr(wp, "capture_while", conditional(wp.capture_while))
@@ -142,7 +168,26 @@ def test_graphs_are_the_default_on_cuda_only(tmp_path):
     assert use_graph(None, "cuda:0") and not use_graph(None, "cpu")
     assert not use_graph(False, "cuda:0") and use_graph(True, "cpu")
     out = tmp_path / "run"
-    assert main(["run", "martin_moyce", "--duration", "0.05", "--spacing", "0.04", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(["run", "martin_moyce", "--duration", "0.05", "--spacing", "0.04", "--out", str(out), "--no-progress"])
+        == 0
+    )
     assert '"graph": false' in (out / "run.json").read_text()
-    assert main(["run", "martin_moyce", "--duration", "0.05", "--spacing", "0.04", "--no-graph", "--overwrite", "--out", str(out),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "martin_moyce",
+                "--duration",
+                "0.05",
+                "--spacing",
+                "0.04",
+                "--no-graph",
+                "--overwrite",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )

@@ -37,7 +37,10 @@ def runs(tmp_path_factory):
 
 
 def test_output_format_is_checked_in_scene_files(tmp_path):
-    base = 'spacing = 0.05\ntank = { lower = [0, 0, 0], upper = [1, 1, 1] }\n[[fluids]]\nlower = [0, 0, 0]\nupper = [0.3, 0.3, 0.3]\n'
+    base = (
+        "spacing = 0.05\ntank = { lower = [0, 0, 0], upper = [1, 1, 1] }\n[[fluids]]\n"
+        "lower = [0, 0, 0]\nupper = [0.3, 0.3, 0.3]\n"
+    )
     path = tmp_path / "s.toml"
     path.write_text(base + '[output]\nformat = "vtu"\n')
     assert load_scene(path).output.format == "vtu"
@@ -118,8 +121,26 @@ def test_mesh_and_preview_work_on_a_vtu_run(runs, tmp_path, capsys):
 
 def test_cli_format_flag_writes_vtu(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["run", "martin_moyce", "--spacing", "0.05", "--duration", "0.05", "--fps", "20", "--format", "vtu",
-                 "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "martin_moyce",
+                "--spacing",
+                "0.05",
+                "--duration",
+                "0.05",
+                "--fps",
+                "20",
+                "--format",
+                "vtu",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert sorted(f.name for f in (out / "particles").iterdir()) == ["frame_00000.vtu", "frame_00001.vtu"]
     assert json.loads((out / "run.json").read_text())["output"]["format"] == "vtu"
     with pytest.raises(SystemExit) as exit_:  # argparse's one line
@@ -172,7 +193,12 @@ def test_usd_stage_holds_the_liquid_at_every_frame(tiny_run, capsys):
     liquid = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Liquid"))
     assert liquid and liquid.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
     assert liquid.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
-    for attr in (liquid.GetPointsAttr(), liquid.GetFaceVertexCountsAttr(), liquid.GetFaceVertexIndicesAttr(), liquid.GetNormalsAttr()):
+    for attr in (
+        liquid.GetPointsAttr(),
+        liquid.GetFaceVertexCountsAttr(),
+        liquid.GetFaceVertexIndicesAttr(),
+        liquid.GetNormalsAttr(),
+    ):
         assert attr.GetTimeSamples() == [0.0, 1.0, 2.0, 3.0], attr.GetName()  # the topology changes: sampled too
     counts = set()
     for k, obj in enumerate(RunFolder(tiny_run).frames("mesh")):
@@ -208,9 +234,8 @@ def test_usd_stage_holds_the_liquid_at_every_frame(tiny_run, capsys):
 def test_usd_stage_holds_the_obstacles_and_the_scene_camera(obstacle_run, tmp_path):
     import shutil
 
-    from pxr import UsdGeom
-
     from conftest import PILLAR
+    from pxr import UsdGeom
 
     run = tmp_path / "run"
     shutil.copytree(obstacle_run, run)

@@ -8,8 +8,8 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from warp_iisph import Simulation
-from warp_iisph.setup.rasterize import clear_fluid, sample_mesh
 from warp_iisph.scene import Box, MeshShape, Scene
+from warp_iisph.setup.rasterize import clear_fluid, sample_mesh
 
 
 def _points_on_triangle(v, n, rng):

@@ -18,8 +18,13 @@ def place_points(keys: BodyKeys, rest: wp.array(dtype=wp.vec3), t: wp.float64, o
 
 @pytest.mark.parametrize("interpolation", ["linear", "smooth"])
 def test_device_keyframes_match_the_scene_motion(interpolation):
-    m = Motion(times=[0.0, 0.5, 1.0, 2.0], translate=[[0, 0, 0], [0.3, 0.1, 0], [0.6, 0.1, 0.2], [1.0, 0, 0]],
-               rotate=[[0, 0, 0], [10, 0, 0], [0, 45, 0], [0, 90, 30]], pivot=(0.2, 0.3, 0.1), interpolation=interpolation)
+    m = Motion(
+        times=[0.0, 0.5, 1.0, 2.0],
+        translate=[[0, 0, 0], [0.3, 0.1, 0], [0.6, 0.1, 0.2], [1.0, 0, 0]],
+        rotate=[[0, 0, 0], [10, 0, 0], [0, 45, 0], [0, 90, 30]],
+        pivot=(0.2, 0.3, 0.1),
+        interpolation=interpolation,
+    )
     m.validate("m")
     rest = np.random.default_rng(0).uniform(-0.5, 0.5, (64, 3))
     bodies = MovingBodies([m], rest, np.zeros(len(rest), int), 0, "cpu")
@@ -39,8 +44,13 @@ def post_scene(spacing=0.04, duration=1.0) -> Scene:
     coarser)."""
     scene = Scene(spacing=spacing, tank=Box((0, 0, 0), (1.6, 0.4, 0.4)), name="post")
     scene.add_fluid_box((0, 0, 0), (1.6, 0.2, 0.4))
-    scene.add_obstacle(Box((0.2, 0.0, 0.14), (0.32, 0.36, 0.26),
-                           motion=Motion(times=[0.0, 0.3, 1.0], translate=[[0, 0, 0], [0.08, 0, 0], [0.5, 0, 0]])))
+    scene.add_obstacle(
+        Box(
+            (0.2, 0.0, 0.14),
+            (0.32, 0.36, 0.26),
+            motion=Motion(times=[0.0, 0.3, 1.0], translate=[[0, 0, 0], [0.08, 0, 0], [0.5, 0, 0]]),
+        )
+    )
     scene.output.duration = duration
     return scene
 
@@ -91,7 +101,9 @@ def test_motion_errors_are_one_line():
     for motion, message in bad:
         scene = post_scene()
         scene.obstacles[0].motion = motion
-        with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(").replace(")", r"\)")):
+        with pytest.raises(
+            ValueError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(").replace(")", r"\)")
+        ):
             scene.validate()
     scene = post_scene()
     scene.fluids[0].motion = Motion(times=[0.0])

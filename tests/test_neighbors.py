@@ -70,9 +70,9 @@ def test_cell_order_is_a_permutation_grouping_cells():
 def test_wall_mask_skips_far_particles_and_keeps_every_wall_neighbour():
     """Walls on a box's faces; fluid inside, near the walls, and beyond them: the static mask
     clears far particles (they skip the walls' grid) and the lists still equal brute force."""
-    from warp_iisph.sph.wall_mask import near_mask
-    from warp_iisph.setup.sampling import sample_tank_walls
     from warp_iisph.scene import Box
+    from warp_iisph.setup.sampling import sample_tank_walls
+    from warp_iisph.sph.wall_mask import near_mask
 
     H, h = 0.04, 0.02
     walls = sample_tank_walls(Box((0.0, 0.0, 0.0), (0.6, 0.4, 0.4)), h)
@@ -161,7 +161,12 @@ def test_list_storage_beyond_32_bit_indices_is_refused_not_wrapped():
     from warp_iisph.sph.neighbors import LIST_ENTRIES_LIMIT, StridedListBuffer, stride_needed
 
     needed = wp.zeros(1, dtype=wp.int32, device="cpu")
-    wp.launch(stride_needed, dim=2, inputs=[45_000_000, wp.array([30, 50], dtype=wp.int32, device="cpu"), needed], device="cpu")
+    wp.launch(
+        stride_needed,
+        dim=2,
+        inputs=[45_000_000, wp.array([30, 50], dtype=wp.int32, device="cpu"), needed],
+        device="cpu",
+    )
     assert needed.numpy()[0] == LIST_ENTRIES_LIMIT
     lists = StridedListBuffer(1000, "cpu")
     with pytest.raises(MemoryError, match="32-bit indices"):

@@ -24,8 +24,20 @@ def test_wheel_ships_bundled_scenes_and_their_meshes(tmp_path):
     where = ok(bin_dir / "python", "-c", "import warp_iisph; print(warp_iisph.__file__)", cwd=elsewhere)
     assert str(tmp_path / "venv") in where
     listed = ok(bin_dir / "warp-iisph", "scenes", cwd=elsewhere)
-    assert {"dam_break", "drop_splash", "fluid_flow", "martin_moyce", "dam_break_cube"} <= {line.split()[0] for line in listed.splitlines()}
+    assert {"dam_break", "drop_splash", "fluid_flow", "martin_moyce", "dam_break_cube"} <= {
+        line.split()[0] for line in listed.splitlines()
+    }
     # dam_break reads its submarine mesh from the installed package
-    ok(bin_dir / "warp-iisph", "run", "dam_break", "--duration", "0.04", "--set", "spacing=0.06", "--no-progress", cwd=elsewhere)
+    ok(
+        bin_dir / "warp-iisph",
+        "run",
+        "dam_break",
+        "--duration",
+        "0.04",
+        "--set",
+        "spacing=0.06",
+        "--no-progress",
+        cwd=elsewhere,
+    )
     assert len(list((elsewhere / "runs" / "dam_break" / "particles").glob("frame_*.ply"))) == 2
     assert (elsewhere / "runs" / "dam_break" / "obstacles.obj").is_file()

@@ -41,7 +41,9 @@ REST_SPACING, REST_TANK, REST_DEPTH = 0.02, (0.2, 0.5, 0.2), 0.4  # 2,000 partic
 def settled_resting_tank(**physics) -> Simulation:
     """Water 0.4 m deep at rest in a closed tank, after 2 s of settling (``physics``: settings
     other than the defaults)."""
-    scene = Scene(spacing=REST_SPACING, tank=Box((0.0, 0.0, 0.0), REST_TANK), physics=Physics(**physics), name="resting_tank")
+    scene = Scene(
+        spacing=REST_SPACING, tank=Box((0.0, 0.0, 0.0), REST_TANK), physics=Physics(**physics), name="resting_tank"
+    )
     scene.add_fluid_box((0.0, 0.0, 0.0), (REST_TANK[0], REST_DEPTH, REST_TANK[2]))
     sim = Simulation(scene, "cpu")
     while sim.time < 2.0:
@@ -62,7 +64,9 @@ def _martin_moyce_front(nx: int, a: float = 0.3, t_max: float = 3.0, **physics):
     """The benchmark's Martin & Moyce column (a wide, 2a high, in a 6a x 3a x 0.5a tank) at nx
     particles across: the experiment's T <= t_max, Z = front / a there, and the experiment's Z."""
     h = a / nx
-    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (6 * a, 3 * a, 0.5 * a)), physics=Physics(**physics), name="martin_moyce")
+    scene = Scene(
+        spacing=h, tank=Box((0.0, 0.0, 0.0), (6 * a, 3 * a, 0.5 * a)), physics=Physics(**physics), name="martin_moyce"
+    )
     scene.add_fluid_box((0.0, 0.0, 0.0), (a, 2 * a, 0.5 * a))
     sim = Simulation(scene, "cpu")
     pts = np.concatenate(list(load_martin_moyce().values()))

@@ -16,6 +16,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 import pytest
+from conftest import finish, terminal_signals
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -26,8 +27,6 @@ from warp_iisph.run.formats import FileFormatError, read_particles, read_stats
 from warp_iisph.run.runner import run_scene
 from warp_iisph.scene.settings import METHODS
 
-from conftest import finish, terminal_signals
-
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "spacing=0.04", "--no-progress"]
 
@@ -35,8 +34,14 @@ SMALL = ["--set", "spacing=0.04", "--no-progress"]
 def cli(*args, cwd=None, timeout=120):
     """``warp-iisph ARGS`` in a fresh process: (exit status, stdout, stderr lines)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    p = subprocess.run([sys.executable, "-m", "warp_iisph.cli", *map(str, args)], capture_output=True, text=True, cwd=cwd,
-                       env=env, timeout=timeout)
+    p = subprocess.run(
+        [sys.executable, "-m", "warp_iisph.cli", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=env,
+        timeout=timeout,
+    )
     return p.returncode, p.stdout, [line for line in p.stderr.splitlines() if line.strip()]
 
 
@@ -60,19 +65,25 @@ def snapshot(folder: Path) -> dict:
     return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-@pytest.mark.parametrize("args, words", [
-    (["run", "martin_moyce", "--duration", "inf"], ["--duration = inf", "(0, 1e+06]"]),
-    (["run", "martin_moyce", "--fps", "20000"], ["--fps = 20000", "(0, 10000]"]),
-    (["run", "martin_moyce", "--duration", "0.02"], ["shorter than one frame interval"]),
-    (["run", "martin_moyce", "--device", "nonsense"], ["--device nonsense"]),
-    (["run", "martin_moyce", "--set", "spacing=1e-120"], ["martin_moyce.toml", "spacing = 1e-120", "at most"]),
-    (["run", "martin_moyce", "--set", "spacing=1e-4"], ["martin_moyce.toml", "spacing = 0.0001"]),
-    (["run", "martin_moyce", "--set", "physics.dt=true"], ["physics.dt = True: must be a number"]),
-    (["run", "martin_moyce", "--set", "tank.upper=[1e300, 1, 1]"], ["tank.upper", "within 1000 m"]),
-    (["run", "dam_break", "--set", "obstacles.0.scale=1e200"], ["obstacles[0].scale = 1e+200: puts the mesh beyond"]),
-    (["run", "martin_moyce", "--bogus"], ["unrecognized arguments: --bogus"]),
-    (["run", "no_such_scene"], ["not a file and not a bundled scene"]),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["run", "martin_moyce", "--duration", "inf"], ["--duration = inf", "(0, 1e+06]"]),
+        (["run", "martin_moyce", "--fps", "20000"], ["--fps = 20000", "(0, 10000]"]),
+        (["run", "martin_moyce", "--duration", "0.02"], ["shorter than one frame interval"]),
+        (["run", "martin_moyce", "--device", "nonsense"], ["--device nonsense"]),
+        (["run", "martin_moyce", "--set", "spacing=1e-120"], ["martin_moyce.toml", "spacing = 1e-120", "at most"]),
+        (["run", "martin_moyce", "--set", "spacing=1e-4"], ["martin_moyce.toml", "spacing = 0.0001"]),
+        (["run", "martin_moyce", "--set", "physics.dt=true"], ["physics.dt = True: must be a number"]),
+        (["run", "martin_moyce", "--set", "tank.upper=[1e300, 1, 1]"], ["tank.upper", "within 1000 m"]),
+        (
+            ["run", "dam_break", "--set", "obstacles.0.scale=1e200"],
+            ["obstacles[0].scale = 1e+200: puts the mesh beyond"],
+        ),
+        (["run", "martin_moyce", "--bogus"], ["unrecognized arguments: --bogus"]),
+        (["run", "no_such_scene"], ["not a file and not a bundled scene"]),
+    ],
+)
 def test_bad_run_input_is_one_line_and_changes_nothing(old_run, args, words):
     before = snapshot(old_run)
     code, out, err = cli(*args, "--out", old_run, "--overwrite", "--no-progress")
@@ -103,7 +114,9 @@ def test_bad_files_are_one_line(old_run, tmp_path):
 
 def test_view_commands_refuse_a_folder_as_output(old_run, tmp_path):
     for command in ("preview", "blender-script"):
-        code, _, err = cli(command, old_run, "--out", tmp_path, "--no-progress" if command == "preview" else "--frames=0:")
+        code, _, err = cli(
+            command, old_run, "--out", tmp_path, "--no-progress" if command == "preview" else "--frames=0:"
+        )
         assert code == 2
         one_line(err)
     assert not list(tmp_path.iterdir())
@@ -130,7 +143,11 @@ def test_mesh_reads_other_tools_particle_files(tmp_path):
         assert m.is_watertight and abs(m.volume / (len(x) * h**3) - 1.0) < 0.1
 
 
-SCENE = {"spacing": 0.05, "tank": {"lower": [0, 0, 0], "upper": [1, 1, 1]}, "fluids": [{"lower": [0, 0, 0], "upper": [0.5, 0.5, 0.5]}]}
+SCENE = {
+    "spacing": 0.05,
+    "tank": {"lower": [0, 0, 0], "upper": [1, 1, 1]},
+    "fluids": [{"lower": [0, 0, 0], "upper": [0.5, 0.5, 0.5]}],
+}
 
 
 def _toml_value(v) -> str:
@@ -147,8 +164,11 @@ def _toml_value(v) -> str:
 
 def _toml(scene: dict) -> str:
     """A scene dict as TOML: plain keys, tables, arrays of tables."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in scene.items() if not isinstance(v, (dict, list)) or
-             (isinstance(v, list) and not (v and isinstance(v[0], dict)))]
+    lines = [
+        f"{k} = {_toml_value(v)}"
+        for k, v in scene.items()
+        if not isinstance(v, (dict, list)) or (isinstance(v, list) and not (v and isinstance(v[0], dict)))
+    ]
     for k, v in scene.items():
         if isinstance(v, dict):
             lines += [f"[{k}]"] + [f"{a} = {_toml_value(b)}" for a, b in v.items()]
@@ -163,23 +183,45 @@ WRONG_TYPE = st.one_of(st.text(max_size=5), st.booleans(), st.lists(st.integers(
 # (key, invalid values): every value generated here is outside what the key allows
 INVALID = {
     "spacing": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False)),
-    "physics.eta": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=0.51, max_value=1e9)),
+    "physics.eta": st.one_of(
+        NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=0.51, max_value=1e9)
+    ),
     "physics.rho0": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False)),
-    "physics.viscosity": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(min_value=1.01, max_value=1e300), st.floats(max_value=-1e-9, allow_nan=False)),
-    "physics.max_iterations": st.one_of(NON_FINITE, WRONG_TYPE, st.integers(max_value=0), st.integers(min_value=100_001), st.floats(1.5, 99.5)),
-    "physics.omega": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(min_value=1.01, max_value=1e9), st.floats(max_value=0.0, allow_nan=False)),
-    "physics.dt": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=1.01, max_value=1e300)),
+    "physics.viscosity": st.one_of(
+        NON_FINITE, WRONG_TYPE, st.floats(min_value=1.01, max_value=1e300), st.floats(max_value=-1e-9, allow_nan=False)
+    ),
+    "physics.max_iterations": st.one_of(
+        NON_FINITE, WRONG_TYPE, st.integers(max_value=0), st.integers(min_value=100_001), st.floats(1.5, 99.5)
+    ),
+    "physics.omega": st.one_of(
+        NON_FINITE, WRONG_TYPE, st.floats(min_value=1.01, max_value=1e9), st.floats(max_value=0.0, allow_nan=False)
+    ),
+    "physics.dt": st.one_of(
+        NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=1.01, max_value=1e300)
+    ),
     "physics.cfl": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(min_value=2.01, max_value=1e9)),
-    "physics.gravity": st.one_of(NON_FINITE, st.text(max_size=3), st.lists(st.floats(-10, 10), min_size=4, max_size=5),
-                                 st.lists(NON_FINITE, min_size=3, max_size=3)),
+    "physics.gravity": st.one_of(
+        NON_FINITE,
+        st.text(max_size=3),
+        st.lists(st.floats(-10, 10), min_size=4, max_size=5),
+        st.lists(NON_FINITE, min_size=3, max_size=3),
+    ),
     "physics.method": st.text(max_size=8).filter(lambda s: s not in METHODS),
-    "physics.eta_divergence": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=0.51, max_value=1e9)),
-    "output.fps": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(min_value=10_001, max_value=1e300), st.floats(max_value=0.0, allow_nan=False)),
+    "physics.eta_divergence": st.one_of(
+        NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False), st.floats(min_value=0.51, max_value=1e9)
+    ),
+    "output.fps": st.one_of(
+        NON_FINITE, WRONG_TYPE, st.floats(min_value=10_001, max_value=1e300), st.floats(max_value=0.0, allow_nan=False)
+    ),
     "output.duration": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(max_value=0.0, allow_nan=False)),
     "output.mesh": st.one_of(st.integers(), st.text(max_size=3), NON_FINITE),
     "surface.cell": st.one_of(NON_FINITE, WRONG_TYPE, st.floats(min_value=4.01, max_value=1e9)),
-    "tank.upper": st.one_of(st.lists(st.floats(-1, 0.1), min_size=3, max_size=3), st.lists(NON_FINITE, min_size=3, max_size=3),
-                            st.lists(st.floats(1e4, 1e300), min_size=3, max_size=3), WRONG_TYPE),
+    "tank.upper": st.one_of(
+        st.lists(st.floats(-1, 0.1), min_size=3, max_size=3),
+        st.lists(NON_FINITE, min_size=3, max_size=3),
+        st.lists(st.floats(1e4, 1e300), min_size=3, max_size=3),
+        WRONG_TYPE,
+    ),
     "unknown": st.sampled_from(["colour", "physics.etta", "output.fsp", "surface.smooth", "tank.size"]),
 }
 
@@ -218,12 +260,20 @@ def _wait_for(path: Path, proc, seconds=120) -> None:
         time.sleep(0.05)
 
 
-@pytest.mark.parametrize("sig, ended, status", [(signal.SIGINT, "interrupted", 130), (signal.SIGTERM, "terminated", 143)])
+@pytest.mark.parametrize(
+    "sig, ended, status", [(signal.SIGINT, "interrupted", 130), (signal.SIGTERM, "terminated", 143)]
+)
 def test_a_signal_mid_run_keeps_every_frame_and_says_how_it_ended(tmp_path, sig, ended, status):
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", "run", "martin_moyce", "--duration", "5", "--out", str(out), *SMALL],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "warp_iisph.cli", "run", "martin_moyce", "--duration", "5", "--out", str(out), *SMALL],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=terminal_signals,
+        env=env,
+    )
     _wait_for(out / "particles" / "frame_00003.ply", proc)
     proc.send_signal(sig)
     _, err = finish(proc)
@@ -243,9 +293,28 @@ def test_a_signal_mid_run_keeps_every_frame_and_says_how_it_ended(tmp_path, sig,
 def test_ctrl_c_during_start_up_is_one_line_and_keeps_the_old_run(old_run):
     before = snapshot(old_run)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", "run", "martin_moyce", "--duration", "1", "--out", str(old_run),
-                             "--overwrite", "--set", "spacing=0.004", "--no-progress"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals, env=env)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "warp_iisph.cli",
+            "run",
+            "martin_moyce",
+            "--duration",
+            "1",
+            "--out",
+            str(old_run),
+            "--overwrite",
+            "--set",
+            "spacing=0.004",
+            "--no-progress",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=terminal_signals,
+        env=env,
+    )
     time.sleep(0.8)  # importing, sampling 250k particles: seconds before the first frame
     proc.send_signal(signal.SIGINT)
     _, err = finish(proc)
@@ -295,11 +364,29 @@ def test_overwrite_replaces_the_whole_old_run_only_once_the_new_one_has_a_frame(
     old_id = json.loads((run / "run.json").read_text())["run_id"]
     # a refused replacement changes nothing
     before = snapshot(run)
-    assert main(["run", "martin_moyce", "--out", str(run), "--overwrite", "--set", "spacing=1e-4", "--no-progress"]) == 2
+    assert (
+        main(["run", "martin_moyce", "--out", str(run), "--overwrite", "--set", "spacing=1e-4", "--no-progress"]) == 2
+    )
     assert snapshot(run) == before
     # an accepted one leaves nothing of the old run: no stale frames, video or record
-    assert main(["run", "drop_splash", "--duration", "0.05", "--out", str(run), "--overwrite", *SMALL[:2], "--set", "spacing=0.06",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "drop_splash",
+                "--duration",
+                "0.05",
+                "--out",
+                str(run),
+                "--overwrite",
+                *SMALL[:2],
+                "--set",
+                "spacing=0.06",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     names = {p.name for p in run.iterdir()}
     assert names == {"particles", "stats.jsonl", "run.json", "checkpoint.npz"}, names
     record = RunFolder(run).record()
@@ -351,7 +438,9 @@ def test_scene_checks_catch_silent_surprises(tmp_path):
     box.export(tmp_path / "open.obj")
     scene = Scene(spacing=0.05, tank=Box((0, 0, 0), (1, 1, 1))).add_fluid_box((0, 0, 0), (1, 0.5, 1))
     scene.add_obstacle(MeshShape("open.obj", translate=(0.5, 0.2, 0.5), base_dir=str(tmp_path)))
-    with pytest.raises(ValueError, match=r"obstacles\[0\].path = 'open.obj': the mesh is not closed \(\d+ open edges\)"):
+    with pytest.raises(
+        ValueError, match=r"obstacles\[0\].path = 'open.obj': the mesh is not closed \(\d+ open edges\)"
+    ):
         scene.validate()
     scene.obstacles[0].shell = True
     scene.validate()  # a thin wall on purpose

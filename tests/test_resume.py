@@ -10,11 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import finish, terminal_signals
 
 from warp_iisph.cli import main
 from warp_iisph.run.formats import read_particles, read_stats
-
-from conftest import finish, terminal_signals
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ["--set", "spacing=0.04", "--no-progress"]
@@ -45,9 +44,29 @@ def whole(tmp_path_factory) -> Path:
 def test_an_interrupted_run_resumes_bitwise(whole, tmp_path):
     out = tmp_path / "cut"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", "run", "martin_moyce", "--duration", "0.4", "--out", str(out),
-                             "--set", "spacing=0.04", "--set", "physics.dt=0.0005", "--no-progress"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=terminal_signals)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "warp_iisph.cli",
+            "run",
+            "martin_moyce",
+            "--duration",
+            "0.4",
+            "--out",
+            str(out),
+            "--set",
+            "spacing=0.04",
+            "--set",
+            "physics.dt=0.0005",
+            "--no-progress",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=terminal_signals,
+    )
     t0 = time.time()
     while not (out / "particles" / "frame_00003.ply").exists():
         assert proc.poll() is None and time.time() - t0 < 120, proc.communicate()
@@ -58,7 +77,12 @@ def test_an_interrupted_run_resumes_bitwise(whole, tmp_path):
     assert record["ended"] == "interrupted" and record["totals"]["frames"] < 12
     # the interrupted run used a fixed dt; so does the run it must equal
     reference = tmp_path / "reference"
-    assert main(["run", "martin_moyce", "--duration", "0.4", "--out", str(reference), "--set", "physics.dt=0.0005", *SMALL]) == 0
+    assert (
+        main(
+            ["run", "martin_moyce", "--duration", "0.4", "--out", str(reference), "--set", "physics.dt=0.0005", *SMALL]
+        )
+        == 0
+    )
     assert main(["run", "--resume", str(out), "--no-progress"]) == 0
     same_run(out, reference)
     record = json.loads((out / "run.json").read_text())
@@ -81,7 +105,12 @@ def test_a_diverged_run_resumes_once_fixed(whole, tmp_path):
     """A run stopped as diverged by a speed limit set too low resumes, with the limit fixed, from
     its last checkpoint: the steps after it go, and the run equals one that had the right limit."""
     out = tmp_path / "strict"
-    assert main(["run", "martin_moyce", "--duration", "0.4", "--out", str(out), "--set", "physics.max_velocity=1.0", *SMALL]) == 1
+    assert (
+        main(
+            ["run", "martin_moyce", "--duration", "0.4", "--out", str(out), "--set", "physics.max_velocity=1.0", *SMALL]
+        )
+        == 1
+    )
     record = json.loads((out / "run.json").read_text())
     assert record["ended"] == "diverged" and "exceeds the limit 1 m/s" in record["message"]
     last = record["totals"]["frames"] - 1
@@ -100,6 +129,21 @@ def test_resume_refuses_what_it_cannot_do(whole, tmp_path, capsys):
     assert main(["run", "martin_moyce", "--resume", str(whole), "--no-progress"]) == 2
     capsys.readouterr()
     nock = tmp_path / "nock"
-    assert main(["run", "martin_moyce", "--duration", "0.1", "--out", str(nock), "--set", "output.checkpoint_every=0", *SMALL]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "martin_moyce",
+                "--duration",
+                "0.1",
+                "--out",
+                str(nock),
+                "--set",
+                "output.checkpoint_every=0",
+                *SMALL,
+            ]
+        )
+        == 0
+    )
     assert main(["run", "--resume", str(nock), "--no-progress"]) == 2
     assert "no checkpoint to resume from" in capsys.readouterr().err

@@ -20,10 +20,16 @@ def _scene(**kw):
         (lambda s: setattr(s.physics, "eta", 0.0), r"physics.eta = 0.0: must be in \(0, 0.5\]"),
         (lambda s: setattr(s.physics, "eta", -1e-3), r"physics.eta"),
         (lambda s: setattr(s.physics, "method", "pcisph"), r"physics.method = 'pcisph': must be one of iisph, wcsph"),
-        (lambda s: setattr(s.physics, "max_iterations", 0), r"physics.max_iterations = 0: must be an integer in \[1, 100000\]"),
+        (
+            lambda s: setattr(s.physics, "max_iterations", 0),
+            r"physics.max_iterations = 0: must be an integer in \[1, 100000\]",
+        ),
         (lambda s: setattr(s.physics, "viscosity", -1.0), r"physics.viscosity = -1.0: must be in \[0, 1\]"),
         (lambda s: setattr(s.physics, "dt", 0.0), r"physics.dt = 0.0"),
-        (lambda s: s.add_fluid_box((0.9, 0.0, 0.0), (1.2, 0.1, 0.1)), r"fluids\[1\]: fluid .* must lie inside the tank"),
+        (
+            lambda s: s.add_fluid_box((0.9, 0.0, 0.0), (1.2, 0.1, 0.1)),
+            r"fluids\[1\]: fluid .* must lie inside the tank",
+        ),
         (lambda s: s.add_fluid_box((0.1, 0.1, 0.0), (0.3, 0.3, 0.1)), r"fluids\[0\] and fluids\[1\] overlap"),
         (lambda s: s.add_fluid_sphere((0.25, 0.2, 0.1), 0.1), r"fluids\[0\] and fluids\[1\] overlap"),
         (lambda s: s.add_fluid_sphere((0.9, 0.5, 0.1), 0.2), r"fluids\[1\]: fluid .* must lie inside the tank"),
@@ -39,7 +45,9 @@ def test_bad_parameters_name_field_and_range(mutate, match):
 
 def test_touching_blocks_and_spheres_are_accepted():
     s = Scene(spacing=0.02, tank=Box((0, 0, 0), (1, 1, 1)))
-    s.add_fluid_box((0, 0, 0), (0.5, 0.2, 1)).add_fluid_box((0.5, 0, 0), (1, 0.2, 1)).add_fluid_sphere((0.5, 0.6, 0.5), 0.2)
+    s.add_fluid_box((0, 0, 0), (0.5, 0.2, 1)).add_fluid_box((0.5, 0, 0), (1, 0.2, 1)).add_fluid_sphere(
+        (0.5, 0.6, 0.5), 0.2
+    )
     sim = Simulation(s, "cpu")
     assert sim.n_particles > 0
     assert abs(sim.n_particles * 0.02**3 - (0.2 + 4 / 3 * 3.14159 * 0.2**3)) < 0.01

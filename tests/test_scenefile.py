@@ -36,7 +36,9 @@ def test_obstacles_are_built_and_fluid_kept_out_of_them():
 
 
 def test_overrides_reach_the_scene():
-    scene = load_scene("drop_splash", ["spacing=0.05", "physics.eta=0.0005", "fluids.1.radius=0.08", "output.mesh=false"])
+    scene = load_scene(
+        "drop_splash", ["spacing=0.05", "physics.eta=0.0005", "fluids.1.radius=0.08", "output.mesh=false"]
+    )
     assert scene.spacing == 0.05 and scene.physics.eta == 0.0005 and scene.fluids[1].radius == 0.08
 
 
@@ -64,12 +66,27 @@ BAD = {
     "negative spacing": (GOOD.replace("spacing = 0.05", "spacing = -0.1"), "spacing = -0.1: must be > 0"),
     "fluid outside tank": (GOOD.replace("upper = [0.5, 0.5, 0.5]", "upper = [0.5, 1.5, 0.5]"), "fluids[0]: fluid"),
     "eta out of range": (GOOD + "[physics]\neta = 2.0\n", "physics.eta = 2.0: must be in (0, 0.5]"),
-    "missing mesh": (GOOD + '[[obstacles]]\nshape = "mesh"\npath = "nope.obj"\n', "obstacles[0].path = 'nope.obj': file not found"),
-    "unreadable mesh": (GOOD + '[[obstacles]]\nshape = "mesh"\npath = "junk.obj"\n', "obstacles[0].path = 'junk.obj': "),
-    "bad shape": (GOOD + '[[obstacles]]\nshape = "cone"\n', "obstacles[0].shape = 'cone': must be one of box, sphere, mesh"),
-    "missing key": (GOOD + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.7, 0.7]\n', "obstacles[0].radius: required"),
+    "missing mesh": (
+        GOOD + '[[obstacles]]\nshape = "mesh"\npath = "nope.obj"\n',
+        "obstacles[0].path = 'nope.obj': file not found",
+    ),
+    "unreadable mesh": (
+        GOOD + '[[obstacles]]\nshape = "mesh"\npath = "junk.obj"\n',
+        "obstacles[0].path = 'junk.obj': ",
+    ),
+    "bad shape": (
+        GOOD + '[[obstacles]]\nshape = "cone"\n',
+        "obstacles[0].shape = 'cone': must be one of box, sphere, mesh",
+    ),
+    "missing key": (
+        GOOD + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.7, 0.7]\n',
+        "obstacles[0].radius: required",
+    ),
     "bad toml": ("spacing = = 1\n", "not valid TOML"),
-    "too many particles": (GOOD.replace("spacing = 0.05", "spacing = 0.0002"), "spacing = 0.0002: the scene would need about"),
+    "too many particles": (
+        GOOD.replace("spacing = 0.05", "spacing = 0.0002"),
+        "spacing = 0.0002: the scene would need about",
+    ),
     "more than memory holds": (GOOD.replace("spacing = 0.05", "spacing = 0.0005"), "GiB but"),
 }
 

@@ -3,12 +3,18 @@
 import numpy as np
 import warp as wp
 
-from warp_iisph import Scene, Box, Simulation
-from warp_iisph.sph.kernel import cubic_W, cubic_W_np, cubic_grad_W
+from warp_iisph import Box, Scene, Simulation
+from warp_iisph.sph.kernel import cubic_grad_W, cubic_W, cubic_W_np
 
 
 @wp.kernel
-def eval_kernel(r: wp.array(dtype=wp.vec3), H: float, w: wp.array(dtype=float), g: wp.array(dtype=wp.vec3), g_neg: wp.array(dtype=wp.vec3)):
+def eval_kernel(
+    r: wp.array(dtype=wp.vec3),
+    H: float,
+    w: wp.array(dtype=float),
+    g: wp.array(dtype=wp.vec3),
+    g_neg: wp.array(dtype=wp.vec3),
+):
     i = wp.tid()
     w[i] = cubic_W(wp.length(r[i]), H)
     g[i] = cubic_grad_W(r[i], H)
@@ -18,7 +24,11 @@ def eval_kernel(r: wp.array(dtype=wp.vec3), H: float, w: wp.array(dtype=float), 
 def _eval(r, H):
     n = len(r)
     ra = wp.array(r.astype(np.float32), dtype=wp.vec3, device="cpu")
-    w, g, gn = (wp.zeros(n, dtype=float, device="cpu"), wp.zeros(n, dtype=wp.vec3, device="cpu"), wp.zeros(n, dtype=wp.vec3, device="cpu"))
+    w, g, gn = (
+        wp.zeros(n, dtype=float, device="cpu"),
+        wp.zeros(n, dtype=wp.vec3, device="cpu"),
+        wp.zeros(n, dtype=wp.vec3, device="cpu"),
+    )
     wp.launch(eval_kernel, dim=n, inputs=[ra, H, w, g, gn], device="cpu")
     return w.numpy(), g.numpy(), gn.numpy()
 
@@ -57,7 +67,14 @@ def test_gradient_antisymmetric_and_matches_finite_differences():
     _, g, gn = _eval(r, H)
     assert np.allclose(g, -gn, atol=1e-6 * np.abs(g).max())
     eps = 1e-6
-    fd = np.stack([(cubic_W_np(np.linalg.norm(r + eps * e, axis=1), H) - cubic_W_np(np.linalg.norm(r - eps * e, axis=1), H)) / (2 * eps) for e in np.eye(3)], axis=1)
+    fd = np.stack(
+        [
+            (cubic_W_np(np.linalg.norm(r + eps * e, axis=1), H) - cubic_W_np(np.linalg.norm(r - eps * e, axis=1), H))
+            / (2 * eps)
+            for e in np.eye(3)
+        ],
+        axis=1,
+    )
     assert np.allclose(g, fd, rtol=1e-3, atol=1e-3 * np.abs(fd).max())
     # the gradient points from x_i towards x_j: W falls with distance
     assert np.all(np.einsum("ij,ij->i", g, r) <= 1e-6)
@@ -78,7 +95,12 @@ def test_a_solve_ending_at_eta_reports_at_most_eta():
     iterations = wp.array([3], dtype=wp.int32, device="cpu")
     keep_going = wp.ones(1, dtype=wp.int32, device="cpu")
     blend = wp.zeros(1, dtype=float, device="cpu")
-    wp.launch(jacobi_convergence, dim=1, device="cpu", inputs=[error_sum, n, wp.float64(eta), 2, 100, iterations, keep_going, last, blend])
+    wp.launch(
+        jacobi_convergence,
+        dim=1,
+        device="cpu",
+        inputs=[error_sum, n, wp.float64(eta), 2, 100, iterations, keep_going, last, blend],
+    )
     mean = error_sum.numpy()[0] / n
     assert keep_going.numpy()[0] == 0 and mean <= eta and abs(mean - eta) < 1e-12 * eta
     assert abs(blend.numpy()[0] - 2.0 / 3.0) < 1e-6  # (2 eta - eta) / (2 eta - eta / 2): where the error reaches eta

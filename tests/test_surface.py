@@ -8,10 +8,11 @@ import warp as wp
 
 from warp_iisph.cli import main
 from warp_iisph.run.formats import write_obj
+from warp_iisph.scene import Box, Sphere
+from warp_iisph.scene import SurfaceSettings as Surface
 from warp_iisph.setup.sampling import sample_box, sample_sphere
-from warp_iisph.scene import Box, Sphere, SurfaceSettings as Surface
-from warp_iisph.surface import field as surface
 from warp_iisph.surface import SurfaceReconstructor
+from warp_iisph.surface import field as surface
 
 H = 0.02
 CENTRE = np.array([0.1, 0.2, 0.3])
@@ -176,7 +177,9 @@ def test_obj_text_is_printf_formatting(tmp_path):
     f = rng.integers(0, 500, (900, 3)).astype(np.int32)
     f[0] = (0, 9, 499)  # one- to three-digit indices
     ref = ["# warp_iisph surface: 500 vertices, 900 triangles"]
-    ref += ["v %.6f %.6f %.6f" % tuple(map(float, r)) for r in v] + ["vn %.4f %.4f %.4f" % tuple(map(float, r)) for r in n]
+    ref += ["v %.6f %.6f %.6f" % tuple(map(float, r)) for r in v] + [
+        "vn %.4f %.4f %.4f" % tuple(map(float, r)) for r in n
+    ]
     plain = ref[:501] + ["f %d %d %d" % tuple(r + 1) for r in f]
     ref += ["f %d//%d %d//%d %d//%d" % tuple(np.repeat(r + 1, 2)) for r in f]
     assert [" ".join(s.split()) for s in obj_bytes(v, f, n).decode().splitlines()] == ref
@@ -188,8 +191,25 @@ def test_obj_text_is_printf_formatting(tmp_path):
 
 def test_run_with_mesh_and_mesh_command(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["run", "martin_moyce", "--spacing", "0.04", "--duration", "0.1", "--fps", "20", "--out", str(out),
-                 "--mesh", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "martin_moyce",
+                "--spacing",
+                "0.04",
+                "--duration",
+                "0.1",
+                "--fps",
+                "20",
+                "--out",
+                str(out),
+                "--mesh",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     objs = sorted((out / "mesh").glob("frame_*.obj"))
     assert [o.name for o in objs] == [f"frame_{k:05d}.obj" for k in range(3)]
     first = trimesh.load(objs[0])
@@ -213,7 +233,22 @@ def test_run_with_mesh_and_mesh_command(tmp_path, capsys):
 
     run = RunFolder(out)
     assert run.mesh_format == "ply" and [f.suffix for f in run.frames(MESHES)] == [".ply"] * 3
-    assert main(["preview", str(out), "--source", "mesh", "--frames", "2:", "--out", str(tmp_path / "still.png"), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "preview",
+                str(out),
+                "--source",
+                "mesh",
+                "--frames",
+                "2:",
+                "--out",
+                str(tmp_path / "still.png"),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert (tmp_path / "still.png").stat().st_size > 0
     assert main(["mesh", str(tmp_path / "nothing"), "--no-progress"]) == 2
     assert "no such run folder" in capsys.readouterr().err
@@ -259,7 +294,8 @@ def test_block_marching_cubes_equals_warps_dense_marching_cubes(deep):
     dense = field.dense()
     upper = field.lower + field.cell * (np.array(dense.shape) - 1)
     ref_v, ref_i = warp.geometry.IsoSurfaceMarchingCubes.extract(
-        wp.array(dense, dtype=float), 0.0, lower=wp.vec3(*field.lower.tolist()), upper=wp.vec3(*upper.tolist()))
+        wp.array(dense, dtype=float), 0.0, lower=wp.vec3(*field.lower.tolist()), upper=wp.vec3(*upper.tolist())
+    )
     ref_v, ref_i = ref_v.numpy(), ref_i.numpy()
     assert len(verts) == len(ref_v) and len(indices) == len(ref_i)
 
@@ -378,7 +414,9 @@ def _splat_field(settings: dict, seed: int, monkeypatch):
 
     monkeypatch.setattr(surface, "launch_particles", spy)
     pool = sample_box(Box((-0.1, -0.3, 0.1), (0.3, 0.0, 0.5)), H)
-    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(seed).normal(0, 0.1 * H, pool.shape)]).astype(np.float32)
+    x = np.concatenate([_jittered_ball(0.1), pool + np.random.default_rng(seed).normal(0, 0.1 * H, pool.shape)]).astype(
+        np.float32
+    )
     field = SurfaceReconstructor(H, Surface(**settings)).distance_field(x)
     return x, field, launched["inputs"]
 
@@ -396,7 +434,9 @@ def test_splat_equals_the_per_node_field(settings, monkeypatch):
     grid.build(xd, R)
     reference = wp.empty_like(f.phi)
     full = max(1, int(0.75 * (R / H) ** 3))
-    wp.launch(per_node_signed_distance, dim=reference.shape[0], inputs=[f, grid.id, xd, R, r0, counts, cd, full, reference])
+    wp.launch(
+        per_node_signed_distance, dim=reference.shape[0], inputs=[f, grid.id, xd, R, r0, counts, cd, full, reference]
+    )
     got, want = f.phi.numpy(), reference.numpy()
     outside, deep = want == np.float32(R), want == np.float32(-r0)
     summed = ~outside & ~deep

@@ -9,10 +9,21 @@ from warp_iisph import Simulation, scenes
 from warp_iisph.scene import load_scene
 
 # modules that launch per-particle kernels through the helper
-USERS = ["warp_iisph.setup.model", "warp_iisph.setup.boundary", "warp_iisph.sph.neighbors", "warp_iisph.sph.wall_mask",
-         "warp_iisph.sph.solvers.base", "warp_iisph.sph.solvers.iisph", "warp_iisph.sph.solvers.wcsph", "warp_iisph.sph.solvers.dfsph",
-         "warp_iisph.surface.field", "warp_iisph.surface.marching", "warp_iisph.surface.smoothing",
-         "warp_iisph.surface.reconstructor", "warp_iisph.run.obj_text"]
+USERS = [
+    "warp_iisph.setup.model",
+    "warp_iisph.setup.boundary",
+    "warp_iisph.sph.neighbors",
+    "warp_iisph.sph.wall_mask",
+    "warp_iisph.sph.solvers.base",
+    "warp_iisph.sph.solvers.iisph",
+    "warp_iisph.sph.solvers.wcsph",
+    "warp_iisph.sph.solvers.dfsph",
+    "warp_iisph.surface.field",
+    "warp_iisph.surface.marching",
+    "warp_iisph.surface.smoothing",
+    "warp_iisph.surface.reconstructor",
+    "warp_iisph.run.obj_text",
+]
 
 
 def _arrays(inputs):
@@ -63,7 +74,9 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
 
     for name in USERS:
         monkeypatch.setattr(importlib.import_module(name), "launch_particles", checked)
-    sim = Simulation(load_scene("fluid_flow", ["spacing=0.03", "physics.viscosity=0.001", "physics.boundary_viscosity=0.001"]), "cpu")
+    sim = Simulation(
+        load_scene("fluid_flow", ["spacing=0.03", "physics.viscosity=0.001", "physics.boundary_viscosity=0.001"]), "cpu"
+    )
     for _ in range(12):  # past a cell reordering (every 10 steps)
         sim.step()
     wc = Simulation(scenes.martin_moyce(spacing=0.04, method="wcsph", dt=2e-4), "cpu")
@@ -76,10 +89,33 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
 
     SurfaceReconstructor(0.03).reconstruct(sim.positions)
     keys = {k for k, _ in seen}
-    for expected in ("splat_blocks", "block_cases", "block_emit", "fill_incident", "smooth_vertices", "vertex_normals", "count_neighbors", "fill_neighbors", "compute_density", "predict_advection_velocity",
-                     "predict_advection_density", "pressure_sum_dij_pj", "pressure_jacobi", "integrate",
-                     "predict_velocity", "state_equation", "boundary_psi", "initial_density", "dfsph_factor", "start_divergence_solve",
-                     "divergence_jacobi", "apply_stiffness", "start_density_solve", "density_jacobi", "finish_step"):
+    for expected in (
+        "splat_blocks",
+        "block_cases",
+        "block_emit",
+        "fill_incident",
+        "smooth_vertices",
+        "vertex_normals",
+        "count_neighbors",
+        "fill_neighbors",
+        "compute_density",
+        "predict_advection_velocity",
+        "predict_advection_density",
+        "pressure_sum_dij_pj",
+        "pressure_jacobi",
+        "integrate",
+        "predict_velocity",
+        "state_equation",
+        "boundary_psi",
+        "initial_density",
+        "dfsph_factor",
+        "start_divergence_solve",
+        "divergence_jacobi",
+        "apply_stiffness",
+        "start_density_solve",
+        "density_jacobi",
+        "finish_step",
+    ):
         assert any(expected in k for k in keys), (expected, keys)
 
 
@@ -90,8 +126,13 @@ def test_dam_break_with_one_and_two_threads_is_identical(monkeypatch):
         launch.set_threads(threads)
         sim = Simulation(scenes.martin_moyce(spacing=0.03, viscosity=1e-3, boundary_viscosity=1e-3), "cpu")
         sim.advance(0.1)
-        runs[threads] = (sim.positions, sim.velocities, sim.pressures, [s["iterations"] for s in sim.stats],
-                         [s["density_error"] for s in sim.stats])
+        runs[threads] = (
+            sim.positions,
+            sim.velocities,
+            sim.pressures,
+            [s["iterations"] for s in sim.stats],
+            [s["density_error"] for s in sim.stats],
+        )
     launch.set_threads(launch.available_cores())
     a, b = runs[1], runs[2]
     for x, y in zip(a[:3], b[:3]):

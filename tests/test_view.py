@@ -7,12 +7,11 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 import trimesh
+from conftest import PILLAR  # the obstacle of the obstacle_run fixture
 
 from warp_iisph.cli import main
 from warp_iisph.run.folder import RunError, RunFolder, select_frames
 from warp_iisph.view.camera import auto_camera
-
-from conftest import PILLAR  # the obstacle of the obstacle_run fixture
 
 
 def video_frames(path):
@@ -30,7 +29,23 @@ def test_preview_writes_one_video_frame_per_run_frame(tiny_run, capsys):
     assert blue.mean() > 0.01
     # the mesh as the source, a frame range, a GIF
     out = tiny_run / "m.gif"
-    assert main(["preview", str(tiny_run), "--source", "mesh", "--frames", "1:3", "--gif", "--out", str(out), "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "preview",
+                str(tiny_run),
+                "--source",
+                "mesh",
+                "--frames",
+                "1:3",
+                "--gif",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert len(video_frames(out)) == 2
 
 
@@ -45,7 +60,11 @@ def test_preview_bad_input_is_one_line(tiny_run, tmp_path, capsys):
 
 def test_frame_selection():
     files = [type("P", (), {"stem": f"frame_{k:05d}"})() for k in range(10)]
-    assert len(select_frames(files, "2:5")) == 3 and len(select_frames(files, "7:")) == 3 and len(select_frames(files, ":2")) == 2
+    assert (
+        len(select_frames(files, "2:5")) == 3
+        and len(select_frames(files, "7:")) == 3
+        and len(select_frames(files, ":2")) == 2
+    )
     for bad in ("2", "a:b", "1:2:3"):
         with pytest.raises(RunError):
             select_frames(files, bad)
@@ -78,7 +97,7 @@ def test_tiny_render_shows_the_liquid(tmp_path):
     path = tmp_path / "ball.obj"
     ball.export(path)
     eye, target = auto_camera(ball.bounds[0], ball.bounds[1], 40.0, 64 / 36)
-    args = dict(camera=(eye, target), floor_y=0.0, extent=3.0, spp=4, width=64, height=36, fov=40.0)
+    args = {"camera": (eye, target), "floor_y": 0.0, "extent": 3.0, "spp": 4, "width": 64, "height": 36, "fov": 40.0}
     red = render.material_color("0.95,0.5,0.5")  # through the 0.4 m ball: red 66 %, green and blue 0.4 %
     with_liquid = render.render_image(render.scene_dict(path, color=red, **args), use_denoiser=True)
     background = render.render_image(render.scene_dict(None, color=red, **args), use_denoiser=True)
@@ -128,7 +147,10 @@ def test_old_libllvm_falls_back_to_scalar_and_says_what_to_install(monkeypatch):
 def test_camera_keys_in_scene_files(tmp_path):
     from warp_iisph.scene import SceneFileError, load_scene
 
-    base = 'spacing = 0.05\ntank = { lower = [0, 0, 0], upper = [1, 1, 1] }\n[[fluids]]\nlower = [0, 0, 0]\nupper = [0.3, 0.3, 0.3]\n'
+    base = (
+        "spacing = 0.05\ntank = { lower = [0, 0, 0], upper = [1, 1, 1] }\n[[fluids]]\n"
+        "lower = [0, 0, 0]\nupper = [0.3, 0.3, 0.3]\n"
+    )
     path = tmp_path / "s.toml"
     path.write_text(base + "[camera]\nposition = [2, 1, 3]\ntarget = [0.5, 0.2, 0.5]\nfov = 30\n")
     cam = load_scene(path).camera
@@ -161,8 +183,11 @@ def script_constants(text: str) -> dict:
     """The upper-case constants a generated script starts with, read as Python literals."""
     import ast
 
-    return {node.targets[0].id: ast.literal_eval(node.value) for node in ast.parse(text).body
-            if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name) and node.targets[0].id.isupper()}
+    return {
+        node.targets[0].id: ast.literal_eval(node.value)
+        for node in ast.parse(text).body
+        if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name) and node.targets[0].id.isupper()
+    }
 
 
 def obj_counts(path) -> tuple[int, int]:
@@ -181,10 +206,14 @@ def test_blender_script_makes_one_liquid_object_whose_mesh_changes_per_frame(tin
     assert "1.33" in text and "ShaderNodeVolumeAbsorption" in text
     c = script_constants(text)
     meshes = RunFolder(tiny_run).frames("mesh")
-    assert c["FRAMES"] == [[k, str(m.resolve())] for k, m in enumerate(meshes)] and c["USD"] is None and c["FPS"] == 30.0
+    assert (
+        c["FRAMES"] == [[k, str(m.resolve())] for k, m in enumerate(meshes)] and c["USD"] is None and c["FPS"] == 30.0
+    )
     # one object, made once; every frame's OBJ becomes a mesh datablock kept in the file; nothing
     # is made per frame or keyed visible any more
-    assert text.count("bpy.data.objects.new(") == 2  # the frame sequence's object (liquid, moving obstacles) and the camera
+    assert (
+        text.count("bpy.data.objects.new(") == 2
+    )  # the frame sequence's object (liquid, moving obstacles) and the camera
     assert 'bpy.data.objects.new(name, bpy.data.meshes[name + "_%05d" % frames[0][0]])' in text
     assert 'liquid = sequence("liquid", FRAMES, mat)' in text and c["OBSTACLE_FRAMES"] == []
     assert "use_fake_user = True" in text and "keyframe_insert" not in text and "hide_render" not in text
@@ -205,7 +234,9 @@ def test_blender_frame_handler_swaps_the_mesh(monkeypatch, tiny_run):
 
     handlers = types.SimpleNamespace(frame_change_pre=[], persistent=lambda f: f)
     meshes = {f"liquid_{k:05d}": object() for k in (3, 4, 5)}
-    fake = types.SimpleNamespace(app=types.SimpleNamespace(handlers=handlers), data=types.SimpleNamespace(meshes=meshes))
+    fake = types.SimpleNamespace(
+        app=types.SimpleNamespace(handlers=handlers), data=types.SimpleNamespace(meshes=meshes)
+    )
     monkeypatch.setitem(sys.modules, "bpy", fake)
     for _ in range(2):  # run twice (the script again, or the .blend reopened): registered once
         exec(compile(HANDLER, "warp_iisph_liquid.py", "exec"), {"__name__": "warp_iisph_liquid.py"})
@@ -258,7 +289,9 @@ def test_blender_script_runs_in_blender(tiny_run, tmp_path):
     scene = bpy.context.scene
     liquids = [o for o in bpy.data.objects if o.name.startswith("liquid")]
     assert [o.name for o in liquids] == ["liquid"] and scene.frame_start == 0 and scene.frame_end == 3
-    assert sorted(m.name for m in bpy.data.meshes if m.name.startswith("liquid_")) == [f"liquid_{k:05d}" for k in range(4)]
+    assert sorted(m.name for m in bpy.data.meshes if m.name.startswith("liquid_")) == [
+        f"liquid_{k:05d}" for k in range(4)
+    ]
     assert bpy.data.texts["warp_iisph_liquid.py"].use_module
     for k, obj in enumerate(RunFolder(tiny_run).frames("mesh")):
         scene.frame_set(k)
@@ -326,7 +359,19 @@ def test_render_shows_the_obstacles(obstacle_run, tmp_path):
 
     run = tmp_path / "run"
     shutil.copytree(obstacle_run, run)
-    args = ["render", str(run), "--resolution", "64x36", "--spp", "4", "--variant", "scalar_rgb", "--frames", "0:1", "--no-progress"]
+    args = [
+        "render",
+        str(run),
+        "--resolution",
+        "64x36",
+        "--spp",
+        "4",
+        "--variant",
+        "scalar_rgb",
+        "--frames",
+        "0:1",
+        "--no-progress",
+    ]
     assert main(args) == 0
     with_ = imageio.imread(run / "frames" / "frame_00000.png")
     (run / "obstacles.obj").unlink()

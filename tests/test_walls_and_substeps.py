@@ -19,8 +19,12 @@ def floor_layer_over_hydrostatic(wall_pressure: str) -> float:
     clamps the under-dense free surface at p = 0). Averaged over steps, as the column still
     breathes a little from step to step."""
     h = 0.02
-    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (0.16, 0.4, 0.16)), physics=Physics(wall_pressure=wall_pressure),
-                  name="resting_column")
+    scene = Scene(
+        spacing=h,
+        tank=Box((0.0, 0.0, 0.0), (0.16, 0.4, 0.16)),
+        physics=Physics(wall_pressure=wall_pressure),
+        name="resting_column",
+    )
     scene.add_fluid_box((0.0, 0.0, 0.0), (0.16, 0.3, 0.16))
     sim = Simulation(scene, "cpu")
     sim.advance(1.0)
@@ -28,7 +32,7 @@ def floor_layer_over_hydrostatic(wall_pressure: str) -> float:
     while sim.time < 1.4 - 1e-9:
         sim.step()
         x, p = sim.positions, sim.pressures
-        top = np.sort(x[:, 1])[-len(x) // 15:].mean()  # the top layer (15 layers)
+        top = np.sort(x[:, 1])[-len(x) // 15 :].mean()  # the top layer (15 layers)
         inner = np.all((x[:, [0, 2]] > 1.5 * h) & (x[:, [0, 2]] < 0.16 - 1.5 * h), axis=1)
         floor = inner & (x[:, 1] < h)
         ratios.append(np.mean(p[floor]) / (1000.0 * G * np.mean(top - x[floor, 1])))
@@ -128,14 +132,16 @@ def test_substeps_in_a_graph_and_after_a_resume_are_bitwise_the_plain_run():
     whole = dam(0.02)
     for _ in range(10):
         whole.step()
-    assert whole.stats[-1]["substeps"] > 1 and abs(whole.time / 0.02 - round(whole.time / 0.02)) > 1e-3  # mid-way through a cut step
+    assert (
+        whole.stats[-1]["substeps"] > 1 and abs(whole.time / 0.02 - round(whole.time / 0.02)) > 1e-3
+    )  # mid-way through a cut step
     saved = whole.checkpoint()
     resumed = dam(0.02)
     resumed.restore(saved)
     whole.advance(0.06)
     resumed.advance(0.06)
     np.testing.assert_array_equal(resumed.positions, whole.positions)
-    assert [s["dt"] for s in resumed.stats] == [s["dt"] for s in whole.stats][-len(resumed.stats):]
+    assert [s["dt"] for s in resumed.stats] == [s["dt"] for s in whole.stats][-len(resumed.stats) :]
 
 
 @pytest.mark.parametrize("value", ["mirror", 1, None])

@@ -21,7 +21,18 @@ def __getattr__(name: str):
         return getattr(stepping, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
+
 __all__ = [
-    "Box", "Camera", "MeshShape", "Output", "Physics", "Scene", "Sphere", "Simulation", "DivergenceError",
-    "load_scene", "scenes", "__version__",
+    "Box",
+    "Camera",
+    "MeshShape",
+    "Output",
+    "Physics",
+    "Scene",
+    "Sphere",
+    "Simulation",
+    "DivergenceError",
+    "load_scene",
+    "scenes",
+    "__version__",
 ]

@@ -28,82 +28,149 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show the Python traceback of an error instead of one line")
     sub = p.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     run = sub.add_parser("run", help="simulate a scene file (or a bundled scene) into an output folder")
-    run.add_argument("scene", nargs="?", help="a scene file (.toml) or the name of a bundled scene (see `warp-iisph scenes`)")
-    run.add_argument("--resume", metavar="RUN_DIR", default=None,
-                     help="continue a stopped, interrupted or diverged (then --set fixed) run from its last checkpoint, "
-                          "bitwise as it would have run; --duration may extend it")
-    run.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's output.duration)")
-    run.add_argument("--fps", type=float, default=None, help="frames per simulated second (default: the scene's output.fps)")
+    run.add_argument(
+        "scene", nargs="?", help="a scene file (.toml) or the name of a bundled scene (see `warp-iisph scenes`)"
+    )
+    run.add_argument(
+        "--resume",
+        metavar="RUN_DIR",
+        default=None,
+        help="continue a stopped, interrupted or diverged (then --set fixed) run from its last checkpoint, "
+        "bitwise as it would have run; --duration may extend it",
+    )
+    run.add_argument(
+        "--duration", type=float, default=None, help="simulated seconds (default: the scene's output.duration)"
+    )
+    run.add_argument(
+        "--fps", type=float, default=None, help="frames per simulated second (default: the scene's output.fps)"
+    )
     run.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     run.add_argument("--out", default=None, help="output folder (default runs/SCENE_NAME)")
-    run.add_argument("--spacing", type=float, default=None, help="particle spacing h in metres (same as --set spacing=H)")
+    run.add_argument(
+        "--spacing", type=float, default=None, help="particle spacing h in metres (same as --set spacing=H)"
+    )
     run.add_argument("--method", choices=METHODS, default=None, help="pressure solver (same as --set physics.method=M)")
     run.add_argument(
-        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
         help="override a scene-file key, e.g. --set spacing=0.01 --set physics.eta=0.0005 --set fluids.0.radius=0.1",
     )
-    run.add_argument("--mesh", action="store_true", help="also write the surface mesh/frame_NNNNN.obj (same as --set output.mesh=true)")
-    run.add_argument("--format", choices=("ply", "vtu"), default=None,
-                     help="particle files: binary PLY (default; splashsurf reads it) or VTU for ParaView (same as --set output.format=F)")
-    run.add_argument("--threads", default=None, help="CPU threads for per-particle kernels (default: all available cores)")
-    run.add_argument("--graph", action=argparse.BooleanOptionalAction, default=None,
-                     help="record the loop over steps as a graph and replay it (no per-step Python launches); "
-                          "default: on with a CUDA device, off on the CPU (a replay there runs on one thread)")
+    run.add_argument(
+        "--mesh",
+        action="store_true",
+        help="also write the surface mesh/frame_NNNNN.obj (same as --set output.mesh=true)",
+    )
+    run.add_argument(
+        "--format",
+        choices=("ply", "vtu"),
+        default=None,
+        help="particle files: binary PLY (default; splashsurf reads it) "
+        "or VTU for ParaView (same as --set output.format=F)",
+    )
+    run.add_argument(
+        "--threads", default=None, help="CPU threads for per-particle kernels (default: all available cores)"
+    )
+    run.add_argument(
+        "--graph",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="record the loop over steps as a graph and replay it (no per-step Python launches); "
+        "default: on with a CUDA device, off on the CPU (a replay there runs on one thread)",
+    )
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
     mesh = sub.add_parser("mesh", help="mesh a run's particle frames (or any particle files) into OBJ surfaces")
-    mesh.add_argument("run_dir", metavar="PATH",
-                      help="an output folder of `warp-iisph run` (meshes go to PATH/mesh/), or a particle file or a folder of "
-                           "them in any format meshio reads (PLY, VTK, VTU; needs --spacing)")
+    mesh.add_argument(
+        "run_dir",
+        metavar="PATH",
+        help="an output folder of `warp-iisph run` (meshes go to PATH/mesh/), or a particle file or a folder of "
+        "them in any format meshio reads (PLY, VTK, VTU; needs --spacing)",
+    )
     mesh.add_argument("--spacing", type=float, default=None, help="particle spacing h in metres (default: the run's)")
-    mesh.add_argument("--out", default=None, help="output folder for particle files that are not a run (default: beside them, "
-                                                  "in mesh/ for a folder)")
+    mesh.add_argument(
+        "--out",
+        default=None,
+        help="output folder for particle files that are not a run (default: beside them, in mesh/ for a folder)",
+    )
     mesh.add_argument("--cell", type=float, default=None, help="grid cell, in particle spacings (default 0.5)")
-    mesh.add_argument("--r0", type=float, default=None, help="particle radius of the distance field, in spacings (default 0.5)")
+    mesh.add_argument(
+        "--r0", type=float, default=None, help="particle radius of the distance field, in spacings (default 0.5)"
+    )
     mesh.add_argument("--radius", type=float, default=None, help="kernel radius R, in spacings (default 2)")
     mesh.add_argument("--smoothing", choices=("laplacian", "taubin", "none"), default=None, help="default laplacian")
     mesh.add_argument("--passes", type=int, default=None, help="smoothing passes (default 3)")
     mesh.add_argument("--format", choices=("obj", "ply"), default=None, help="mesh files: obj (default) or binary ply")
     mesh.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
     mesh.add_argument("--threads", default=None, help="CPU threads (default: all available cores)")
-    mesh.add_argument("--overwrite", action="store_true", help="re-mesh frames that already have a mesh, also with other settings")
+    mesh.add_argument(
+        "--overwrite", action="store_true", help="re-mesh frames that already have a mesh, also with other settings"
+    )
     mesh.add_argument("--no-progress", action="store_true", help="no progress bar")
-    render = sub.add_parser("render", help="path-trace a run's meshes into frames/ and video.mp4 (needs the render extra)")
+    render = sub.add_parser(
+        "render", help="path-trace a run's meshes into frames/ and video.mp4 (needs the render extra)"
+    )
     render.add_argument("run_dir", help="an output folder of `warp-iisph run --mesh` (or of `warp-iisph mesh`)")
     render.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16; denoised)")
     render.add_argument("--resolution", default="640x360", help="WIDTHxHEIGHT (default 640x360)")
-    render.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b: the colour of 5 cm of the liquid")
-    render.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded), e.g. 0:30")
+    render.add_argument(
+        "--material", default="water", help="water, wine, whisky, or r,g,b: the colour of 5 cm of the liquid"
+    )
+    render.add_argument(
+        "--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded), e.g. 0:30"
+    )
     render.add_argument("--walls", action="store_true", help="show the box tank's far walls")
     render.add_argument("--no-denoise", action="store_true", help="skip OpenImageDenoise")
-    render.add_argument("--variant", default=None, help="force a Mitsuba variant (default: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb, the fastest that works)")
+    render.add_argument(
+        "--variant",
+        default=None,
+        help="force a Mitsuba variant (default: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb, the fastest that works)",
+    )
     render.add_argument("--gif", action="store_true", help="write video.gif instead of video.mp4")
     render.add_argument("--overwrite", action="store_true", help="re-render frames already rendered")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
-    preview = sub.add_parser("preview", help="a fast look at a run (particles coloured by speed, or the mesh) in preview.mp4")
+    preview = sub.add_parser(
+        "preview", help="a fast look at a run (particles coloured by speed, or the mesh) in preview.mp4"
+    )
     preview.add_argument("run_dir", help="an output folder of `warp-iisph run`")
-    preview.add_argument("--source", choices=("particles", "mesh"), default=None, help="default: particles when the run has them")
+    preview.add_argument(
+        "--source", choices=("particles", "mesh"), default=None, help="default: particles when the run has them"
+    )
     preview.add_argument("--resolution", default="640x360", help="WIDTHxHEIGHT (default 640x360)")
     preview.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
     preview.add_argument("--fps", type=float, default=None, help="video frame rate (default: the run's fps)")
     preview.add_argument("--yaw", type=float, default=30.0, help="camera turn about the vertical, degrees (default 30)")
     preview.add_argument("--pitch", type=float, default=25.0, help="camera elevation, degrees (default 25)")
     preview.add_argument("--gif", action="store_true", help="write preview.gif instead of preview.mp4")
-    preview.add_argument("--out", default=None, help="video path (default RUN_DIR/preview.mp4), or a .png for one frame's still")
+    preview.add_argument(
+        "--out", default=None, help="video path (default RUN_DIR/preview.mp4), or a .png for one frame's still"
+    )
     preview.add_argument("--no-progress", action="store_true", help="no progress bar")
-    usd = sub.add_parser("usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)")
+    usd = sub.add_parser(
+        "usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)"
+    )
     usd.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj (or .ply)")
-    usd.add_argument("--out", default=None, help="the stage's file: .usdc (binary), .usda (text) or .usd (default RUN_DIR/run.usdc)")
+    usd.add_argument(
+        "--out", default=None, help="the stage's file: .usdc (binary), .usda (text) or .usd (default RUN_DIR/run.usdc)"
+    )
     usd.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
-    usd.add_argument("--particles", action="store_true", help="also the particles, as points with velocities, ids, density, pressure")
+    usd.add_argument(
+        "--particles", action="store_true", help="also the particles, as points with velocities, ids, density, pressure"
+    )
     usd.add_argument("--material", default="water", help="the liquid's preview colour: water, wine, whisky, or r,g,b")
     usd.add_argument("--no-progress", action="store_true", help="no progress bar")
     blend = sub.add_parser("blender-script", help="write a script that loads a run into Blender as one liquid object")
     blend.add_argument("run_dir", help="an output folder with mesh/frame_NNNNN.obj (or .ply)")
     blend.add_argument("--material", default="water", help="water, wine, whisky, or r,g,b")
     blend.add_argument("--frames", default=None, metavar="A:B", help="frame numbers a (included) to b (excluded)")
-    blend.add_argument("--usd", action="store_true", help="import the run's USD stage (`warp-iisph usd RUN_DIR`) instead of its OBJ files")
+    blend.add_argument(
+        "--usd",
+        action="store_true",
+        help="import the run's USD stage (`warp-iisph usd RUN_DIR`) instead of its OBJ files",
+    )
     blend.add_argument("--out", default=None, help="script path (default RUN_DIR/blender_scene.py)")
     return p
 
@@ -111,9 +178,22 @@ def _parser() -> argparse.ArgumentParser:
 def _preview(args) -> int:
     from .view.preview import preview_run
 
-    r = preview_run(args.run_dir, args.out, args.source, args.resolution, args.frames, args.fps, args.gif, args.yaw,
-                    args.pitch, progress=not args.no_progress)
-    print(f"preview of {r['frames']} frames ({r['source']}, {1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}")
+    r = preview_run(
+        args.run_dir,
+        args.out,
+        args.source,
+        args.resolution,
+        args.frames,
+        args.fps,
+        args.gif,
+        args.yaw,
+        args.pitch,
+        progress=not args.no_progress,
+    )
+    print(
+        f"preview of {r['frames']} frames ({r['source']}, "
+        f"{1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}"
+    )
     return 0
 
 
@@ -121,12 +201,25 @@ def _render(args) -> int:
     from .view.render import RenderUnavailable, render_run
 
     try:
-        r = render_run(args.run_dir, args.spp, args.resolution, args.material, args.frames, args.walls, not args.no_denoise,
-                       args.gif, args.overwrite, args.variant, progress=not args.no_progress)
+        r = render_run(
+            args.run_dir,
+            args.spp,
+            args.resolution,
+            args.material,
+            args.frames,
+            args.walls,
+            not args.no_denoise,
+            args.gif,
+            args.overwrite,
+            args.variant,
+            progress=not args.no_progress,
+        )
     except RenderUnavailable as e:
         raise ValueError(f"render: {e}") from None
-    print(f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
-          f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}")
+    print(
+        f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
+        f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}"
+    )
     return 0
 
 
@@ -134,7 +227,9 @@ def _usd(args) -> int:
     from .view.usd import UsdUnavailable, export_usd
 
     try:
-        r = export_usd(args.run_dir, args.out, args.frames, args.particles, args.material, progress=not args.no_progress)
+        r = export_usd(
+            args.run_dir, args.out, args.frames, args.particles, args.material, progress=not args.no_progress
+        )
     except UsdUnavailable as e:
         raise ValueError(f"usd: {e}") from None
     print(f"wrote frames {r['first']}..{r['last']} at {r['fps']:g} frames/s ({', '.join(r['prims'])}) -> {r['path']}")
@@ -177,9 +272,20 @@ def _mesh(args) -> int:
     from .run.meshing import mesh_path
 
     _start_warp(args.threads)
-    overrides = {k: getattr(args, k) for k in ("cell", "r0", "radius", "smoothing", "passes", "format") if getattr(args, k) is not None}
-    result = mesh_path(args.run_dir, overrides, checked_device(args.device), overwrite=args.overwrite,
-                       progress=not args.no_progress, spacing=args.spacing, out=args.out)
+    overrides = {
+        k: getattr(args, k)
+        for k in ("cell", "r0", "radius", "smoothing", "passes", "format")
+        if getattr(args, k) is not None
+    }
+    result = mesh_path(
+        args.run_dir,
+        overrides,
+        checked_device(args.device),
+        overwrite=args.overwrite,
+        progress=not args.no_progress,
+        spacing=args.spacing,
+        out=args.out,
+    )
     secs = ", ".join(f"{k} {v:.2f} s" for k, v in result["stage_seconds"].items())
     print(f"meshed {result['written']} frames ({result['skipped']} already there) -> {result['out']}; {secs}")
     return 0
@@ -200,7 +306,10 @@ def _run(args) -> int:
         overrides.append(f'output.format="{args.format}"')
     if args.resume:
         if args.scene or args.out or args.overwrite:
-            raise ValueError("--resume RUN_DIR: continues that run with its own scene and folder; give no SCENE, --out or --overwrite")
+            raise ValueError(
+                "--resume RUN_DIR: continues that run with its own scene and folder; "
+                "give no SCENE, --out or --overwrite"
+            )
         from .run.runner import resumed_scene
 
         scene, out, source = resumed_scene(args.resume, overrides), args.resume, f"{args.resume}/run.json"
@@ -215,37 +324,71 @@ def _run(args) -> int:
     from .run.runner import run_scene
 
     try:
-        record = run_scene(scene, out, args.duration, args.fps, device, overwrite=args.overwrite, progress=not args.no_progress,
-                           graph=use_graph(args.graph, device), resume=bool(args.resume))
+        record = run_scene(
+            scene,
+            out,
+            args.duration,
+            args.fps,
+            device,
+            overwrite=args.overwrite,
+            progress=not args.no_progress,
+            graph=use_graph(args.graph, device),
+            resume=bool(args.resume),
+        )
     except ValueError as e:
         if str(e).startswith("--") or isinstance(e, RunError):  # an argument, or a run folder's file: named already
             raise
         raise ValueError(f"{source}: {e}") from None  # found while building the scene's particles
     t = record["totals"]
     o = record["output"]
-    wrote = " and ".join(k for k in ("particles", "mesh") if o[k]) or "no frame files (output.particles and output.mesh are false)"
+    wrote = (
+        " and ".join(k for k in ("particles", "mesh") if o[k])
+        or "no frame files (output.particles and output.mesh are false)"
+    )
     cut = ""
     if record["requested_duration"] != record["duration"]:
         cut = f" (the {record['requested_duration']:g} s asked for, cut to whole frames)"
     summary = (
-        f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated{cut} in {t['wall_seconds']:.1f} s wall, "
+        f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated{cut} "
+        f"in {t['wall_seconds']:.1f} s wall, "
         f"{t['frames']} frames of {wrote}, {t.get('particles', record['particles']['fluid'])} particles"
-        + (f" ({t['emitted']} emitted, {t['removed']} removed by sinks"
-           + (f", {t['blocked']} not emitted: liquid at the nozzle" if t.get("blocked") else "") + ")" if "emitted" in t else "")
+        + (
+            f" ({t['emitted']} emitted, {t['removed']} removed by sinks"
+            + (f", {t['blocked']} not emitted: liquid at the nozzle" if t.get("blocked") else "")
+            + ")"
+            if "emitted" in t
+            else ""
+        )
         + f", mean {t['mean_iterations']:.1f} iterations, "
         f"mean compression {100 * t['mean_compression']:.3f} %"
-        + (f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back within the walls in {t['corrected_steps']} steps"
-           if t.get("corrected_steps") else "")
-        + (f", the fixed dt cut into up to {t['most_substeps']} substeps in {t['substeps']} steps" if t.get("substeps") else "")
+        + (
+            f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back "
+            f"within the walls in {t['corrected_steps']} steps"
+            if t.get("corrected_steps")
+            else ""
+        )
+        + (
+            f", the fixed dt cut into up to {t['most_substeps']} substeps in {t['substeps']} steps"
+            if t.get("substeps")
+            else ""
+        )
         + f" -> {out}"
     )
     if t.get("not_emitted"):
-        print(f"warp-iisph: warning: the emitters could not add {t['not_emitted']} particles: the liquid reached its capacity of "
-              f"{record['particles']['capacity']} (raise max_particles)", file=sys.stderr)
+        print(
+            f"warp-iisph: warning: the emitters could not add {t['not_emitted']} particles: "
+            f"the liquid reached its capacity of "
+            f"{record['particles']['capacity']} (raise max_particles)",
+            file=sys.stderr,
+        )
     if t["unconverged_steps"]:
         ph = scene.physics
-        print(f"warp-iisph: warning: {t['unconverged_steps']} of {t['steps']} steps stopped at max_iterations = {ph.max_iterations} "
-              f"above eta = {100 * ph.eta:g} % (worst {100 * t['worst_unconverged_error']:.3f} %)", file=sys.stderr)
+        print(
+            f"warp-iisph: warning: {t['unconverged_steps']} of {t['steps']} steps stopped at "
+            f"max_iterations = {ph.max_iterations} "
+            f"above eta = {100 * ph.eta:g} % (worst {100 * t['worst_unconverged_error']:.3f} %)",
+            file=sys.stderr,
+        )
     if record["ended"] == "completed":
         print(summary)
         return 0
@@ -253,8 +396,15 @@ def _run(args) -> int:
     return {"interrupted": EXIT_INTERRUPTED, "terminated": EXIT_TERMINATED}.get(record["ended"], EXIT_FAILED)
 
 
-COMMANDS = {"run": _run, "scenes": _scenes, "mesh": _mesh, "preview": _preview, "render": _render, "usd": _usd,
-            "blender-script": _blender_script}
+COMMANDS = {
+    "run": _run,
+    "scenes": _scenes,
+    "mesh": _mesh,
+    "preview": _preview,
+    "render": _render,
+    "usd": _usd,
+    "blender-script": _blender_script,
+}
 
 
 def _on_sigterm(signum, frame):

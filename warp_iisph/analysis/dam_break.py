@@ -14,7 +14,7 @@ def load_martin_moyce() -> dict[str, np.ndarray]:
     """Martin & Moyce (1952) surge-front data (column height 2a): series name -> (k, 2) array
     of (T, Z) with ``T = t sqrt(2 g / a)`` and ``Z = front / a``."""
     text = resources.files("warp_iisph.analysis.data").joinpath(MARTIN_MOYCE).read_text()
-    rows = [r for r in csv.reader(line for line in text.splitlines() if not line.startswith("#"))]
+    rows = list(csv.reader(line for line in text.splitlines() if not line.startswith("#")))
     out: dict[str, list] = {}
     for series, T, Z in rows[1:]:
         out.setdefault(series, []).append((float(T), float(Z)))
@@ -34,7 +34,9 @@ def surge_front(positions: np.ndarray, spacing: float, wall_x: float = 0.0) -> f
     return float(last - wall_x + 0.5 * spacing)
 
 
-def front_errors(T: np.ndarray, Z: np.ndarray, reference: dict[str, np.ndarray] | None = None, t_max: float = 3.0) -> np.ndarray:
+def front_errors(
+    T: np.ndarray, Z: np.ndarray, reference: dict[str, np.ndarray] | None = None, t_max: float = 3.0
+) -> np.ndarray:
     """Relative error ``Z_sim / Z_exp - 1`` of a simulated front curve ``Z(T)`` (interpolated)
     at every Martin & Moyce point with ``T <= t_max``."""
     pts = np.concatenate(list((reference or load_martin_moyce()).values()))

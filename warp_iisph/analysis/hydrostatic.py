@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def hydrostatic_slope(x: np.ndarray, p: np.ndarray, spacing: float, tank_lower, tank_upper, rho0: float, g: float) -> float:
+def hydrostatic_slope(
+    x: np.ndarray, p: np.ndarray, spacing: float, tank_lower, tank_upper, rho0: float, g: float
+) -> float:
     """The slope of pressure against depth, fitted over the interior (two spacings from the side
     walls, above the two layers on the floor), divided by ``rho0 g``: 1 for hydrostatic pressure."""
     lo, hi = np.asarray(tank_lower, float)[[0, 2]], np.asarray(tank_upper, float)[[0, 2]]

@@ -38,7 +38,9 @@ def max_into(values: wp.array, n: int, out: wp.array) -> None:
     """``out[0] = max(out[0], max(values[:n]))`` for values that are never negative, by tiles
     (on the CPU one thread per tile): exact, so the same on every device and path."""
     if n > 0:
-        wp.launch_tiled(max_tiles, dim=[(n + TILE - 1) // TILE], inputs=[values[:n], out], block_dim=TILE, device=values.device)
+        wp.launch_tiled(
+            max_tiles, dim=[(n + TILE - 1) // TILE], inputs=[values[:n], out], block_dim=TILE, device=values.device
+        )
 
 
 def sum_into(values: wp.array, n: int, out: wp.array) -> None:
@@ -50,4 +52,6 @@ def sum_into(values: wp.array, n: int, out: wp.array) -> None:
     if values.device.is_cpu:
         wp.launch(sum_in_order, dim=n, inputs=[values, out], device=values.device)
     else:
-        wp.launch_tiled(sum_tiles, dim=[(n + TILE - 1) // TILE], inputs=[values[:n], out], block_dim=TILE, device=values.device)
+        wp.launch_tiled(
+            sum_tiles, dim=[(n + TILE - 1) // TILE], inputs=[values[:n], out], block_dim=TILE, device=values.device
+        )

@@ -169,9 +169,14 @@ class RunFolder:
         files = self._frame_files(kind)
         if not files:
             if kind == MESHES:
-                raise RunError(f"{self.path / kind}: no frame_*.{' or frame_*.'.join(MESH_FORMATS)} files (run with --mesh, or `warp-iisph mesh RUN_DIR`)")
-            raise RunError(f"{self.path / kind}: no frame_*.{' or frame_*.'.join(PARTICLE_FORMATS)} files "
-                           "(was the run written with output.particles = false?)")
+                raise RunError(
+                    f"{self.path / kind}: no frame_*.{' or frame_*.'.join(MESH_FORMATS)} files "
+                    f"(run with --mesh, or `warp-iisph mesh RUN_DIR`)"
+                )
+            raise RunError(
+                f"{self.path / kind}: no frame_*.{' or frame_*.'.join(PARTICLE_FORMATS)} files "
+                "(was the run written with output.particles = false?)"
+            )
         return files
 
     def record(self) -> dict:
@@ -242,7 +247,10 @@ def select_frames(files: list[Path], spec: str | None) -> list[Path]:
         raise RunError(f"--frames {spec!r}: must be a:b with whole frame numbers, e.g. 0:30, 10:, :60") from None
     chosen = [f for f in files if frame_index(f) >= lo and (hi is None or frame_index(f) < hi)]
     if not chosen:
-        raise RunError(f"--frames {spec}: no frame in that range (the run has frames {frame_index(files[0])}..{frame_index(files[-1])})")
+        raise RunError(
+            f"--frames {spec}: no frame in that range "
+            f"(the run has frames {frame_index(files[0])}..{frame_index(files[-1])})"
+        )
     return chosen
 
 

@@ -1,4 +1,5 @@
-"""File formats of a run: particle frames (PLY or VTU via meshio), meshes (OBJ or binary PLY), statistics (JSON lines), records.
+"""File formats of a run: particle frames (PLY or VTU via meshio), meshes (OBJ or binary PLY),
+statistics (JSON lines), records.
 
 Every file is written to a temporary name in the same folder and renamed into place, so a frame
 that exists is complete even if the run is interrupted.
@@ -41,7 +42,11 @@ def write_particles(path, positions, velocities, densities, pressures, ids=None)
     }
     points = np.asarray(positions, dtype=np.float32)
     if kind == "ply":
-        velocity = {"vx": np.ascontiguousarray(v[:, 0]), "vy": np.ascontiguousarray(v[:, 1]), "vz": np.ascontiguousarray(v[:, 2])}
+        velocity = {
+            "vx": np.ascontiguousarray(v[:, 0]),
+            "vy": np.ascontiguousarray(v[:, 1]),
+            "vz": np.ascontiguousarray(v[:, 2]),
+        }
         mesh = meshio.Mesh(points, [], point_data={**velocity, **scalars})
         atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format="ply", binary=True))
     else:
@@ -58,7 +63,10 @@ def read_points(path) -> "meshio.Mesh":
     if not path.is_file():
         raise FileFormatError(f"{path}: no such file")
     try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):  # meshio prints its complaints
+        with (
+            contextlib.redirect_stdout(io.StringIO()),
+            contextlib.redirect_stderr(io.StringIO()),
+        ):  # meshio prints its complaints
             mesh = meshio.read(path)
     except SystemExit:  # meshio exits on some malformed headers
         raise FileFormatError(f"{path}: not a readable point file (malformed header)") from None
@@ -99,7 +107,9 @@ def read_particles(path) -> dict[str, np.ndarray]:
 
     def field(name):
         v = pd.get(name)
-        return None if v is None else np.asarray(v).reshape(len(x), -1)[:, 0] if np.asarray(v).ndim > 1 else np.asarray(v)
+        return (
+            None if v is None else np.asarray(v).reshape(len(x), -1)[:, 0] if np.asarray(v).ndim > 1 else np.asarray(v)
+        )
 
     if all(k in pd for k in ("vx", "vy", "vz")):
         v = np.stack([field("vx"), field("vy"), field("vz")], axis=1)
@@ -174,8 +184,15 @@ def ply_chunks(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
     f = np.asarray(faces).reshape(-1, 3)
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         raise ValueError(f"face indices outside 0..{len(v) - 1}")
-    head = ["ply", "format binary_little_endian 1.0", "comment warp_iisph surface", f"element vertex {len(v)}",
-            "property float x", "property float y", "property float z"]
+    head = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment warp_iisph surface",
+        f"element vertex {len(v)}",
+        "property float x",
+        "property float y",
+        "property float z",
+    ]
     if normals is not None:
         head += ["property float nx", "property float ny", "property float nz"]
         v = np.concatenate([v, np.asarray(normals, dtype="<f4").reshape(-1, 3)], axis=1)
@@ -183,14 +200,19 @@ def ply_chunks(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
     rows = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
     rows["n"] = 3
     rows["i"] = f
-    return [("\n".join(head) + "\n").encode("ascii"), memoryview(np.ascontiguousarray(v)).cast("B"),
-            memoryview(rows).cast("B")]
+    return [
+        ("\n".join(head) + "\n").encode("ascii"),
+        memoryview(np.ascontiguousarray(v)).cast("B"),
+        memoryview(rows).cast("B"),
+    ]
 
 
 MESH_WRITERS = {"obj": obj_chunks, "ply": ply_chunks}
 
 
-def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None, fmt: str = "obj") -> Path:
+def write_mesh(
+    path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None, fmt: str = "obj"
+) -> Path:
     """Write a triangle mesh as ``fmt`` (``obj`` or ``ply``) at ``path`` with that suffix (it
     replaces the one given); returns the path written."""
     if fmt not in MESH_WRITERS:

@@ -105,8 +105,15 @@ def _jobs_of_files(path: Path, overrides, spacing, out):
     return [(f, target / f"{f.stem}.obj") for f in files], spacing, _settings({}, overrides), target
 
 
-def mesh_path(path, overrides: dict | None = None, device="cpu", overwrite: bool = False, progress: bool = True,
-              spacing: float | None = None, out=None) -> dict:
+def mesh_path(
+    path,
+    overrides: dict | None = None,
+    device="cpu",
+    overwrite: bool = False,
+    progress: bool = True,
+    spacing: float | None = None,
+    out=None,
+) -> dict:
     """Mesh a run folder's ``particles/frame_*.ply`` (or ``.vtu``) into ``mesh/frame_*.obj`` with the run's
     ``surface`` settings changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``), or any
     particle file (or folder of them) meshio reads, with ``spacing``. Meshes already there are kept
@@ -138,5 +145,11 @@ def mesh_path(path, overrides: dict | None = None, device="cpu", overwrite: bool
             bar.update(1)
     finally:
         bar.close()
-    return {"frames": len(jobs), "written": written, "skipped": skipped, "stage_seconds": mesher.times.seconds,
-            "surface": dataclasses.asdict(params), "out": target}
+    return {
+        "frames": len(jobs),
+        "written": written,
+        "skipped": skipped,
+        "stage_seconds": mesher.times.seconds,
+        "surface": dataclasses.asdict(params),
+        "out": target,
+    }

@@ -143,8 +143,15 @@ def obj_chunks(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
     cpu = wp.get_device("cpu")
     buf = wp.empty(size, dtype=wp.uint8, device=cpu)
     n = np.ascontiguousarray(normals if has_normals else np.zeros((0, 3)), dtype=np.float32).reshape(-1, 3)
-    inputs = [wp.array(v, dtype=wp.vec3, device=cpu), wp.array(n, dtype=wp.vec3, device=cpu),
-              wp.array(f.reshape(-1), dtype=wp.int32, device=cpu), int(has_normals), coord_width, index_width,
-              wp.vec3i(v_len, n_len, f_len), buf]
+    inputs = [
+        wp.array(v, dtype=wp.vec3, device=cpu),
+        wp.array(n, dtype=wp.vec3, device=cpu),
+        wp.array(f.reshape(-1), dtype=wp.int32, device=cpu),
+        int(has_normals),
+        coord_width,
+        index_width,
+        wp.vec3i(v_len, n_len, f_len),
+        buf,
+    ]
     launch_particles(format_obj, n_lines, inputs, cpu)
     return [header, memoryview(buf.numpy())]

@@ -10,4 +10,6 @@ from tqdm import tqdm
 def frame_bar(total: int, enabled: bool = True, desc: str | None = None) -> tqdm:
     """A bar over ``total`` frames; a disabled one accepts the same calls and draws nothing. It
     goes when closed: the command's last line (its summary or its error) stands alone."""
-    return tqdm(total=total, unit="frame", dynamic_ncols=True, file=sys.stderr, desc=desc, disable=not enabled, leave=False)
+    return tqdm(
+        total=total, unit="frame", dynamic_ncols=True, file=sys.stderr, desc=desc, disable=not enabled, leave=False
+    )

@@ -28,13 +28,13 @@ from .. import __version__
 from ..engine.timing import StageTimes
 from ..scene import Scene, obstacles_mesh, scene_to_dict
 from ..scene.checks import in_range
+from ..setup.model import id_order
 from .atomic import staged_write
 from .folder import MESHES, OBSTACLE_FRAMES, OBSTACLES, PARTICLES, RunError, RunFolder, frame_index, new_run_id
 from .formats import StatsWriter, read_stats, write_obj, write_particles
 from .frame_queue import FrameQueue
 from .meshing import FrameMesher, mesh_settings
 from .progress import frame_bar
-from ..setup.model import id_order
 
 
 class OutputExistsError(ValueError):
@@ -48,7 +48,12 @@ class Terminated(KeyboardInterrupt):
 def versions() -> dict:
     import warp as wp
 
-    return {"warp_iisph": __version__, "warp": wp.__version__, "numpy": np.__version__, "python": platform.python_version()}
+    return {
+        "warp_iisph": __version__,
+        "warp": wp.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+    }
 
 
 @dataclasses.dataclass
@@ -65,12 +70,21 @@ class FramePlan:
 def plan_frames(scene: Scene, duration=None, fps=None) -> FramePlan:
     """The frames a run writes; ``ValueError`` naming ``--duration``/``--fps`` (or the scene's
     ``output`` keys) when they are out of range or give less than one frame interval."""
-    d_name, f_name = ("output.duration" if duration is None else "--duration"), ("output.fps" if fps is None else "--fps")
-    duration = in_range(scene.output.duration if duration is None else duration, d_name, 0.0, 1.0e6, "simulated seconds", lo_open=True)
-    fps = in_range(scene.output.fps if fps is None else fps, f_name, 0.0, 10_000.0, "frames per simulated second", lo_open=True)
+    d_name, f_name = (
+        ("output.duration" if duration is None else "--duration"),
+        ("output.fps" if fps is None else "--fps"),
+    )
+    duration = in_range(
+        scene.output.duration if duration is None else duration, d_name, 0.0, 1.0e6, "simulated seconds", lo_open=True
+    )
+    fps = in_range(
+        scene.output.fps if fps is None else fps, f_name, 0.0, 10_000.0, "frames per simulated second", lo_open=True
+    )
     intervals = int(math.floor(duration * fps + 1e-9))
     if intervals < 1:
-        raise ValueError(f"{d_name} = {duration:g}: shorter than one frame interval at {fps:g} frames/s ({1 / fps:.4g} s)")
+        raise ValueError(
+            f"{d_name} = {duration:g}: shorter than one frame interval at {fps:g} frames/s ({1 / fps:.4g} s)"
+        )
     return FramePlan(fps, intervals + 1, intervals / fps, duration)
 
 
@@ -85,8 +99,18 @@ def _check_target(out: Path, overwrite: bool) -> bool:
     return False
 
 
-def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", overwrite: bool = False, progress: bool = True,
-              graph: bool = False, background_output: bool = True, resume: bool = False) -> dict:
+def run_scene(
+    scene: Scene,
+    out,
+    duration=None,
+    fps=None,
+    device: str = "cpu",
+    overwrite: bool = False,
+    progress: bool = True,
+    graph: bool = False,
+    background_output: bool = True,
+    resume: bool = False,
+) -> dict:
     """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
     says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene
     with obstacles, ``obstacles.obj``.
@@ -135,8 +159,12 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
         "duration": plan.duration,
         "requested_duration": plan.requested,
         "fps": plan.fps,
-        "output": {"particles": scene.output.particles, "format": scene.output.format, "mesh": scene.output.mesh,
-                   "background": background_output},
+        "output": {
+            "particles": scene.output.particles,
+            "format": scene.output.format,
+            "mesh": scene.output.mesh,
+            "background": background_output,
+        },
     }
     if resume:
         record["resumed"] = before.get("resumed", []) + [{"frame": first - 1, "t": sim.time, "step": sim.step_count}]
@@ -159,7 +187,9 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
 
             def particles():
                 order = id_order(raw["id"])
-                write_particles(frame_file, *(raw[name][order] for name in ("x", "v", "rho", "p")), ids=raw["id"][order])
+                write_particles(
+                    frame_file, *(raw[name][order] for name in ("x", "v", "rho", "p")), ids=raw["id"][order]
+                )
 
             files.append(particles)
         if mesher is not None:
@@ -190,8 +220,10 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     def update_record(ended: str | None = None, message: str = "") -> None:
         if ended is not None:
             record.update(ended=ended, message=message)
-        record.update(totals=totals.record(sim, written[0], time.perf_counter() - t_start),
-                      stage_seconds=_stage_seconds(times, mesher, queue))
+        record.update(
+            totals=totals.record(sim, written[0], time.perf_counter() - t_start),
+            stage_seconds=_stage_seconds(times, mesher, queue),
+        )
         record["output"].update(writer_seconds=queue.busy, waited_seconds=queue.blocked)
         run.write_record(record)
 
@@ -199,6 +231,7 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     bar = frame_bar(plan.frames, progress)
     ended, message = "completed", ""
     try:
+
         def on_step(rec: dict) -> None:
             stats.write(rec)
             totals.add(rec)
@@ -273,8 +306,12 @@ def run_scene(scene: Scene, out, duration=None, fps=None, device: str = "cpu", o
     try:
         update_record(ended, message)
     except OSError as e:  # the disk is full: the record written at the last frame stays
-        record.update(ended=ended if ended != "completed" else "failed",
-                      message=f"{message}; run.json could not be updated ({e})" if message else f"run.json could not be updated ({e})")
+        record.update(
+            ended=ended if ended != "completed" else "failed",
+            message=f"{message}; run.json could not be updated ({e})"
+            if message
+            else f"run.json could not be updated ({e})",
+        )
     return record
 
 
@@ -291,11 +328,16 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
     if not data or "tank" not in data:
         raise RunError(f"{run.record_path}: records no scene to resume")
     # the run's own length and frame rate (asked on its command line, not in its scene file)
-    data.setdefault("output", {}).update(duration=record.get("requested_duration", record.get("duration")), fps=run.fps(record))
+    data.setdefault("output", {}).update(
+        duration=record.get("requested_duration", record.get("duration")), fps=run.fps(record)
+    )
     for assignment in overrides:
         key = assignment.partition("=")[0].strip()
         if key.split(".")[0] not in ("physics", "output", "surface", "camera"):
-            raise ValueError(f"--set {key}: a resumed run keeps its particles; only physics, output, surface and camera keys may change")
+            raise ValueError(
+                f"--set {key}: a resumed run keeps its particles; "
+                f"only physics, output, surface and camera keys may change"
+            )
         apply_override(data, assignment)
     try:
         return scene_from_dict(data, default_name=run.path.name)
@@ -306,7 +348,9 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
 def load_checkpoint(run: RunFolder) -> dict:
     """The state ``run`` kept at its last checkpoint, with the frame it was taken at."""
     if not run.checkpoint.is_file():
-        raise RunError(f"{run.checkpoint}: no checkpoint to resume from (output.checkpoint_every = 0, or no frame was written)")
+        raise RunError(
+            f"{run.checkpoint}: no checkpoint to resume from (output.checkpoint_every = 0, or no frame was written)"
+        )
     try:
         with np.load(run.checkpoint) as f:
             return {k: f[k] for k in f.files}
@@ -316,6 +360,7 @@ def load_checkpoint(run: RunFolder) -> dict:
 
 def stage_checkpoint(run: RunFolder, state: dict):
     """Write the checkpoint beside its place; the returned file's ``commit`` renames it in."""
+
     def write(tmp):
         with open(tmp, "wb") as f:
             np.savez(f, **state)
@@ -377,8 +422,16 @@ class StepTotals:
             "simulated_time": sim.time,
             "frames": frames,
             "particles": sim.n_particles,
-            **({"emitted": sim.flows.emitted, "removed": sim.flows.removed, "not_emitted": sim.flows.refused,
-                "blocked": sim.flows.blocked} if sim.flows else {}),
+            **(
+                {
+                    "emitted": sim.flows.emitted,
+                    "removed": sim.flows.removed,
+                    "not_emitted": sim.flows.refused,
+                    "blocked": sim.flows.blocked,
+                }
+                if sim.flows
+                else {}
+            ),
             "wall_seconds": wall,
             "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
             "mean_iterations": self.sums["iterations"] / n,

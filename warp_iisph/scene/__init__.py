@@ -3,13 +3,30 @@
 from . import cases
 from .checks import SceneFileError
 from .description import Scene
-from .flows import Emitter, Sink
 from .file import load_scene, scene_from_dict, scene_to_dict
+from .flows import Emitter, Sink
 from .library import bundled_scenes, resolve_scene
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, MeshShape, Sphere, obstacles_mesh, shape_mesh
 
 __all__ = [
-    "Box", "Camera", "Emitter", "MeshShape", "Sink", "Output", "Physics", "Scene", "SceneFileError", "Sphere", "SurfaceSettings",
-    "bundled_scenes", "cases", "load_scene", "scene_from_dict", "scene_to_dict", "obstacles_mesh", "resolve_scene", "shape_mesh",
+    "Box",
+    "Camera",
+    "Emitter",
+    "MeshShape",
+    "Sink",
+    "Output",
+    "Physics",
+    "Scene",
+    "SceneFileError",
+    "Sphere",
+    "SurfaceSettings",
+    "bundled_scenes",
+    "cases",
+    "load_scene",
+    "scene_from_dict",
+    "scene_to_dict",
+    "obstacles_mesh",
+    "resolve_scene",
+    "shape_mesh",
 ]

@@ -8,10 +8,17 @@ from .settings import Physics
 from .shapes import Box
 
 
-def martin_moyce(spacing: float = 0.02, a: float = 0.2, depth: float = 0.2, length: float = 1.0, height: float = 0.6, **physics) -> Scene:
+def martin_moyce(
+    spacing: float = 0.02, a: float = 0.2, depth: float = 0.2, length: float = 1.0, height: float = 0.6, **physics
+) -> Scene:
     """Martin & Moyce (1952) geometry: a water column of width ``a`` and height ``2a`` against
     the x = 0 wall of a closed ``length x height x depth`` tank (metres)."""
-    scene = Scene(spacing=spacing, tank=Box((0.0, 0.0, 0.0), (length, height, depth)), physics=Physics(**physics), name="martin_moyce")
+    scene = Scene(
+        spacing=spacing,
+        tank=Box((0.0, 0.0, 0.0), (length, height, depth)),
+        physics=Physics(**physics),
+        name="martin_moyce",
+    )
     scene.add_fluid_box((0.0, 0.0, 0.0), (a, 2.0 * a, depth))
     return scene
 
@@ -24,12 +31,16 @@ def dam_break_cube(spacing: float = 0.03, particles: int | None = None, **physic
     if particles is not None:
         side = 0.96
         spacing = side / round(particles ** (1.0 / 3.0))
-    scene = Scene(spacing=spacing, tank=Box((0.0, 0.0, 0.0), (4.0, 3.0, 1.5)), physics=Physics(**physics), name="dam_break_cube")
+    scene = Scene(
+        spacing=spacing, tank=Box((0.0, 0.0, 0.0), (4.0, 3.0, 1.5)), physics=Physics(**physics), name="dam_break_cube"
+    )
     scene.add_fluid_box((0.0, 0.0, 0.0), (side, side, side))
     return scene
 
 
-def hydrostatic_tank(spacing: float = 0.02, width: float = 0.2, depth: float = 0.2, water_height: float = 0.4, **physics) -> Scene:
+def hydrostatic_tank(
+    spacing: float = 0.02, width: float = 0.2, depth: float = 0.2, water_height: float = 0.4, **physics
+) -> Scene:
     """Water at rest filling the bottom of a closed tank."""
     scene = Scene(
         spacing=spacing,

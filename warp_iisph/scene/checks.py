@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 
-
 # Largest coordinate a scene may use (metres): float32 positions keep 0.1 mm steps out to 1 km.
 MAX_COORDINATE = 1.0e3
 # Most particles a scene may hold: Warp indexes arrays with 32-bit integers.
@@ -80,7 +79,6 @@ def in_range(value, name: str, lo: float, hi: float, unit: str, lo_open=False, h
         rb = ")" if hi_open else "]"
         raise ValueError(f"{name} = {value!r}: must be in {lb}{lo:g}, {hi:g}{rb} ({unit})")
     return v
-
 
 
 def flag(value, name: str) -> bool:

@@ -43,7 +43,9 @@ class Scene:
     camera: Camera = field(default_factory=Camera)
     emitters: list = field(default_factory=list)
     sinks: list = field(default_factory=list)
-    max_particles: Optional[int] = None  # fluid particles at most (with emitters); None: what they emit over output.duration
+    max_particles: Optional[int] = (
+        None  # fluid particles at most (with emitters); None: what they emit over output.duration
+    )
 
     def add_fluid_box(self, lower, upper) -> "Scene":
         self.fluids.append(Box(tuple(lower), tuple(upper)))
@@ -112,7 +114,8 @@ class Scene:
                 raise ValueError(f"{name}: lies entirely outside the tank {floats(tlo)}..{floats(thi)}")
             if isinstance(o, MeshShape) and not o.shell and not o.load().is_watertight:
                 raise ValueError(
-                    f"{name}.path = {o.path!r}: the mesh is not closed ({_open_edges(o.load())} open edges), so its inside is "
+                    f"{name}.path = {o.path!r}: the mesh is not closed "
+                    f"({_open_edges(o.load())} open edges), so its inside is "
                     f"undefined; close it, or set {name}.shell = true to use it as a thin wall"
                 )
         for k, e in enumerate(self.emitters):
@@ -122,7 +125,9 @@ class Scene:
             e.validate(name)
             c = np.asarray(e.center)
             if np.any(c < tlo) or np.any(c > thi):
-                raise ValueError(f"{name}.center = {list(e.center)}: must lie inside the tank {floats(tlo)}..{floats(thi)}")
+                raise ValueError(
+                    f"{name}.center = {list(e.center)}: must lie inside the tank {floats(tlo)}..{floats(thi)}"
+                )
         for k, s in enumerate(self.sinks):
             if not isinstance(s, Sink):
                 raise ValueError(f"sinks[{k}] = {s!r}: must be a box")
@@ -174,7 +179,8 @@ class Scene:
         fluid, boundary = self.particle_estimate()
         if not fluid + boundary <= MAX_PARTICLES:
             raise ValueError(
-                f"spacing = {self.spacing:g}: the scene would need about {fluid:.3g} fluid and {boundary:.3g} boundary particles "
+                f"spacing = {self.spacing:g}: the scene would need about "
+                f"{fluid:.3g} fluid and {boundary:.3g} boundary particles "
                 f"(at most {MAX_PARTICLES:,}); increase spacing"
             )
 
@@ -204,4 +210,3 @@ def _overlap(a: Fluid, b: Fluid) -> bool:
         return float(np.linalg.norm(nearest - c)) < b.radius - 1e-12
     ca, cb = np.asarray(a.center), np.asarray(b.center)
     return float(np.linalg.norm(ca - cb)) < a.radius + b.radius - 1e-12
-

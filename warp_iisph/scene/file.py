@@ -23,8 +23,20 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-TOP_KEYS = {"name", "spacing", "tank", "fluids", "obstacles", "physics", "output", "surface", "camera", "emitters", "sinks",
-            "max_particles"}
+TOP_KEYS = {
+    "name",
+    "spacing",
+    "tank",
+    "fluids",
+    "obstacles",
+    "physics",
+    "output",
+    "surface",
+    "camera",
+    "emitters",
+    "sinks",
+    "max_particles",
+}
 SHAPE_KEYS = {
     "box": {"lower", "upper"},
     "sphere": {"center", "radius"},
@@ -68,7 +80,9 @@ def _check_keys(table, allowed: set, where: str) -> dict:
         raise ValueError(f"{where}: must be a table")
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise ValueError(f"{where}{'.' if where else ''}{unknown[0]}: unknown key; allowed: {', '.join(sorted(allowed))}")
+        raise ValueError(
+            f"{where}{'.' if where else ''}{unknown[0]}: unknown key; allowed: {', '.join(sorted(allowed))}"
+        )
     return table
 
 
@@ -79,7 +93,9 @@ def _shape(table, where: str, allowed: tuple, base_dir: Path, movable: bool = Fa
     if kind not in allowed:
         raise ValueError(f"{where}.shape = {kind!r}: must be one of {', '.join(allowed)}")
     _check_keys(table, extra | SHAPE_KEYS[kind], where)
-    missing = [k for k in sorted(SHAPE_KEYS[kind]) if k not in table and k in ("lower", "upper", "center", "radius", "path")]
+    missing = [
+        k for k in sorted(SHAPE_KEYS[kind]) if k not in table and k in ("lower", "upper", "center", "radius", "path")
+    ]
     if missing:
         raise ValueError(f"{where}.{missing[0]}: required for shape = {kind!r}")
     args = {k: v for k, v in table.items() if k != "shape"}
@@ -94,7 +110,11 @@ def _record(cls, table, where: str):
     """A table as a ``cls`` record: unknown keys and missing required ones name the key."""
     _check_keys(table, _fields(cls), where)
     for field_ in dataclasses.fields(cls):
-        if field_.default is dataclasses.MISSING and field_.default_factory is dataclasses.MISSING and field_.name not in table:
+        if (
+            field_.default is dataclasses.MISSING
+            and field_.default_factory is dataclasses.MISSING
+            and field_.name not in table
+        ):
             raise ValueError(f"{where}.{field_.name}: required")
     return cls(**table)
 
@@ -128,7 +148,10 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         spacing=data["spacing"],
         tank=_shape(data["tank"], "tank", ("box", "mesh"), base_dir),
         fluids=[_shape(f, f"fluids[{k}]", ("box", "sphere"), base_dir) for k, f in enumerate(fluids)],
-        obstacles=[_shape(o, f"obstacles[{k}]", ("box", "sphere", "mesh"), base_dir, movable=True) for k, o in enumerate(obstacles)],
+        obstacles=[
+            _shape(o, f"obstacles[{k}]", ("box", "sphere", "mesh"), base_dir, movable=True)
+            for k, o in enumerate(obstacles)
+        ],
         physics=Physics(**physics),
         output=Output(**output),
         surface=SurfaceSettings(**surface),
@@ -147,8 +170,13 @@ def _shape_table(shape) -> dict:
     elif isinstance(shape, Sphere):
         table = {"shape": "sphere", "center": list(shape.center), "radius": shape.radius}
     else:
-        table = {"shape": "mesh", "path": str((Path(shape.base_dir) / shape.path).resolve()), "translate": list(shape.translate),
-                 "rotate": list(shape.rotate), "scale": list(shape.scale) if isinstance(shape.scale, tuple) else shape.scale}
+        table = {
+            "shape": "mesh",
+            "path": str((Path(shape.base_dir) / shape.path).resolve()),
+            "translate": list(shape.translate),
+            "rotate": list(shape.rotate),
+            "scale": list(shape.scale) if isinstance(shape.scale, tuple) else shape.scale,
+        }
         if shape.shell:
             table["shell"] = True
     if shape.motion is not None:
@@ -158,7 +186,9 @@ def _shape_table(shape) -> dict:
 
 def _settings_table(settings) -> dict:
     # TOML has no null: a setting left at None (e.g. physics.dt, the CFL rule) is left out
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(settings).items() if v is not None}
+    return {
+        k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(settings).items() if v is not None
+    }
 
 
 def scene_to_dict(scene: Scene) -> dict:

@@ -78,8 +78,12 @@ class Emitter:
         else:
             w, ht = self.size
             na, nb = max(1, int(np.floor(w / h + 1e-9))), max(1, int(np.floor(ht / h + 1e-9)))
-            a, b = (g.ravel() for g in np.meshgrid((np.arange(na) - 0.5 * (na - 1)) * h, (np.arange(nb) - 0.5 * (nb - 1)) * h,
-                                                  indexing="ij"))
+            a, b = (
+                g.ravel()
+                for g in np.meshgrid(
+                    (np.arange(na) - 0.5 * (na - 1)) * h, (np.arange(nb) - 0.5 * (nb - 1)) * h, indexing="ij"
+                )
+            )
             keep = np.ones(len(a), dtype=bool)
         return np.outer(a[keep], u) + np.outer(b[keep], v)
 

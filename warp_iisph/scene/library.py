@@ -26,7 +26,9 @@ def resolve_scene(name_or_path: str) -> Path:
     bundled = bundled_scenes()
     if name_or_path in bundled:
         return bundled[name_or_path]
-    raise SceneFileError(f"scene {name_or_path!r}: not a file and not a bundled scene ({', '.join(bundled) or 'none found'})")
+    raise SceneFileError(
+        f"scene {name_or_path!r}: not a file and not a bundled scene ({', '.join(bundled) or 'none found'})"
+    )
 
 
 def describe(path: Path) -> str:

@@ -55,7 +55,9 @@ class Motion:
         if np.any(np.abs(keys["translate"]) > MAX_COORDINATE):
             raise ValueError(f"{name}.translate: must stay within {MAX_COORDINATE:g} m")
         if self.interpolation not in INTERPOLATIONS:
-            raise ValueError(f"{name}.interpolation = {self.interpolation!r}: must be one of {', '.join(INTERPOLATIONS)}")
+            raise ValueError(
+                f"{name}.interpolation = {self.interpolation!r}: must be one of {', '.join(INTERPOLATIONS)}"
+            )
         self.times = times.tolist()
         self.translate = keys["translate"].tolist()
         self.rotate = keys["rotate"].tolist()
@@ -93,8 +95,10 @@ class Motion:
         if self.interpolation == "linear":
             return tr[k] + s * (tr[k + 1] - tr[k]), rot[k] + s * (rot[k + 1] - rot[k])
         h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-        return (h00 * tr[k] + h10 * dt * mt[k] + h01 * tr[k + 1] + h11 * dt * mt[k + 1],
-                h00 * rot[k] + h10 * dt * mr[k] + h01 * rot[k + 1] + h11 * dt * mr[k + 1])
+        return (
+            h00 * tr[k] + h10 * dt * mt[k] + h01 * tr[k + 1] + h11 * dt * mt[k + 1],
+            h00 * rot[k] + h10 * dt * mr[k] + h01 * rot[k + 1] + h11 * dt * mr[k + 1],
+        )
 
     def matrix(self, time: float, pivot: np.ndarray) -> np.ndarray:
         """The 4x4 rigid transform at ``time`` of points placed by the scene (rotation about

@@ -46,7 +46,11 @@ class SurfaceSettings:
         self.radius = in_range(self.radius, "surface.radius", 0.5, 8.0, "particle spacings")
         if self.smoothing not in SMOOTHING:
             raise ValueError(f"surface.smoothing = {self.smoothing!r}: must be one of {', '.join(SMOOTHING)}")
-        if isinstance(self.passes, bool) or not isinstance(self.passes, (int, np.integer)) or not 0 <= self.passes <= 100:
+        if (
+            isinstance(self.passes, bool)
+            or not isinstance(self.passes, (int, np.integer))
+            or not 0 <= self.passes <= 100
+        ):
             raise ValueError(f"surface.passes = {self.passes!r}: must be an integer in [0, 100]")
         self.lam = in_range(self.lam, "surface.lam", 0.0, 1.0, "smoothing factor", lo_open=True)
         self.mu = in_range(self.mu, "surface.mu", -1.0, 0.0, "Taubin's inflation factor", hi_open=True)
@@ -78,7 +82,9 @@ class Output:
         self.mesh = flag(self.mesh, "output.mesh")
         c = self.checkpoint_every
         if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 0 <= c <= 1_000_000:
-            raise ValueError(f"output.checkpoint_every = {c!r}: must be a whole number of frames in [0, 1000000] (0: never)")
+            raise ValueError(
+                f"output.checkpoint_every = {c!r}: must be a whole number of frames in [0, 1000000] (0: never)"
+            )
         if self.format not in PARTICLE_FORMATS:
             raise ValueError(f"output.format = {self.format!r}: must be one of {', '.join(PARTICLE_FORMATS)}")
 
@@ -179,18 +185,27 @@ class Physics:
         self.viscosity = in_range(self.viscosity, "physics.viscosity", 0.0, 1.0, "m^2/s")
         self.boundary_viscosity = in_range(self.boundary_viscosity, "physics.boundary_viscosity", 0.0, 1.0, "m^2/s")
         if self.wall_pressure not in WALL_PRESSURES:
-            raise ValueError(f"physics.wall_pressure = {self.wall_pressure!r}: must be one of {', '.join(WALL_PRESSURES)}")
+            raise ValueError(
+                f"physics.wall_pressure = {self.wall_pressure!r}: must be one of {', '.join(WALL_PRESSURES)}"
+            )
         self.gravity = floats(vec3(self.gravity, "physics.gravity"))
         self.eta = in_range(self.eta, "physics.eta", 0.0, 0.5, "fraction of rho0, e.g. 0.001", lo_open=True)
-        self.eta_divergence = in_range(self.eta_divergence, "physics.eta_divergence", 0.0, 0.5, "fraction of rho0 per step, e.g. 0.001",
-                                       lo_open=True)
+        self.eta_divergence = in_range(
+            self.eta_divergence,
+            "physics.eta_divergence",
+            0.0,
+            0.5,
+            "fraction of rho0 per step, e.g. 0.001",
+            lo_open=True,
+        )
         for key in ("max_iterations", "min_iterations"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 100_000:
                 raise ValueError(f"physics.{key} = {v!r}: must be an integer in [1, 100000]")
         if self.min_iterations > self.max_iterations:
             raise ValueError(
-                f"physics.min_iterations = {self.min_iterations}: must be <= physics.max_iterations = {self.max_iterations}"
+                f"physics.min_iterations = {self.min_iterations}: must be <= "
+                f"physics.max_iterations = {self.max_iterations}"
             )
         self.omega = in_range(self.omega, "physics.omega", 0.0, 1.0, "Jacobi relaxation", lo_open=True)
         self.stiffness = positive(self.stiffness, "physics.stiffness", "Pa")
@@ -202,4 +217,3 @@ class Physics:
         self.dt_max = in_range(self.dt_max, "physics.dt_max", self.dt_min, 1.0, "seconds, >= dt_min")
         if self.max_velocity is not None:
             self.max_velocity = positive(self.max_velocity, "physics.max_velocity", "m/s")
-

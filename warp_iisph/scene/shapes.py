@@ -17,7 +17,9 @@ def _check_motion(shape, name: str) -> None:
     if isinstance(shape.motion, dict):
         unknown = sorted(set(shape.motion) - {"times", "translate", "rotate", "pivot", "interpolation"})
         if unknown:
-            raise ValueError(f"{name}.motion.{unknown[0]}: unknown key; allowed: interpolation, pivot, rotate, times, translate")
+            raise ValueError(
+                f"{name}.motion.{unknown[0]}: unknown key; allowed: interpolation, pivot, rotate, times, translate"
+            )
         if "times" not in shape.motion:
             raise ValueError(f"{name}.motion.times: required (the key times, seconds)")
         shape.motion = Motion(**shape.motion)
@@ -101,8 +103,9 @@ class MeshShape:
         key = (self.path, self.base_dir, self.translate, self.rotate, self.scale)
         if getattr(self, "_loaded", (None, None))[0] == key:
             return self._loaded[1]
-        import trimesh
         from pathlib import Path
+
+        import trimesh
 
         path = Path(self.base_dir) / self.path
         if not path.is_file():
@@ -135,11 +138,12 @@ def shape_mesh(shape) -> "object":
         return shape.load()
     if isinstance(shape, Box):
         lo, hi = shape.bounds
-        return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+        return trimesh.creation.box(
+            extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2)
+        )
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=shape.radius)
     mesh.apply_translation(shape.center)
     return mesh
-
 
 
 def obstacles_mesh(shapes, time: float = 0.0) -> "object":

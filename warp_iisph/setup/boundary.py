@@ -89,7 +89,9 @@ def initial_density(
     rho[i] = s
 
 
-def overcompressed(xf: np.ndarray, xb: wp.array, psi: wp.array, h: float, rho0: float, tolerance: float, device) -> np.ndarray:
+def overcompressed(
+    xf: np.ndarray, xb: wp.array, psi: wp.array, h: float, rho0: float, tolerance: float, device
+) -> np.ndarray:
     """Mask of the fluid particles ``xf`` whose density at rest, walls included, exceeds
     ``rho0 (1 + tolerance)``: sampled too close to a boundary, they would be kicked away."""
     H = 2.0 * h

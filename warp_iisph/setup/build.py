@@ -16,7 +16,6 @@ from .model import Model, State
 from .rasterize import clear_fluid, sample_mesh
 from .sampling import sample_fluid, sample_tank_walls
 
-
 # Largest initial compression (fraction of rho0) a fluid particle beside a mesh may start with.
 INITIAL_COMPRESSION = 0.005
 
@@ -42,8 +41,12 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         # a body's psi comes from its own particles (rigid: it never changes); the walls keep theirs
         rest = np.concatenate([r for _, r in bodies])
         body_of = np.concatenate([np.full(len(r), k) for k, (_, r) in enumerate(bodies)])
-        psis = [psi.numpy()[: len(xb)]] + [compute_boundary_psi(wp.array(r.astype(np.float32), dtype=wp.vec3, device=device), h, ph.rho0,
-                                                                 device).numpy()[: len(r)] for _, r in bodies]
+        psis = [psi.numpy()[: len(xb)]] + [
+            compute_boundary_psi(
+                wp.array(r.astype(np.float32), dtype=wp.vec3, device=device), h, ph.rho0, device
+            ).numpy()[: len(r)]
+            for _, r in bodies
+        ]
         at_start = np.concatenate([_placed(m, r, 0.0) for m, r in bodies])
         xb_dev = wp.array(np.concatenate([xb_dev.numpy(), at_start]).astype(np.float32), dtype=wp.vec3, device=device)
         psi = wp.array(np.concatenate(psis).astype(np.float32), dtype=float, device=device)
@@ -143,8 +146,11 @@ def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.nda
     sampled = [sample_mesh(m.vertices, m.faces, h, device) for m in trimeshes]
     # where everything is at t = 0: moving bodies as their first keyframe places them
     start = [_placed(o.motion, x, 0.0) if getattr(o, "motion", None) else x for x, o in zip(sampled, shapes)]
-    solids = [(_placed(o.motion, np.asarray(m.vertices), 0.0) if getattr(o, "motion", None) else m.vertices, m.faces)
-              for m, o in zip(trimeshes, shapes) if o is not scene.tank and m.is_watertight and not getattr(o, "shell", False)]
+    solids = [
+        (_placed(o.motion, np.asarray(m.vertices), 0.0) if getattr(o, "motion", None) else m.vertices, m.faces)
+        for m, o in zip(trimeshes, shapes)
+        if o is not scene.tank and m.is_watertight and not getattr(o, "shell", False)
+    ]
     containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
     xf = clear_fluid(xf, np.concatenate(start), solids, h, containers, device)
     still = walls + [x for x, o in zip(sampled, shapes) if not getattr(o, "motion", None)]
@@ -188,5 +194,7 @@ def _check_memory(n_fluid: int, n_boundary: int, device) -> None:
             f"{need / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is free on {device}; increase spacing"
         )
     if n_fluid * FIRST_STRIDE > LIST_ENTRIES_LIMIT:
-        raise ValueError(f"spacing: {n_fluid:,} fluid particles need more neighbour-list entries than 32-bit indices "
-                         f"address ({LIST_ENTRIES_LIMIT:,}); increase spacing")
+        raise ValueError(
+            f"spacing: {n_fluid:,} fluid particles need more neighbour-list entries than 32-bit indices "
+            f"address ({LIST_ENTRIES_LIMIT:,}); increase spacing"
+        )

@@ -20,8 +20,8 @@ class Model:
 
     ``physics`` is the scene's validated physics (rest density, gravity, viscosities and the
     solver's settings are read from it, never copied). ``spacing`` is the particle diameter h,
-    ``support_radius`` the kernel's support 2h, ``mass`` = rho0 h^3. ``domain_lower/upper`` bound where particles may go: a particle
-    beyond them has left the tank.
+    ``support_radius`` the kernel's support 2h, ``mass`` = rho0 h^3. ``domain_lower/upper``
+    bound where particles may go: a particle beyond them has left the tank.
     """
 
     device: object
@@ -51,7 +51,9 @@ class Model:
 
 
 @wp.kernel
-def gather_vec3(offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)):
+def gather_vec3(
+    offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)
+):
     i = wp.tid() + offset
     dst[i] = src[order[i]]
 
@@ -63,7 +65,9 @@ def gather_float(offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dty
 
 
 @wp.kernel
-def gather_int(offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int32)):
+def gather_int(
+    offset: int, order: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int32)
+):
     i = wp.tid() + offset
     dst[i] = src[order[i]]
 

@@ -45,7 +45,9 @@ def sample_fluid(fluids, tank, h: float) -> np.ndarray:
         parts = [x[np.all((x >= lo + 0.5 * h - 1e-9) & (x <= hi - 0.5 * h + 1e-9), axis=1)] for x in parts]
     for k, x in enumerate(parts):
         if len(x) == 0:
-            raise ValueError(f"fluids[{k}]: no particle fits in it at spacing = {h:g} m; make it larger or the spacing smaller")
+            raise ValueError(
+                f"fluids[{k}]: no particle fits in it at spacing = {h:g} m; make it larger or the spacing smaller"
+            )
     return np.concatenate(parts, axis=0) if parts else np.zeros((0, 3))
 
 

@@ -33,7 +33,12 @@ def hermite(a: wp.vec3, ma: wp.vec3, b: wp.vec3, mb: wp.vec3, s: float, dt: floa
         return a + s * (b - a)
     s2 = s * s
     s3 = s2 * s
-    return (2.0 * s3 - 3.0 * s2 + 1.0) * a + (s3 - 2.0 * s2 + s) * dt * ma + (-2.0 * s3 + 3.0 * s2) * b + (s3 - s2) * dt * mb
+    return (
+        (2.0 * s3 - 3.0 * s2 + 1.0) * a
+        + (s3 - 2.0 * s2 + s) * dt * ma
+        + (-2.0 * s3 + 3.0 * s2) * b
+        + (s3 - s2) * dt * mb
+    )
 
 
 @wp.func
@@ -70,8 +75,18 @@ def body_transform(keys: BodyKeys, b: int, t: wp.float64) -> wp.transform:
         span = keys.times[k + 1] - keys.times[k]
         s = float((t - keys.times[k]) / span)
         sm = keys.smooth[b]
-        tr = hermite(keys.translate[k], keys.slope_translate[k], keys.translate[k + 1], keys.slope_translate[k + 1], s, float(span), sm)
-        rot = hermite(keys.rotate[k], keys.slope_rotate[k], keys.rotate[k + 1], keys.slope_rotate[k + 1], s, float(span), sm)
+        tr = hermite(
+            keys.translate[k],
+            keys.slope_translate[k],
+            keys.translate[k + 1],
+            keys.slope_translate[k + 1],
+            s,
+            float(span),
+            sm,
+        )
+        rot = hermite(
+            keys.rotate[k], keys.slope_rotate[k], keys.rotate[k + 1], keys.slope_rotate[k + 1], s, float(span), sm
+        )
     p = keys.pivot[b]
     R = rotation_xyz(rot)
     return wp.transform(p + tr - R * p, wp.quat_from_matrix(R))
@@ -126,9 +141,13 @@ class MovingBodies:
         k = BodyKeys()
         counts = [len(m.times) for m in motions]
         k.first = wp.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32), dtype=wp.int32, device=device)
-        k.smooth = wp.array(np.array([m.interpolation == "smooth" for m in motions], dtype=np.int32), dtype=wp.int32, device=device)
+        k.smooth = wp.array(
+            np.array([m.interpolation == "smooth" for m in motions], dtype=np.int32), dtype=wp.int32, device=device
+        )
         k.pivot = wp.array(np.array([m.pivot for m in motions], dtype=np.float32), dtype=wp.vec3, device=device)
-        k.times = wp.array(np.concatenate([m.times for m in motions]).astype(np.float64), dtype=wp.float64, device=device)
+        k.times = wp.array(
+            np.concatenate([m.times for m in motions]).astype(np.float64), dtype=wp.float64, device=device
+        )
         slopes = [m.slopes() for m in motions]
 
         def vec(rows):
@@ -140,9 +159,15 @@ class MovingBodies:
         k.slope_rotate = vec([s[1] for s in slopes])
         self.keys = k
 
-    def place(self, boundary_x: wp.array, boundary_v: wp.array, boundary_a: wp.array, time: wp.array, dt: wp.array) -> None:
+    def place(
+        self, boundary_x: wp.array, boundary_v: wp.array, boundary_a: wp.array, time: wp.array, dt: wp.array
+    ) -> None:
         """Put the bodies where they are at ``time`` with the velocity of the step ``dt`` and their
         acceleration (device arrays)."""
         if self.n:
-            wp.launch(move_bodies, dim=self.n, inputs=[self.keys, self.body, self.rest, time, dt, self.first, boundary_x, boundary_v,
-                                                       boundary_a], device=self.device)
+            wp.launch(
+                move_bodies,
+                dim=self.n,
+                inputs=[self.keys, self.body, self.rest, time, dt, self.first, boundary_x, boundary_v, boundary_a],
+                device=self.device,
+            )

@@ -115,13 +115,19 @@ class Containment:
         container) per closed surface (vertices where the scene places the shape)."""
         self.device = device
         self.spacing = float(spacing)
-        self._meshes = [wp.Mesh(points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
-                                indices=wp.array(np.asarray(f, np.int32).reshape(-1), dtype=wp.int32, device=device))
-                        for v, f, _, _ in meshes]
+        self._meshes = [
+            wp.Mesh(
+                points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
+                indices=wp.array(np.asarray(f, np.int32).reshape(-1), dtype=wp.int32, device=device),
+            )
+            for v, f, _, _ in meshes
+        ]
         s = Solids()
         s.meshes = wp.array(np.array([m.id for m in self._meshes], dtype=np.uint64), dtype=wp.uint64, device=device)
         s.body = wp.array(np.array([b for _, _, b, _ in meshes], dtype=np.int32), dtype=wp.int32, device=device)
-        s.container = wp.array(np.array([int(c) for _, _, _, c in meshes], dtype=np.int32), dtype=wp.int32, device=device)
+        s.container = wp.array(
+            np.array([int(c) for _, _, _, c in meshes], dtype=np.int32), dtype=wp.int32, device=device
+        )
         s.count = len(self._meshes)
         s.has_box = int(box is not None)
         lo, hi = box if box is not None else (np.zeros(3), np.zeros(3))
@@ -134,8 +140,23 @@ class Containment:
         """Put the ``n`` particles back within the walls, counting into ``corrections`` (zeroed here)."""
         self.corrections.zero_()
         if n:
-            wp.launch(contain, dim=n, device=self.device, inputs=[
-                x, v, nb, self.solids, self.keys, time, dt, 2.0 * self.spacing, CLEARANCE * self.spacing, self.corrections])
+            wp.launch(
+                contain,
+                dim=n,
+                device=self.device,
+                inputs=[
+                    x,
+                    v,
+                    nb,
+                    self.solids,
+                    self.keys,
+                    time,
+                    dt,
+                    2.0 * self.spacing,
+                    CLEARANCE * self.spacing,
+                    self.corrections,
+                ],
+            )
 
 
 def _no_keys(device) -> BodyKeys:

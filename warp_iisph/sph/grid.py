@@ -83,7 +83,9 @@ def cell_first(g: CellGrid, c: int) -> int:
 
 
 @wp.kernel
-def cell_keys(points: wp.array(dtype=wp.vec3), inv_cell: float, keys: wp.array(dtype=wp.int32), ids: wp.array(dtype=wp.int32)):
+def cell_keys(
+    points: wp.array(dtype=wp.vec3), inv_cell: float, keys: wp.array(dtype=wp.int32), ids: wp.array(dtype=wp.int32)
+):
     i = wp.tid()
     p = points[i]
     keys[i] = cell_hash(cell_coord(p[0] * inv_cell), cell_coord(p[1] * inv_cell), cell_coord(p[2] * inv_cell))

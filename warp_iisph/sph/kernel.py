@@ -29,13 +29,13 @@ def cubic_grad_W(x_ij: wp.vec3, H: float) -> wp.vec3:
     q = r / H
     if r <= 1.0e-9 * H or q > 1.0:
         return wp.vec3(0.0, 0.0, 0.0)
-    l = 48.0 / (wp.pi * H * H * H)
+    scale = 48.0 / (wp.pi * H * H * H)
     dW_dr = float(0.0)
     if q <= 0.5:
-        dW_dr = l * q * (3.0 * q - 2.0) / H
+        dW_dr = scale * q * (3.0 * q - 2.0) / H
     else:
         t = 1.0 - q
-        dW_dr = -l * t * t / H
+        dW_dr = -scale * t * t / H
     return x_ij * (dW_dr / r)
 
 

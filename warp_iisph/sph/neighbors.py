@@ -15,7 +15,7 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 from .grid import CellGrid, ParticleGrid, cell_first, cell_hash, cell_range
-from .kernel import cubic_W, cubic_grad_W
+from .kernel import cubic_grad_W, cubic_W
 from .wall_mask import NearMask, may_have_neighbors, near_mask
 
 
@@ -67,8 +67,16 @@ def count_in_cells(g: CellGrid, x_i: wp.vec3, radius: float) -> int:
 
 
 @wp.func
-def fill_from_cells(g: CellGrid, points: wp.array(dtype=wp.vec3), first: int, x_i: wp.vec3, radius: float, nbrs: NeighborList,
-                    k: int, capacity: int) -> int:
+def fill_from_cells(
+    g: CellGrid,
+    points: wp.array(dtype=wp.vec3),
+    first: int,
+    x_i: wp.vec3,
+    radius: float,
+    nbrs: NeighborList,
+    k: int,
+    capacity: int,
+) -> int:
     """Append the points of :func:`count_in_cells` to a list from entry ``k``; returns the next entry."""
     if g.n == 0:
         return k
@@ -260,8 +268,10 @@ class NeighborListBuffer:
 
     def _reserve(self, capacity: int) -> None:
         if capacity > LIST_ENTRIES_LIMIT:
-            raise MemoryError(f"neighbour lists need {capacity:,} entries, more than 32-bit indices address "
-                              f"({LIST_ENTRIES_LIMIT:,}); use a coarser spacing or fewer particles")
+            raise MemoryError(
+                f"neighbour lists need {capacity:,} entries, more than 32-bit indices address "
+                f"({LIST_ENTRIES_LIMIT:,}); use a coarser spacing or fewer particles"
+            )
         self.generation += 1
         self.capacity = capacity
         self.lists.index = wp.zeros(capacity, dtype=wp.int32, device=self.device)
@@ -269,8 +279,18 @@ class NeighborListBuffer:
         self.lists.W = wp.zeros(capacity, dtype=float, device=self.device)
         self.lists.head = wp.zeros(capacity if self.heads else 1, dtype=float, device=self.device)
 
-    def build(self, grid: wp.HashGrid, points, queries, n: int, radius: float, mask: NearMask, moving: ParticleGrid,
-              moving_first: int, sync: bool = True):
+    def build(
+        self,
+        grid: wp.HashGrid,
+        points,
+        queries,
+        n: int,
+        radius: float,
+        mask: NearMask,
+        moving: ParticleGrid,
+        moving_first: int,
+        sync: bool = True,
+    ):
         """Neighbours among ``points`` (another set: the walls) of each of the ``n`` ``queries``:
         count, starts, fill. The still points are in ``grid`` (queries in cells that ``mask``, see
         :func:`near_mask`, clears skip it), the moving ones from ``moving_first`` in ``moving``.
@@ -312,7 +332,9 @@ class StridedListBuffer(NeighborListBuffer):
     stride, 48, is above the ~41 a dam break reaches (a lattice has 26 within 2h): a graph replay
     that outgrows it is redone whole, which would cost a frame."""
 
-    def __init__(self, n: int, device, stride: int = FIRST_STRIDE, slot_major: bool | None = None, block: int | None = None):
+    def __init__(
+        self, n: int, device, stride: int = FIRST_STRIDE, slot_major: bool | None = None, block: int | None = None
+    ):
         """``block``: how many particles' lists interleave slot by slot (``NeighborList.step``):
         1 is particle-major, ``n`` slot-major, 32 a GPU warp's particles per block of slots;
         ``slot_major`` chooses between the first two; by default slot-major on CUDA."""
@@ -339,7 +361,9 @@ class StridedListBuffer(NeighborListBuffer):
         if n == 0:
             return
         self.needed.zero_()
-        launch_particles(fill_neighbors_strided, n, [grid.grid, points, radius, self.stride, self.lists, self.wanted], self.device)
+        launch_particles(
+            fill_neighbors_strided, n, [grid.grid, points, radius, self.stride, self.lists, self.wanted], self.device
+        )
         # slots for every particle the storage is laid out for (padded to whole blocks)
         wp.launch(stride_needed, dim=n, inputs=[self.padded, self.wanted, self.needed], device=self.device)
         if sync:
@@ -397,8 +421,17 @@ class NeighborSearch:
         if self.boundary_grid is not None:
             if self.moving_grid.n:  # moving obstacles: where they are this step
                 self.moving_grid.build(self.boundary_x[self.n_still :], self.radius)
-            self.boundary.build(self.boundary_grid, self.boundary_x, x, n, self.radius, self.boundary_mask, self.moving_grid,
-                                self.n_still, sync=sync)
+            self.boundary.build(
+                self.boundary_grid,
+                self.boundary_x,
+                x,
+                n,
+                self.radius,
+                self.boundary_mask,
+                self.moving_grid,
+                self.n_still,
+                sync=sync,
+            )
         else:
             self.boundary.lists.count.zero_()
             self.boundary.lists.start.zero_()

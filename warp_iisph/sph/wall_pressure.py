@@ -38,7 +38,9 @@ from .neighbors import NeighborList, entry
 
 
 @wp.func
-def smoothed_pressure(i: int, p: wp.array(dtype=float), p_sum: float, W0: float, weight: wp.array(dtype=float)) -> float:
+def smoothed_pressure(
+    i: int, p: wp.array(dtype=float), p_sum: float, W0: float, weight: wp.array(dtype=float)
+) -> float:
     """``p~_i`` from ``p_sum = sum_j W_ij p_j`` over i's neighbours (i itself added here)."""
     return (W0 * p[i] + p_sum) / weight[i]
 

@@ -20,7 +20,6 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 
-
 # A liquid particle this close to a new one (in spacings) blocks the nozzle. A stream leaving at
 # its speed has moved one spacing when the next layer is due, so it does not block itself; one
 # slowed below sqrt(2 g h) (a slow jet upwards) has moved less than 0.75 h by then, and every
@@ -134,8 +133,24 @@ class Flows:
                     self.blocked += m
                 else:
                     velocity = wp.vec3(*(e.speed * np.asarray(e.direction)))
-                    wp.launch(emit_layer, dim=m, device=self.device, inputs=[
-                        s.count, wp.vec3(*e.center), layer, velocity, self.rho0, s.next_id, s.x, s.v, s.rho, s.p, s.id])
+                    wp.launch(
+                        emit_layer,
+                        dim=m,
+                        device=self.device,
+                        inputs=[
+                            s.count,
+                            wp.vec3(*e.center),
+                            layer,
+                            velocity,
+                            self.rho0,
+                            s.next_id,
+                            s.x,
+                            s.v,
+                            s.rho,
+                            s.p,
+                            s.id,
+                        ],
+                    )
                     s.clear_carried(s.count, m)  # no warm start from a particle that left
                     s.count += m
                     s.next_id += m
@@ -150,8 +165,12 @@ class Flows:
         if s.count == 0:
             return False
         self._blocking.zero_()
-        launch_particles(count_blocking, s.count, [s.x, wp.vec3(*emitter.center), layer, extent, float(self.reach), self._blocking],
-                         self.device)
+        launch_particles(
+            count_blocking,
+            s.count,
+            [s.x, wp.vec3(*emitter.center), layer, extent, float(self.reach), self._blocking],
+            self.device,
+        )
         return int(self._blocking.numpy()[0]) > 0
 
     def drain(self) -> int:
@@ -170,13 +189,18 @@ class Flows:
         return gone
 
     def checkpoint(self) -> dict:
-        return {"flows_next_time": np.asarray(self.next_time, dtype=np.float64), "flows_next_check": np.float64(self.next_check),
-                "flows_counts": np.asarray([self.emitted, self.refused, self.removed, self.blocked], dtype=np.int64)}
+        return {
+            "flows_next_time": np.asarray(self.next_time, dtype=np.float64),
+            "flows_next_check": np.float64(self.next_check),
+            "flows_counts": np.asarray([self.emitted, self.refused, self.removed, self.blocked], dtype=np.int64),
+        }
 
     def restore(self, checkpoint: dict) -> None:
         if "flows_next_time" in checkpoint:
             self.next_time = [float(t) for t in checkpoint["flows_next_time"]]
             if "flows_next_check" in checkpoint:  # older checkpoints: sinks checked once per frame only
                 self.next_check = float(checkpoint["flows_next_check"])
-            counts = [int(c) for c in checkpoint["flows_counts"]] + [0]  # checkpoints before the blocked count had three
+            counts = [int(c) for c in checkpoint["flows_counts"]] + [
+                0
+            ]  # checkpoints before the blocked count had three
             self.emitted, self.refused, self.removed, self.blocked = counts[:4]

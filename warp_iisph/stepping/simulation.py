@@ -39,8 +39,14 @@ class Simulation:
         print(sim.stats[-1]["density_error"])
     """
 
-    def __init__(self, scene: Scene, device: str = "cpu", graph: bool = False, history: Optional[int] = None,
-                 until: Optional[float] = None):
+    def __init__(
+        self,
+        scene: Scene,
+        device: str = "cpu",
+        graph: bool = False,
+        history: Optional[int] = None,
+        until: Optional[float] = None,
+    ):
         """``history``: how many step records ``stats`` keeps (``None``: every one; a long run that
         writes them to disk keeps the last few, so memory stays flat). ``until``: how long it will
         run (s), for the room emitters need (default: the scene's ``output.duration``)."""
@@ -50,7 +56,9 @@ class Simulation:
         self.model, self.state = build_model(self.scene, device, until)
         self.device = self.model.device
         self.solver = make_solver(self.model)
-        for name, array in getattr(self.solver, "carried", {}).items():  # a solver's warm starts move with the particles
+        for name, array in getattr(
+            self.solver, "carried", {}
+        ).items():  # a solver's warm starts move with the particles
             self.state.carry(name, array)
         self.time = 0.0
         self.step_count = 0
@@ -82,8 +90,10 @@ class Simulation:
     def step(self, dt: Optional[float] = None) -> dict:
         """Advance one time step (``dt``: seconds, or ``None`` for the CFL rule); returns its
         statistics record (also appended to ``stats``)."""
-        if dt is not None and (isinstance(dt, bool) or not (isinstance(dt, (int, float, np.floating, np.integer))
-                                                             and 0.0 < float(dt) <= 1.0)):
+        if dt is not None and (
+            isinstance(dt, bool)
+            or not (isinstance(dt, (int, float, np.floating, np.integer)) and 0.0 < float(dt) <= 1.0)
+        ):
             raise ValueError(f"dt = {dt!r}: must be a number in (0, 1] seconds")
         (record,) = self._steps(math.inf, None if dt is None else float(dt), 1)
         return record
@@ -91,8 +101,9 @@ class Simulation:
     def advance(self, duration: float, callback: Optional[Callable[[dict], None]] = None) -> None:
         """Simulate ``duration`` seconds; the last step is shortened to land on the end time.
         With ``graph=True`` the steps run as replays of the recorded loop (.graph)."""
-        if isinstance(duration, bool) or not (isinstance(duration, (int, float, np.floating, np.integer)) and math.isfinite(duration)
-                                               and duration >= 0.0):
+        if isinstance(duration, bool) or not (
+            isinstance(duration, (int, float, np.floating, np.integer)) and math.isfinite(duration) and duration >= 0.0
+        ):
             raise ValueError(f"duration = {duration!r}: must be a finite number of seconds >= 0")
         end = self.time + float(duration)
         while self.time < end - 1e-9:
@@ -142,7 +153,9 @@ class Simulation:
             lo, hi = (", ".join(f"{c:.3g}" for c in b) for b in (self.model.domain_lower, self.model.domain_upper))
             reason = f"{record['escaped']} particles left the domain ({lo})..({hi})"
         elif record["max_velocity"] > self.loop.velocity_limit:
-            reason = f"max velocity {record['max_velocity']:.3g} m/s exceeds the limit {self.loop.velocity_limit:.3g} m/s"
+            reason = (
+                f"max velocity {record['max_velocity']:.3g} m/s exceeds the limit {self.loop.velocity_limit:.3g} m/s"
+            )
         if reason:
             raise DivergenceError(self.step_count, self.time, reason)
         return record
@@ -157,9 +170,16 @@ class Simulation:
         # copies: on the CPU .numpy() is a view of the live arrays
         out = {name: getattr(s, name).numpy()[: s.n].copy() for name in ("x", "v", "rho", "p", "id")}
         out.update({f"carried_{name}": array.numpy()[: s.n].copy() for name, array in s.carried.items()})
-        out.update(max_speed2=self.loop.max_speed2.numpy().copy(), sub_left=self.loop.sub_left.numpy().copy(),
-                   sub_done=self.loop.sub_done.numpy().copy(), time=np.float64(self.time), step_count=np.int64(self.step_count),
-                   method=np.array(self.physics.method), next_id=np.int64(s.next_id), **self.flows.checkpoint())
+        out.update(
+            max_speed2=self.loop.max_speed2.numpy().copy(),
+            sub_left=self.loop.sub_left.numpy().copy(),
+            sub_done=self.loop.sub_done.numpy().copy(),
+            time=np.float64(self.time),
+            step_count=np.int64(self.step_count),
+            method=np.array(self.physics.method),
+            next_id=np.int64(s.next_id),
+            **self.flows.checkpoint(),
+        )
         return out
 
     def restore(self, checkpoint: dict) -> None:
@@ -169,7 +189,9 @@ class Simulation:
         if n > s.capacity or (not self.scene.emitters and not self.scene.sinks and n != s.n):
             raise ValueError(f"checkpoint: holds {n} particles, the scene makes {s.n}; its geometry changed")
         if str(checkpoint["method"]) != self.physics.method:
-            raise ValueError(f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}")
+            raise ValueError(
+                f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}"
+            )
         for name in ("x", "v", "rho", "p", "id"):
             getattr(s, name)[:n].assign(checkpoint[name])
         for name, array in s.carried.items():

@@ -20,8 +20,19 @@ from ..engine.reduce import max_into
 from ..engine.timing import StageTimes
 from ..sph.solvers import STAGES
 
-LOG_FIELDS = ("dt", "iterations", "density_error", "compression", "max_velocity", "escaped", "non_finite", "wall_corrections",
-              "obstacle_corrections", "t", "substeps")
+LOG_FIELDS = (
+    "dt",
+    "iterations",
+    "density_error",
+    "compression",
+    "max_velocity",
+    "escaped",
+    "non_finite",
+    "wall_corrections",
+    "obstacle_corrections",
+    "t",
+    "substeps",
+)
 # particles are reordered by grid cell every this many steps (1 = every step)
 REORDER_INTERVAL = 10
 
@@ -148,7 +159,14 @@ def check_state(
         wp.atomic_add(counts, 1, 1)
         return
     speed2[i] = wp.dot(v_i, v_i)
-    if x_i[0] < lower[0] or x_i[1] < lower[1] or x_i[2] < lower[2] or x_i[0] > upper[0] or x_i[1] > upper[1] or x_i[2] > upper[2]:
+    if (
+        x_i[0] < lower[0]
+        or x_i[1] < lower[1]
+        or x_i[2] < lower[2]
+        or x_i[0] > upper[0]
+        or x_i[1] > upper[1]
+        or x_i[2] > upper[2]
+    ):
         wp.atomic_add(counts, 0, 1)
 
 
@@ -158,13 +176,21 @@ def reorder_due(steps: wp.array(dtype=wp.int32), interval: int, due: wp.array(dt
 
 
 @wp.kernel
-def record_mean(slot: wp.array(dtype=wp.int32), n: int, total: wp.array(dtype=wp.float64), column: int, log: wp.array2d(dtype=wp.float64)):
+def record_mean(
+    slot: wp.array(dtype=wp.int32),
+    n: int,
+    total: wp.array(dtype=wp.float64),
+    column: int,
+    log: wp.array2d(dtype=wp.float64),
+):
     """A solver's own statistic, a sum over particles, as its mean in the step's log row."""
     log[slot[0], column] = total[0] / wp.float64(n)
 
 
 @wp.kernel
-def record_count(slot: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), column: int, log: wp.array2d(dtype=wp.float64)):
+def record_count(
+    slot: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32), column: int, log: wp.array2d(dtype=wp.float64)
+):
     """A solver's own count (iterations) in the step's log row."""
     log[slot[0], column] = wp.float64(count[0])
 
@@ -257,7 +283,9 @@ class TimeLoop:
         self.log = wp.zeros((self.capacity, len(self.fields)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
 
-    def start(self, time: float, steps: int, end: float, dt: float | None = None, step_limit: int | None = None) -> None:
+    def start(
+        self, time: float, steps: int, end: float, dt: float | None = None, step_limit: int | None = None
+    ) -> None:
         """Set the clock (the host's copy of time and step count is the truth between calls), the
         end time, a requested dt (``None``: the rules choose) and how many steps a replay may take."""
         self.time.fill_(time)
@@ -273,10 +301,30 @@ class TimeLoop:
         model, state, solver, ph = self.model, self.state, self.solver, self.physics
         dev = model.device
         f64 = wp.float64
-        wp.launch(choose_dt, dim=1, device=dev, inputs=[
-            f64(ph.dt if ph.dt is not None else -1.0), f64(ph.cfl), f64(model.spacing), f64(self.velocity_scale),
-            f64(solver.signal_speed), f64(ph.dt_min), f64(self.dt_limit), int(ph.substeps),
-            self.dt_request, self.max_speed2, self.time, self.end, self.sub_left, self.sub_done, self.pieces, self.dt64, solver.dt])
+        wp.launch(
+            choose_dt,
+            dim=1,
+            device=dev,
+            inputs=[
+                f64(ph.dt if ph.dt is not None else -1.0),
+                f64(ph.cfl),
+                f64(model.spacing),
+                f64(self.velocity_scale),
+                f64(solver.signal_speed),
+                f64(ph.dt_min),
+                f64(self.dt_limit),
+                int(ph.substeps),
+                self.dt_request,
+                self.max_speed2,
+                self.time,
+                self.end,
+                self.sub_left,
+                self.sub_done,
+                self.pieces,
+                self.dt64,
+                solver.dt,
+            ],
+        )
         if model.bodies is not None:  # moving obstacles where they are at the step's start
             model.bodies.place(model.boundary_x, model.boundary_v, model.boundary_a, self.time, self.dt64)
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
@@ -289,19 +337,51 @@ class TimeLoop:
             model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.time, self.dt64)
             self.max_speed2.zero_()
             self.counts.zero_()
-            wp.launch(check_state, dim=state.n, device=dev, inputs=[
-                state.x, state.v, wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper), self.speed2, self.counts])
+            wp.launch(
+                check_state,
+                dim=state.n,
+                device=dev,
+                inputs=[
+                    state.x,
+                    state.v,
+                    wp.vec3(*model.domain_lower),
+                    wp.vec3(*model.domain_upper),
+                    self.speed2,
+                    self.counts,
+                ],
+            )
             max_into(self.speed2, state.n, self.max_speed2)
-        for column, (name, value) in enumerate(self.extra.items(), len(LOG_FIELDS)):  # before record_step moves the slot on
+        for column, value in enumerate(self.extra.values(), len(LOG_FIELDS)):  # before record_step moves the slot on
             if value.dtype == wp.float64:
                 wp.launch(record_mean, dim=1, device=dev, inputs=[self.slot, max(state.n, 1), value, column, self.log])
             else:
                 wp.launch(record_count, dim=1, device=dev, inputs=[self.slot, value, column, self.log])
-        wp.launch(record_step, dim=1, device=dev, inputs=[
-            max(state.n, 1), f64(self.velocity_limit), self.dt64, solver._compression_sum, *solver.solver_stats(),
-            self.max_speed2, self.counts, model.containment.corrections, self.pieces, self.needed, search.fluid.needed,
-            search.boundary.needed if search.boundary_grid is not None else self._zero_total,
-            self.time, self.end, self.steps, self.slot, self.step_limit, self.log, self.keep_going])
+        wp.launch(
+            record_step,
+            dim=1,
+            device=dev,
+            inputs=[
+                max(state.n, 1),
+                f64(self.velocity_limit),
+                self.dt64,
+                solver._compression_sum,
+                *solver.solver_stats(),
+                self.max_speed2,
+                self.counts,
+                model.containment.corrections,
+                self.pieces,
+                self.needed,
+                search.fluid.needed,
+                search.boundary.needed if search.boundary_grid is not None else self._zero_total,
+                self.time,
+                self.end,
+                self.steps,
+                self.slot,
+                self.step_limit,
+                self.log,
+                self.keep_going,
+            ],
+        )
 
     def loop_body(self) -> None:
         """Steps until the end time, the step limit or a divergence: what a graph records."""
@@ -326,7 +406,15 @@ class TimeLoop:
         out = []
         for row in rows:
             rec = dict(zip(self.fields, (float(v) for v in row)))
-            for key in ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections", "substeps", *counts):
+            for key in (
+                "iterations",
+                "escaped",
+                "non_finite",
+                "wall_corrections",
+                "obstacle_corrections",
+                "substeps",
+                *counts,
+            ):
                 rec[key] = int(rec[key])
             out.append(rec)
         return out

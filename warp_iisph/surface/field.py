@@ -105,7 +105,9 @@ class BlockField:
 
 @wp.func
 def unflatten_block(f: BlockField, b: int) -> wp.vec3i:
-    return wp.vec3i(b // (f.block_dims[1] * f.block_dims[2]), (b // f.block_dims[2]) % f.block_dims[1], b % f.block_dims[2])
+    return wp.vec3i(
+        b // (f.block_dims[1] * f.block_dims[2]), (b // f.block_dims[2]) % f.block_dims[1], b % f.block_dims[2]
+    )
 
 
 @wp.func
@@ -119,40 +121,42 @@ def local_node(m: int) -> wp.vec3i:
 
 
 @wp.func
-def local_slot(l: wp.vec3i) -> int:
+def local_slot(node: wp.vec3i) -> int:
     """Inverse of ``local_node``, for a node in [0, BLOCK]^3 taken into the block that owns it."""
-    return ((l[0] % BLOCK) * BLOCK + l[1] % BLOCK) * BLOCK + l[2] % BLOCK
+    return ((node[0] % BLOCK) * BLOCK + node[1] % BLOCK) * BLOCK + node[2] % BLOCK
 
 
 @wp.func
-def owner_block(f: BlockField, bc: wp.vec3i, l: wp.vec3i) -> int:
-    """Flat number of the block that owns node ``l`` in [0, BLOCK]^3 of the block at ``bc`` (the
+def owner_block(f: BlockField, bc: wp.vec3i, node: wp.vec3i) -> int:
+    """Flat number of the block that owns ``node`` in [0, BLOCK]^3 of the block at ``bc`` (the
     block itself, or one above it for a node on its upper faces); -1 beyond the lattice."""
-    g = bc + wp.vec3i(l[0] // BLOCK, l[1] // BLOCK, l[2] // BLOCK)
+    g = bc + wp.vec3i(node[0] // BLOCK, node[1] // BLOCK, node[2] // BLOCK)
     if g[0] >= f.block_dims[0] or g[1] >= f.block_dims[1] or g[2] >= f.block_dims[2]:
         return -1
     return (g[0] * f.block_dims[1] + g[1]) * f.block_dims[2] + g[2]
 
 
 @wp.func
-def node_position(f: BlockField, bc: wp.vec3i, l: wp.vec3i) -> wp.vec3:
-    return f.lower + f.cell * wp.vec3(float(BLOCK * bc[0] + l[0]), float(BLOCK * bc[1] + l[1]), float(BLOCK * bc[2] + l[2]))
+def node_position(f: BlockField, bc: wp.vec3i, node: wp.vec3i) -> wp.vec3:
+    return f.lower + f.cell * wp.vec3(
+        float(BLOCK * bc[0] + node[0]), float(BLOCK * bc[1] + node[1]), float(BLOCK * bc[2] + node[2])
+    )
 
 
 @wp.func
-def node_phi(f: BlockField, kb: int, bc: wp.vec3i, l: wp.vec3i) -> float:
-    """phi at node ``l`` in [0, BLOCK]^3 of stored block ``kb`` (at block coordinates ``bc``).
+def node_phi(f: BlockField, kb: int, bc: wp.vec3i, node: wp.vec3i) -> float:
+    """phi at ``node`` in [0, BLOCK]^3 of stored block ``kb`` (at block coordinates ``bc``).
     A block stores its nodes in [0, BLOCK)^3; those on its upper faces belong to the blocks above
     it, which store them, or hold EMPTY/FULL, where every node has the value the narrow-band
     test of ``signed_distance`` gives."""
-    if l[0] < BLOCK and l[1] < BLOCK and l[2] < BLOCK:
-        return f.phi[kb * CELLS3 + local_slot(l)]
-    b = owner_block(f, bc, l)
+    if node[0] < BLOCK and node[1] < BLOCK and node[2] < BLOCK:
+        return f.phi[kb * CELLS3 + local_slot(node)]
+    b = owner_block(f, bc, node)
     if b < 0:
         return f.outside  # the lattice's top nodes lie in the margin, beyond R of every particle
     m = f.block_map[b]
     if m >= 0:
-        return f.phi[m * CELLS3 + local_slot(l)]
+        return f.phi[m * CELLS3 + local_slot(node)]
     if f.kind[b] == FULL:
         return f.inside
     return f.outside
@@ -186,7 +190,11 @@ assert BLOCK == 8, "the splat works on rows of 8 nodes"
 
 @wp.kernel
 def count_and_rank(
-    x: wp.array(dtype=wp.vec3), lower: wp.vec3, C: float, cdims: wp.vec3i, counts: wp.array(dtype=wp.int32),
+    x: wp.array(dtype=wp.vec3),
+    lower: wp.vec3,
+    C: float,
+    cdims: wp.vec3i,
+    counts: wp.array(dtype=wp.int32),
     rank: wp.array(dtype=wp.int32),
 ):
     # atomics: one launch, never split (on the CPU the ranks follow the particle order)
@@ -236,8 +244,19 @@ def full_below_mask(f: BlockField, bc: wp.vec3i) -> int:
 
 
 @wp.func
-def store_row(f: BlockField, kb: int, r: int, full_below: int, kz: Float8, sx: Float8, sy: Float8, sz: Float8, sw: Float8,
-              R: float, r0: float):
+def store_row(
+    f: BlockField,
+    kb: int,
+    r: int,
+    full_below: int,
+    kz: Float8,
+    sx: Float8,
+    sy: Float8,
+    sz: Float8,
+    sw: Float8,
+    R: float,
+    r0: float,
+):
     """phi = |x - xbar| - r0 at row ``r`` of stored block ``kb`` from its weighted sums (R where
     no particle is within R; -r0 on faces shared with a FULL block below)."""
     i = r // BLOCK
@@ -337,7 +356,19 @@ def splat_blocks(
                             i += 1
         full_below = full_below_mask(f, bc)
         for r in range(ROWS):
-            store_row(f, kb, r, full_below, kz, acc[ab + 4 * r], acc[ab + 4 * r + 1], acc[ab + 4 * r + 2], acc[ab + 4 * r + 3], R, r0)
+            store_row(
+                f,
+                kb,
+                r,
+                full_below,
+                kz,
+                acc[ab + 4 * r],
+                acc[ab + 4 * r + 1],
+                acc[ab + 4 * r + 2],
+                acc[ab + 4 * r + 3],
+                R,
+                r0,
+            )
 
 
 @wp.kernel
@@ -387,12 +418,16 @@ def gather_rows(
                 r2 = R2 - gz * gz
                 if r2 > 0.0 and wp.max(p) < top + R and wp.min(p) > -R:
                     ri = wp.sqrt(r2)
-                    if i >= wp.max(0, int(wp.ceil((p[0] - ri) * inv_c))) and i <= wp.min(BLOCK - 1, int(wp.floor((p[0] + ri) * inv_c))):
+                    if i >= wp.max(0, int(wp.ceil((p[0] - ri) * inv_c))) and i <= wp.min(
+                        BLOCK - 1, int(wp.floor((p[0] + ri) * inv_c))
+                    ):
                         dx = dx_row - p[0]
                         rx = r2 - dx * dx
                         if rx > 0.0:
                             rj = wp.sqrt(rx)
-                            if j >= wp.max(0, int(wp.ceil((p[1] - rj) * inv_c))) and j <= wp.min(BLOCK - 1, int(wp.floor((p[1] + rj) * inv_c))):
+                            if j >= wp.max(0, int(wp.ceil((p[1] - rj) * inv_c))) and j <= wp.min(
+                                BLOCK - 1, int(wp.floor((p[1] + rj) * inv_c))
+                            ):
                                 dy = dy_row - p[1]
                                 dz = kz - Float8(p[2], p[2], p[2], p[2], p[2], p[2], p[2], p[2])
                                 w = row_weights(R2 - dx * dx - dy * dy, wp.cw_mul(dz, dz), inv_R2)
@@ -436,7 +471,9 @@ class SparseField:
         f = self.device
         kind = f.kind.numpy().reshape(self.block_dims)
         out = np.full(self.node_dims, f.outside, dtype=np.float32)
-        inner = out[:-1, :-1, :-1].reshape(self.block_dims[0], BLOCK, self.block_dims[1], BLOCK, self.block_dims[2], BLOCK)
+        inner = out[:-1, :-1, :-1].reshape(
+            self.block_dims[0], BLOCK, self.block_dims[1], BLOCK, self.block_dims[2], BLOCK
+        )
         inner[...] = np.where(kind == FULL, f.inside, f.outside)[:, None, :, None, :, None]
         phi = f.phi.numpy().reshape(-1, BLOCK, BLOCK, BLOCK)
         for b, v in zip(f.blocks.numpy(), phi):
@@ -525,8 +562,9 @@ def substage(times, name: str):
     return nullcontext() if times is None else times(name)
 
 
-def sparse_distance_field(x: np.ndarray | wp.array, h: float, params, device, work: Workspace | None = None,
-                          times=None) -> SparseField:
+def sparse_distance_field(
+    x: np.ndarray | wp.array, h: float, params, device, work: Workspace | None = None, times=None
+) -> SparseField:
     """The signed distance on the blocks near the surface of particle positions ``x`` (spacing
     ``h``; ``params``: the scene's surface settings, in spacings). The field's arrays live in
     ``work`` (a fresh workspace if none): valid until its next use. ``times``: a ``StageTimes``
@@ -581,7 +619,11 @@ def sparse_distance_field(x: np.ndarray | wp.array, h: float, params, device, wo
         if wp.get_device(device).is_cpu:
             workers = splat_workers(n_surface, device)
             acc = work.get("sums", workers * ROWS * 4, Float8)
-            launch_particles(splat_blocks, workers, [workers, f, xs, start, cd, float(R), float(r0), acc], device, min_chunk=1)
+            launch_particles(
+                splat_blocks, workers, [workers, f, xs, start, cd, float(R), float(r0), acc], device, min_chunk=1
+            )
         else:
-            wp.launch(gather_rows, dim=n_surface * ROWS, inputs=[0, f, xs, start, cd, float(R), float(r0)], device=device)
+            wp.launch(
+                gather_rows, dim=n_surface * ROWS, inputs=[0, f, xs, start, cd, float(R), float(r0)], device=device
+            )
     return SparseField(f, tuple(int(b) for b in block_dims), lower, cell, start, tuple(int(c) for c in cdims), float(R))

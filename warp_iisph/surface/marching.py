@@ -22,12 +22,27 @@ import warp as wp
 import warp.geometry
 
 from ..engine.launch import launch_particles
+from .field import (
+    BLOCK,
+    CELLS3,
+    FULL,
+    BlockField,
+    SparseField,
+    Workspace,
+    block_coords,
+    local_node,
+    local_slot,
+    node_phi,
+    node_position,
+    owner_block,
+    scan_with_total,
+    splat_workers,
+    substage,
+)
 
 # Warp unrolls loops of constant trip count up to max_unroll (16): the nested loops over a block's
 # rows and nodes here would unroll into thousands of copies and take minutes to compile
 wp.set_module_options({"max_unroll": 1, "enable_backward": False})  # never differentiated either
-from .field import (BLOCK, CELLS3, FULL, BlockField, SparseField, Workspace, block_coords, local_node, local_slot, node_phi,
-                    node_position, owner_block, scan_with_total, splat_workers, substage)
 
 # warp.geometry's corner numbering: corner c of a cell sits at its lowest node + CUBE_CORNER_OFFSETS[c]
 # (0,0,0) (1,0,0) (1,1,0) (0,1,0) (0,0,1) (1,0,1) (1,1,1) (0,1,1); in a block's flat node slots
@@ -56,8 +71,11 @@ def own_edges(code: int) -> int:
     """Which of the three edges leaving a cell's lowest corner (bit a: along axis a) its case
     crosses: corners 1, 3, 4 are the +x, +y, +z neighbours of corner 0."""
     c0 = code & 1
-    return (wp.where(((code >> 1) & 1) != c0, 1, 0) | wp.where(((code >> 3) & 1) != c0, 2, 0)
-            | wp.where(((code >> 4) & 1) != c0, 4, 0))
+    return (
+        wp.where(((code >> 1) & 1) != c0, 1, 0)
+        | wp.where(((code >> 3) & 1) != c0, 2, 0)
+        | wp.where(((code >> 4) & 1) != c0, 4, 0)
+    )
 
 
 @wp.func
@@ -88,11 +106,11 @@ def upper_neighbours(f: BlockField, bc: wp.vec3i) -> wp.vec4i:
 
 
 @wp.func
-def upper_phi(f: BlockField, bc: wp.vec3i, l: wp.vec3i, e: int, nb: wp.vec4i) -> float:
-    """phi at node ``l`` on the upper faces of block ``bc``, owned by its neighbour ``e``."""
+def upper_phi(f: BlockField, bc: wp.vec3i, node: wp.vec3i, e: int, nb: wp.vec4i) -> float:
+    """phi at ``node`` on the upper faces of block ``bc``, owned by its neighbour ``e``."""
     if (nb[0] >> e) & 1:
-        b = owner_block(f, bc, l)
-        return f.phi[f.block_map[b] * CELLS3 + local_slot(l)]
+        b = owner_block(f, bc, node)
+        return f.phi[f.block_map[b] * CELLS3 + local_slot(node)]
     if (nb[1] >> e) & 1:
         return f.inside
     return f.outside
@@ -149,9 +167,16 @@ def block_cases(
                 else:
                     for k in range(BLOCK):
                         # warp.geometry's corners 0-3 at z = k, 4-7 at z = k + 1
-                        code = (((r00 >> k) & 1) | (((r10 >> k) & 1) << 1) | (((r11 >> k) & 1) << 2)
-                                | (((r01 >> k) & 1) << 3) | (((r00 >> (k + 1)) & 1) << 4) | (((r10 >> (k + 1)) & 1) << 5)
-                                | (((r11 >> (k + 1)) & 1) << 6) | (((r01 >> (k + 1)) & 1) << 7))
+                        code = (
+                            ((r00 >> k) & 1)
+                            | (((r10 >> k) & 1) << 1)
+                            | (((r11 >> k) & 1) << 2)
+                            | (((r01 >> k) & 1) << 3)
+                            | (((r00 >> (k + 1)) & 1) << 4)
+                            | (((r10 >> (k + 1)) & 1) << 5)
+                            | (((r11 >> (k + 1)) & 1) << 6)
+                            | (((r01 >> (k + 1)) & 1) << 7)
+                        )
                         cases[m0 + k] = wp.uint8(code)
                         cell_vertex[m0 + k] = wp.uint16(nv)
                         nv += popcount3(own_edges(code))
@@ -184,21 +209,21 @@ def block_emit(
             code = int(cases[kb * CELLS3 + m])
             if code == 0 or code == 255:
                 continue
-            l = local_node(m)
+            node = local_node(m)
             edges = own_edges(code)
             v = first[kb][0] + int(cell_vertex[kb * CELLS3 + m])
             if edges != 0:
                 a = f.phi[kb * CELLS3 + m]
-                pa = node_position(f, bc, l)
+                pa = node_position(f, bc, node)
                 for axis in range(3):
                     if (edges >> axis) & 1:
-                        lb = l + axis_step(axis)
+                        lb = node + axis_step(axis)
                         b = node_phi(f, kb, bc, lb)
                         verts[v] = wp.lerp(pa, node_position(f, bc, lb), wp.clamp((0.0 - a) / (b - a), 0.0, 1.0))
                         v += 1
             for s in range(tri_range[code], tri_range[code + 1]):
                 e = edge_origin[tri_edges[s]]
-                le = l + wp.vec3i(e[0], e[1], e[2])
+                le = node + wp.vec3i(e[0], e[1], e[2])
                 # the edge's owner: this block, or for an edge leaving a node on its upper faces
                 # the block above, stored whenever the edge crosses (see node_phi)
                 owner = kb
@@ -230,8 +255,9 @@ def case_tables(device) -> dict:
     }
 
 
-def marching_cubes(field: SparseField, tables: dict, device, work: Workspace | None = None, flip: bool = False,
-                   times=None) -> tuple[wp.array, wp.array]:
+def marching_cubes(
+    field: SparseField, tables: dict, device, work: Workspace | None = None, flip: bool = False, times=None
+) -> tuple[wp.array, wp.array]:
     """Vertices and triangle indices of ``phi = 0`` over the stored blocks: one vertex per
     crossed lattice edge (shared by the triangles around it), so the mesh comes out welded.
     ``flip`` swaps each triangle's winding. The outputs are fresh arrays; scratch in ``work``."""
@@ -246,17 +272,31 @@ def marching_cubes(field: SparseField, tables: dict, device, work: Workspace | N
         cell_vertex = work.get("cell_vertex", nb * CELLS3, wp.uint16)
         totals = work.get("totals", nb, wp.vec2i)
         signs = work.get("signs", workers * (BLOCK + 1) ** 2, wp.int32)
-        launch_particles(block_cases, workers, [workers, f, tb["tri_range"], signs, cases, cell_vertex, totals],
-                         device, min_chunk=1)
+        launch_particles(
+            block_cases, workers, [workers, f, tb["tri_range"], signs, cases, cell_vertex, totals], device, min_chunk=1
+        )
         first = scan_with_total(totals, work.get("first", nb + 1, wp.vec2i))
         nv, nt = (int(v) for v in first[nb:].numpy()[0])
     with substage(times, "mc_emit"):
         verts = wp.empty(nv, dtype=wp.vec3, device=device)
         indices = wp.empty(3 * nt, dtype=wp.int32, device=device)
         launch_particles(
-            block_emit, workers,
-            [workers, f, tb["tri_range"], tb["tri_edges"], tb["edge_origin"], cases, cell_vertex, first, int(flip), verts,
-             indices],
-            device, min_chunk=1,
+            block_emit,
+            workers,
+            [
+                workers,
+                f,
+                tb["tri_range"],
+                tb["tri_edges"],
+                tb["edge_origin"],
+                cases,
+                cell_vertex,
+                first,
+                int(flip),
+                verts,
+                indices,
+            ],
+            device,
+            min_chunk=1,
         )
     return verts, indices

@@ -11,7 +11,8 @@ split over CPU threads and runs unchanged on CUDA.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field as dataclass_field
+from dataclasses import dataclass
+from dataclasses import field as dataclass_field
 
 import numpy as np
 import warp as wp
@@ -80,7 +81,9 @@ class SurfaceReconstructor:
         with times("distance_field"):
             field = self.distance_field(x, detail)
         with times("marching_cubes"):
-            verts, indices = self.marching_cubes(field, flip=_winding_sign is not None and _winding_sign < 0, times=detail)
+            verts, indices = self.marching_cubes(
+                field, flip=_winding_sign is not None and _winding_sign < 0, times=detail
+            )
             nv, nt = verts.shape[0], indices.shape[0] // 3
             if nt > 0 and _winding_sign is None:
                 _winding_sign = _signed_volume_sign(verts, indices)
@@ -98,8 +101,15 @@ class SurfaceReconstructor:
                     verts = smooth(verts, start, count, ring, self.params, self.device, self.work, weights)
                 with substage(detail, "normals"):
                     launch_particles(vertex_normals, nv, [verts, start, count, ring, normals], self.device)
-        return SurfaceMesh(verts.numpy(), indices.numpy().reshape(-1, 3), normals.numpy(), times.seconds,
-                           field.n_stored * CELLS3, int(np.prod(field.node_dims)), detail.seconds if detail else {})
+        return SurfaceMesh(
+            verts.numpy(),
+            indices.numpy().reshape(-1, 3),
+            normals.numpy(),
+            times.seconds,
+            field.n_stored * CELLS3,
+            int(np.prod(field.node_dims)),
+            detail.seconds if detail else {},
+        )
 
 
 def _signed_volume_sign(verts: wp.array, indices: wp.array) -> float | None:

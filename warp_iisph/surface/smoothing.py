@@ -69,7 +69,11 @@ def feature_weights(
                 j = wp.clamp(j0 + b, 0, cdims[1] - 1)
                 k = wp.clamp(k0 + e, 0, cdims[2] - 1)
                 cell = (i * cdims[1] + j) * cdims[2] + k
-                w = wp.where(a == 1, f[0], 1.0 - f[0]) * wp.where(b == 1, f[1], 1.0 - f[1]) * wp.where(e == 1, f[2], 1.0 - f[2])
+                w = (
+                    wp.where(a == 1, f[0], 1.0 - f[0])
+                    * wp.where(b == 1, f[1], 1.0 - f[1])
+                    * wp.where(e == 1, f[2], 1.0 - f[2])
+                )
                 n += w * float(start[cell + 1] - start[cell])
     x = wp.min(1.0, n / full)
     weights[v] = x * x * x * (x * (x * 6.0 - 15.0) + 10.0)
@@ -158,8 +162,20 @@ def vertex_weights(verts, field, h: float, device, work=None) -> wp.array:
     nv = verts.shape[0]
     w = work.get("weights", nv, float) if work is not None else wp.empty(nv, dtype=float, device=device)
     full = 0.25 * (field.coarse_cell / h) ** 3  # a full cell of side R holds about (R / h)^3
-    launch_particles(feature_weights, nv, [verts, wp.vec3(*[float(c) for c in field.lower]), float(field.coarse_cell),
-                                           wp.vec3i(*field.coarse_dims), field.coarse_start, float(full), w], device)
+    launch_particles(
+        feature_weights,
+        nv,
+        [
+            verts,
+            wp.vec3(*[float(c) for c in field.lower]),
+            float(field.coarse_cell),
+            wp.vec3i(*field.coarse_dims),
+            field.coarse_start,
+            float(full),
+            w,
+        ],
+        device,
+    )
     return w
 
 
@@ -176,8 +192,9 @@ def smooth(verts, start, count, ring, params, device, work=None, weights=None):
     w = weights if weights is not None else wp.empty(0, dtype=float, device=device)
     for _ in range(p.passes):
         for f in factors:
-            launch_particles(smooth_vertices, a.shape[0], [a, start, count, ring, float(f), w, int(weights is not None), b],
-                             device)
+            launch_particles(
+                smooth_vertices, a.shape[0], [a, start, count, ring, float(f), w, int(weights is not None), b], device
+            )
             a, b = b, a
     if a is not verts:
         wp.copy(verts, a)

@@ -205,7 +205,9 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
     color = material_color(material)
     stage = run.usd_file() if usd else None
     if usd and stage is None:
-        raise RunError(f"{run.path}: has no run.usdc (or .usda, .usd) for --usd; write it with `warp-iisph usd {run.path}`")
+        raise RunError(
+            f"{run.path}: has no run.usdc (or .usda, .usd) for --usd; write it with `warp-iisph usd {run.path}`"
+        )
     out = Path(out) if out else run.path / "blender_scene.py"
     if out.is_dir():
         raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / 'blender_scene.py'}")
@@ -231,8 +233,13 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
         thickness_cm=100 * THICKNESS,
         output=str((run.path / "blender" / "frame_").resolve()),
         obstacles=str(run.obstacles.resolve()) if obstacles is not None else None,
-        obstacle_frames=json.dumps([[frame_index(f), str(run.obstacle_frame(frame_index(f)).resolve())] for f in files
-                                    if run.obstacle_frame(frame_index(f)).is_file()]),
+        obstacle_frames=json.dumps(
+            [
+                [frame_index(f), str(run.obstacle_frame(frame_index(f)).resolve())]
+                for f in files
+                if run.obstacle_frame(frame_index(f)).is_file()
+            ]
+        ),
         camera=json.dumps([_blender_axes(eye), _blender_axes(target), round(float(fov), 6)]),
         floor=json.dumps([[cx, cy, round(floor_y, 6)], floor_size]),
         handler=HANDLER,

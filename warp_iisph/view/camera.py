@@ -53,7 +53,9 @@ def run_camera(record: dict, box, aspect: float) -> tuple[np.ndarray, np.ndarray
     fov = float(cam.get("fov") or DEFAULT_FOV)
     if cam.get("position"):
         eye = np.asarray(cam["position"], float)
-        target = np.asarray(cam["target"], float) if cam.get("target") else 0.5 * (np.asarray(box[0]) + np.asarray(box[1]))
+        target = (
+            np.asarray(cam["target"], float) if cam.get("target") else 0.5 * (np.asarray(box[0]) + np.asarray(box[1]))
+        )
         return eye, target, fov
     eye, target = auto_camera(*box, fov, aspect)
     return eye, target, fov

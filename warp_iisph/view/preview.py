@@ -46,7 +46,9 @@ class OrthoView:
         self.W, self.H = width, height
         self.R = camera_basis(yaw, pitch)
         self.center = 0.5 * (np.asarray(lower) + np.asarray(upper))
-        corners = np.array([[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])])
+        corners = np.array(
+            [[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])]
+        )
         uv = (corners - self.center) @ self.R[:2].T
         span = np.maximum(uv.max(0) - uv.min(0), 1e-9)
         self.scale = 0.9 * min(width / span[0], height / span[1])  # pixels per metre
@@ -59,7 +61,9 @@ class OrthoView:
         return px, py, c[:, 2]
 
 
-def splat(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, x, colors, radius_m: float, shade_spheres: bool = True) -> None:
+def splat(
+    image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, x, colors, radius_m: float, shade_spheres: bool = True
+) -> None:
     """Draw points as discs of ``radius_m`` metres (lit like spheres), nearest on top."""
     px, py, depth = view.project(x)
     r = max(radius_m * view.scale, 0.7)
@@ -68,7 +72,11 @@ def splat(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, x, color
     keep = dx**2 + dy**2 <= r * r + 0.25
     dx, dy = dx[keep], dy[keep]
     nz = np.sqrt(np.maximum(1.0 - (dx**2 + dy**2) / (r * r + 0.25), 0.0))
-    light = 0.55 + 0.45 * (dx * LIGHT[0] / (r + 0.5) - dy * LIGHT[1] / (r + 0.5) + nz * LIGHT[2]) if shade_spheres else np.ones(len(dx))
+    light = (
+        0.55 + 0.45 * (dx * LIGHT[0] / (r + 0.5) - dy * LIGHT[1] / (r + 0.5) + nz * LIGHT[2])
+        if shade_spheres
+        else np.ones(len(dx))
+    )
     X = (np.rint(px)[:, None] + dx[None, :]).astype(np.int64).ravel()
     Y = (np.rint(py)[:, None] + dy[None, :]).astype(np.int64).ravel()
     D = (depth[:, None] + nz[None, :] * radius_m).ravel()
@@ -101,7 +109,9 @@ def box_edges(lower, upper, step: float) -> np.ndarray:
     return np.concatenate(pts)
 
 
-def splat_surface(image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, mesh, color=CLAY, max_points: int = 500_000) -> None:
+def splat_surface(
+    image: np.ndarray, depth_buffer: np.ndarray, view: OrthoView, mesh, color=CLAY, max_points: int = 500_000
+) -> None:
     """Draw a triangle mesh as random surface samples, about two per pixel of its area, each a
     3x3-pixel square (no gaps) lit by its triangle's normal; the z-buffer hides its far side."""
     import trimesh
@@ -136,8 +146,18 @@ def background(width: int, height: int) -> np.ndarray:
     return np.broadcast_to(top * (1 - t) + bottom * t, (height, width, 3)).copy()
 
 
-def preview_run(run_dir, out=None, source: str | None = None, resolution: str = "640x360", frames: str | None = None,
-                fps: float | None = None, gif: bool = False, yaw: float = 30.0, pitch: float = 25.0, progress: bool = True) -> dict:
+def preview_run(
+    run_dir,
+    out=None,
+    source: str | None = None,
+    resolution: str = "640x360",
+    frames: str | None = None,
+    fps: float | None = None,
+    gif: bool = False,
+    yaw: float = 30.0,
+    pitch: float = 25.0,
+    progress: bool = True,
+) -> dict:
     """Write ``preview.mp4`` (or ``.gif``) of a run, or with ``out`` a ``.png`` file one frame's
     still; returns the path, frame count and seconds per frame."""
     import time
@@ -204,7 +224,10 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
                 if layer is not None:
                     layer.over(img, zb)
                 pil = Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8))
-                label = f"frame {frame_index(path)}   t = {frame_index(path) / fps:.3f} s   {len(data['x']):,} {'particles' if source == PARTICLES else 'vertices'}"
+                label = (
+                    f"frame {frame_index(path)}   t = {frame_index(path) / fps:.3f} s   "
+                    f"{len(data['x']):,} {'particles' if source == PARTICLES else 'vertices'}"
+                )
                 ImageDraw.Draw(pil).text((8, 6), label, fill=(30, 30, 30))
                 timing.append(time.perf_counter() - t0)
                 bar.update(1)
@@ -214,7 +237,10 @@ def preview_run(run_dir, out=None, source: str | None = None, resolution: str = 
 
     if out.suffix.lower() == ".png":
         if len(files) != 1:
-            raise RunError(f"--out {out}: a still shows one frame; choose it with --frames, e.g. --frames {frame_index(files[-1])}:")
+            raise RunError(
+                f"--out {out}: a still shows one frame; choose it with --frames, "
+                f"e.g. --frames {frame_index(files[-1])}:"
+            )
         from ..run.atomic import atomic_write
 
         image = Image.fromarray(next(images()))

@@ -1,8 +1,8 @@
 """Physically based frames of a run's meshes with Mitsuba 3 (the ``render`` extra): the liquid is
 a smooth dielectric (IOR 1.33) filled with an absorbing medium (its colour), under a procedural
-sky, over a checkered floor, with the run's obstacles (diffuse) and optionally the tank's far walls; a box-filtered path tracer at
-few samples, then OpenImageDenoise with albedo and normal guides. Frames go to
-``frames/frame_NNNNN.png`` and, together, into ``video.mp4``."""
+sky, over a checkered floor, with the run's obstacles (diffuse) and optionally the tank's far
+walls; a box-filtered path tracer at few samples, then OpenImageDenoise with albedo and normal
+guides. Frames go to ``frames/frame_NNNNN.png`` and, together, into ``video.mp4``."""
 
 from __future__ import annotations
 
@@ -23,6 +23,8 @@ from .materials import IOR, THICKNESS, material_color
 from .video import parse_resolution, write_video
 
 EXTRA = "pip install 'warp_iisph[render]'  (Mitsuba 3, pyoidn, imageio)"
+
+
 class RenderUnavailable(RuntimeError):
     """The render extra (or a library it needs) is missing; the message says what to install."""
 
@@ -34,8 +36,19 @@ def llvm_libraries() -> list[tuple[int, str]]:
         m = re.search(r"LLVM[-.]?(\d+)", os.path.basename(path))
         return [(int(m.group(1)) if m else 99, path)]
     found = {}
-    for d in ("/usr/lib", "/usr/lib64", "/usr/local/lib", "/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/opt/homebrew/opt/llvm/lib"):
-        for path in glob.glob(os.path.join(d, "libLLVM*.so*")) + glob.glob(os.path.join(d, "llvm-*", "lib", "libLLVM*.so*")) + glob.glob(os.path.join(d, "libLLVM*.dylib")):
+    for d in (
+        "/usr/lib",
+        "/usr/lib64",
+        "/usr/local/lib",
+        "/usr/lib/x86_64-linux-gnu",
+        "/usr/lib/aarch64-linux-gnu",
+        "/opt/homebrew/opt/llvm/lib",
+    ):
+        for path in (
+            glob.glob(os.path.join(d, "libLLVM*.so*"))
+            + glob.glob(os.path.join(d, "llvm-*", "lib", "libLLVM*.so*"))
+            + glob.glob(os.path.join(d, "libLLVM*.dylib"))
+        ):
             m = re.search(r"libLLVM[-.](?:so\.)?(\d+)", os.path.basename(path))
             if m:
                 found.setdefault(int(m.group(1)), path)
@@ -70,9 +83,11 @@ def choose_variant(device_hint: str | None = None, forced: str | None = None) ->
         except Exception as e:  # noqa: BLE001
             notes.append(f"llvm_ad_rgb failed ({str(e).splitlines()[0]})")
     elif libs:
-        notes.append(f"llvm_ad_rgb needs libLLVM >= 16 and this machine has only libLLVM {', '.join(str(v) for v, _ in libs)} "
-                     "(Debian's libllvm15 crashes it); install libllvm16 or newer (e.g. apt install libllvm17) or point "
-                     "DRJIT_LIBLLVM_PATH at one")
+        notes.append(
+            f"llvm_ad_rgb needs libLLVM >= 16 and this machine has only libLLVM {', '.join(str(v) for v, _ in libs)} "
+            "(Debian's libllvm15 crashes it); install libllvm16 or newer (e.g. apt install libllvm17) or point "
+            "DRJIT_LIBLLVM_PATH at one"
+        )
     else:
         notes.append("llvm_ad_rgb needs libLLVM >= 16, none found (e.g. apt install libllvm17)")
     mi.set_variant("scalar_rgb")
@@ -98,15 +113,32 @@ def sky_bitmap(height: int = 128) -> np.ndarray:
     t = np.clip(np.sin(elev), 0.0, 1.0)[..., None]
     zenith, horizon, ground = np.array([0.25, 0.45, 0.85]), np.array([0.85, 0.9, 0.95]), np.array([0.35, 0.33, 0.3])
     img = np.where(elev[..., None] >= 0, horizon * (1 - t**0.5) + zenith * t**0.5, ground) * np.ones((height, width, 3))
-    d = np.stack(np.broadcast_arrays(np.sin(theta)[:, None] * np.cos(phi)[None], np.cos(theta)[:, None] + 0 * phi[None],
-                                     np.sin(theta)[:, None] * np.sin(phi)[None]), -1)
+    d = np.stack(
+        np.broadcast_arrays(
+            np.sin(theta)[:, None] * np.cos(phi)[None],
+            np.cos(theta)[:, None] + 0 * phi[None],
+            np.sin(theta)[:, None] * np.sin(phi)[None],
+        ),
+        -1,
+    )
     sun = np.array([0.4, 0.75, 0.5]) / np.linalg.norm([0.4, 0.75, 0.5])
     img += 400.0 * (d @ sun > math.cos(math.radians(2.0)))[..., None]
     return img.astype(np.float32)
 
 
-def scene_dict(mesh_path: Path | None, camera, floor_y: float, extent: float, color, spp: int, width: int, height: int,
-               fov: float, walls: list | None = None, obstacles: Path | None = None) -> dict:
+def scene_dict(
+    mesh_path: Path | None,
+    camera,
+    floor_y: float,
+    extent: float,
+    color,
+    spp: int,
+    width: int,
+    height: int,
+    fov: float,
+    walls: list | None = None,
+    obstacles: Path | None = None,
+) -> dict:
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
@@ -115,34 +147,71 @@ def scene_dict(mesh_path: Path | None, camera, floor_y: float, extent: float, co
     scale = float(max(sigma.max(), 1e-6))
     d = {
         "type": "scene",
-        "integrator": {"type": "aov", "aovs": "albedo:albedo,nn:sh_normal", "img": {"type": "volpath", "max_depth": 24, "rr_depth": 12}},
+        "integrator": {
+            "type": "aov",
+            "aovs": "albedo:albedo,nn:sh_normal",
+            "img": {"type": "volpath", "max_depth": 24, "rr_depth": 12},
+        },
         "sensor": {
-            "type": "perspective", "fov": float(fov), "fov_axis": "x",
-            "to_world": T().look_at(origin=[float(c) for c in origin], target=[float(c) for c in target], up=[0.0, 1.0, 0.0]),
+            "type": "perspective",
+            "fov": float(fov),
+            "fov_axis": "x",
+            "to_world": T().look_at(
+                origin=[float(c) for c in origin], target=[float(c) for c in target], up=[0.0, 1.0, 0.0]
+            ),
             "sampler": {"type": "independent", "sample_count": int(spp)},
-            "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+            "film": {
+                "type": "hdrfilm",
+                "width": width,
+                "height": height,
+                "rfilter": {"type": "box"},
+                "pixel_format": "rgb",
+            },
         },
         "sky": {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap())},
         "floor": {
             "type": "rectangle",
-            "to_world": T().translate([float(target[0]), float(floor_y), float(target[2])]).rotate([1, 0, 0], -90).scale(extent),
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "checkerboard", "color0": 0.25, "color1": 0.55,
-                                                        "to_uv": T().scale([extent * 4, extent * 4, 1])}},
+            "to_world": T()
+            .translate([float(target[0]), float(floor_y), float(target[2])])
+            .rotate([1, 0, 0], -90)
+            .scale(extent),
+            "bsdf": {
+                "type": "diffuse",
+                "reflectance": {
+                    "type": "checkerboard",
+                    "color0": 0.25,
+                    "color1": 0.55,
+                    "to_uv": T().scale([extent * 4, extent * 4, 1]),
+                },
+            },
         },
     }
     if mesh_path is not None:
         d["liquid"] = {
-            "type": Path(mesh_path).suffix.lstrip(".").lower(), "filename": str(mesh_path), "face_normals": False,
+            "type": Path(mesh_path).suffix.lstrip(".").lower(),
+            "filename": str(mesh_path),
+            "face_normals": False,
             "bsdf": {"type": "dielectric", "int_ior": IOR, "ext_ior": 1.0},
-            "interior": {"type": "homogeneous", "albedo": 0.0, "scale": scale,
-                         "sigma_t": {"type": "rgb", "value": [float(s / scale) for s in sigma]}},
+            "interior": {
+                "type": "homogeneous",
+                "albedo": 0.0,
+                "scale": scale,
+                "sigma_t": {"type": "rgb", "value": [float(s / scale) for s in sigma]},
+            },
         }
     if obstacles is not None:  # flat-shaded: boxes keep their edges
-        d["obstacles"] = {"type": "obj", "filename": str(obstacles), "face_normals": True,
-                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}}}
+        d["obstacles"] = {
+            "type": "obj",
+            "filename": str(obstacles),
+            "face_normals": True,
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}},
+        }
     for k, (center, normal, size) in enumerate(walls or []):
-        d[f"wall_{k}"] = {"type": "rectangle", "to_world": _rectangle(T, center, normal, size),
-                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.72, 0.75]}}}
+        d[f"wall_{k}"] = {
+            "type": "rectangle",
+            "to_world": _rectangle(T, center, normal, size),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.72, 0.75]}},
+        }
     return d
 
 
@@ -150,8 +219,11 @@ def _rectangle(T, center, normal, size):
     """Mitsuba's rectangle ([-1, 1]^2 in z = 0) moved to ``center`` facing ``normal``, ``size`` = half extents."""
     n = np.asarray(normal, float)
     up = np.array([0.0, 1.0, 0.0]) if abs(n[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    return T().look_at(origin=[float(c) for c in center], target=[float(c) for c in np.asarray(center) + n], up=up.tolist()) \
+    return (
+        T()
+        .look_at(origin=[float(c) for c in center], target=[float(c) for c in np.asarray(center) + n], up=up.tolist())
         .scale([float(size[0]), float(size[1]), 1.0])
+    )
 
 
 def far_walls(lower, upper, eye) -> list:
@@ -177,8 +249,12 @@ def denoise(color: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> np.nda
         import pyoidn
     except ImportError:
         raise RenderUnavailable(f"OpenImageDenoise (pyoidn) is not installed: {EXTRA}; or pass --no-denoise") from None
-    return pyoidn.denoise(np.ascontiguousarray(color, np.float32), np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32),
-                          np.ascontiguousarray(np.clip(normal, -1, 1), np.float32), hdr=True)
+    return pyoidn.denoise(
+        np.ascontiguousarray(color, np.float32),
+        np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32),
+        np.ascontiguousarray(np.clip(normal, -1, 1), np.float32),
+        hdr=True,
+    )
 
 
 def to_srgb8(linear: np.ndarray) -> np.ndarray:
@@ -200,9 +276,19 @@ def render_image(scene: dict, use_denoiser: bool = True, seed: int = 0) -> np.nd
     return to_srgb8(color)
 
 
-def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: str = "water", frames: str | None = None,
-               walls: bool = False, use_denoiser: bool = True, gif: bool = False, overwrite: bool = False,
-               variant: str | None = None, progress: bool = True) -> dict:
+def render_run(
+    run_dir,
+    spp: int = 16,
+    resolution: str = "640x360",
+    material: str = "water",
+    frames: str | None = None,
+    walls: bool = False,
+    use_denoiser: bool = True,
+    gif: bool = False,
+    overwrite: bool = False,
+    variant: str | None = None,
+    progress: bool = True,
+) -> dict:
     """Render every (selected) mesh frame of a run into ``frames/`` and ``video.mp4``; frames
     already rendered are kept unless ``overwrite``."""
     import time
@@ -228,9 +314,19 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
     out.mkdir(exist_ok=True)
     # rendered frames are a cache of this run's meshes seen with these settings: any made from
     # another run, other meshes or other settings go
-    made = {"run_id": record.get("run_id"), "settings": {
-        "meshes": run.provenance(MESHES), "spp": spp, "resolution": [width, height], "material": list(color), "walls": walls,
-        "denoise": use_denoiser, "variant": chosen_variant, "camera": [eye.tolist(), np.asarray(target).tolist(), fov]}}
+    made = {
+        "run_id": record.get("run_id"),
+        "settings": {
+            "meshes": run.provenance(MESHES),
+            "spp": spp,
+            "resolution": [width, height],
+            "material": list(color),
+            "walls": walls,
+            "denoise": use_denoiser,
+            "variant": chosen_variant,
+            "camera": [eye.tolist(), np.asarray(target).tolist(), fov],
+        },
+    }
     if run.provenance(FRAMES) != made:
         for old in out.glob("frame_*.png"):
             old.unlink()
@@ -250,9 +346,24 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
                 t0 = time.perf_counter()
                 empty = len(read_mesh(path).faces) == 0  # also: a file cut off mid-write is refused here
                 k = frame_index(path)
-                obstacles = run.obstacle_frame(k) if run.obstacle_frame(k).is_file() else (run.obstacles if solid is not None else None)
-                sd = scene_dict(None if empty else path, (eye, target), floor_y, extent, color, spp, width, height, fov, wall_list,
-                                obstacles=obstacles)
+                obstacles = (
+                    run.obstacle_frame(k)
+                    if run.obstacle_frame(k).is_file()
+                    else (run.obstacles if solid is not None else None)
+                )
+                sd = scene_dict(
+                    None if empty else path,
+                    (eye, target),
+                    floor_y,
+                    extent,
+                    color,
+                    spp,
+                    width,
+                    height,
+                    fov,
+                    wall_list,
+                    obstacles=obstacles,
+                )
                 image = render_image(sd, use_denoiser, seed=frame_index(path))
                 tmp = png.with_name(png.stem + ".part.png")
                 imageio.imwrite(tmp, image)
@@ -265,5 +376,12 @@ def render_run(run_dir, spp: int = 16, resolution: str = "640x360", material: st
     fps = run.fps(record)
     video = run.path / ("video.gif" if gif else "video.mp4")
     write_video((imageio.imread(p) for p in pngs), video, fps, gif=gif)
-    return {"variant": chosen_variant, "why": why, "rendered": rendered, "skipped": skipped, "frames": len(pngs),
-            "video": video, "seconds_per_frame": float(np.median(seconds)) if seconds else 0.0}
+    return {
+        "variant": chosen_variant,
+        "why": why,
+        "rendered": rendered,
+        "skipped": skipped,
+        "frames": len(pngs),
+        "video": video,
+        "seconds_per_frame": float(np.median(seconds)) if seconds else 0.0,
+    }

@@ -112,7 +112,9 @@ def _bind(prim, material, color) -> None:
     UsdGeom.Gprim(prim).CreateDisplayColorAttr([tuple(float(c) for c in color)])
 
 
-def add_obstacles(stage, mesh, transforms: dict | None = None, meshes: dict | None = None, path: str = "/World/Obstacles"):
+def add_obstacles(
+    stage, mesh, transforms: dict | None = None, meshes: dict | None = None, path: str = "/World/Obstacles"
+):
     """The obstacles as one ``UsdGeom.Mesh`` (flat-shaded, stone-coloured): ``mesh`` (a
     ``trimesh.Trimesh``) where they do not move. Moving obstacles are sampled per frame, either as
     rigid motion, ``transforms`` ``{frame: 4x4 matrix}`` (column vectors: the translation is the
@@ -189,8 +191,14 @@ def usd_path(run: RunFolder, out=None) -> Path:
     return out
 
 
-def export_usd(run_dir, out=None, frames: str | None = None, particles: bool = False, material: str = "water",
-               progress: bool = True) -> dict:
+def export_usd(
+    run_dir,
+    out=None,
+    frames: str | None = None,
+    particles: bool = False,
+    material: str = "water",
+    progress: bool = True,
+) -> dict:
     """Write the run as one USD stage (default ``RUN_DIR/run.usdc``); needs its meshes. Returns the
     path, the frames written and the prims."""
     require_pxr()
@@ -207,7 +215,10 @@ def export_usd(run_dir, out=None, frames: str | None = None, particles: bool = F
         particle_files = {frame_index(f): f for f in run.frames(PARTICLES)}
         missing = [k for k in numbers if k not in particle_files]
         if missing:
-            raise RunError(f"{run.path / PARTICLES}: no particle frame {missing[0]} for --particles (frames {numbers[0]}..{numbers[-1]})")
+            raise RunError(
+                f"{run.path / PARTICLES}: no particle frame {missing[0]} for --particles "
+                f"(frames {numbers[0]}..{numbers[-1]})"
+            )
     fps = run.fps(record)
     h = float((record.get("scene") or {}).get("spacing") or 0.0)
     if particles and not h > 0:
@@ -223,9 +234,14 @@ def export_usd(run_dir, out=None, frames: str | None = None, particles: bool = F
     world = UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(world.GetPrim())
     UsdGeom.Scope.Define(stage, "/World/Looks")
-    stage.GetRootLayer().customLayerData = {"warp_iisph": {
-        "version": __version__, "run_id": str(record.get("run_id") or ""),
-        "meshes": json.dumps(run.provenance(MESHES)), "frames": f"{numbers[0]}:{numbers[-1] + 1}"}}
+    stage.GetRootLayer().customLayerData = {
+        "warp_iisph": {
+            "version": __version__,
+            "run_id": str(record.get("run_id") or ""),
+            "meshes": json.dumps(run.provenance(MESHES)),
+            "frames": f"{numbers[0]}:{numbers[-1] + 1}",
+        }
+    }
 
     liquid = _define_mesh(stage, "/World/Liquid")
     _bind(liquid, _preview_material(stage, "/World/Looks/Liquid", color, opacity=0.25, roughness=0.0, ior=IOR), color)
@@ -255,5 +271,12 @@ def export_usd(run_dir, out=None, frames: str | None = None, particles: bool = F
 
     atomic_write(out, write)
     prims = [str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdGeom.Gprim) or p.IsA(UsdGeom.Camera)]
-    return {"path": out, "frames": len(files), "first": numbers[0], "last": numbers[-1], "fps": fps, "prims": prims,
-            "camera": {"position": eye.tolist(), "target": np.asarray(target).tolist(), "fov": fov}}
+    return {
+        "path": out,
+        "frames": len(files),
+        "first": numbers[0],
+        "last": numbers[-1],
+        "fps": fps,
+        "prims": prims,
+        "camera": {"position": eye.tolist(), "target": np.asarray(target).tolist(), "fov": fov},
+    }

@@ -31,7 +31,9 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
         if gif:
             writer = imageio.get_writer(tmp, mode="I", duration=1000.0 / fps, loop=0)
         else:
-            writer = imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=2, pixelformat="yuv420p")
+            writer = imageio.get_writer(
+                tmp, fps=fps, codec="libx264", quality=7, macro_block_size=2, pixelformat="yuv420p"
+            )
         try:
             for im in images:
                 writer.append_data(np.asarray(im))
@@ -42,7 +44,9 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
         tmp.unlink(missing_ok=True)
         if isinstance(e, OSError) and e.errno is not None and not isinstance(e, BrokenPipeError):
             raise OSError(e.errno, e.strerror, str(path)) from None
-        raise OSError(None, f"could not write the video ({type(e).__name__}: {' '.join(str(e).split())[:200]})", str(path)) from None
+        raise OSError(
+            None, f"could not write the video ({type(e).__name__}: {' '.join(str(e).split())[:200]})", str(path)
+        ) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

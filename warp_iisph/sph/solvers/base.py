@@ -130,6 +130,7 @@ def jacobi_convergence(
     blend[0] = b
     last_error_sum[0] = error_sum[0]
 
+
 class SPHSolver:
     """Skeleton of an SPH time step shared by the methods; subclasses supply
     :meth:`predict_advection` and :meth:`pressure_solve`.
@@ -174,8 +175,22 @@ class SPHSolver:
         with timer("density"):
             self.compute_densities(model, state)
             if self.extrapolated:
-                launch_particles(wall_heads, n, [state.x, state.rho, model.boundary_x, model.boundary_a, wp.vec3(*self.physics.gravity), nf,
-                                                 nb, self.W0, self.smoothing_weight], model.device)
+                launch_particles(
+                    wall_heads,
+                    n,
+                    [
+                        state.x,
+                        state.rho,
+                        model.boundary_x,
+                        model.boundary_a,
+                        wp.vec3(*self.physics.gravity),
+                        nf,
+                        nb,
+                        self.W0,
+                        self.smoothing_weight,
+                    ],
+                    model.device,
+                )
         with timer("advection"):
             self.predict_advection(model, state)
         with timer("pressure"):
@@ -184,8 +199,21 @@ class SPHSolver:
             launch_particles(
                 integrate,
                 n,
-                [self.v_adv, state.rho, state.p, model.boundary_psi, self.wall_weight, self.smoothing_weight, self.W0, nf, nb, model.mass,
-                 self.dt, state.v, state.x],
+                [
+                    self.v_adv,
+                    state.rho,
+                    state.p,
+                    model.boundary_psi,
+                    self.wall_weight,
+                    self.smoothing_weight,
+                    self.W0,
+                    nf,
+                    nb,
+                    model.mass,
+                    self.dt,
+                    state.v,
+                    state.x,
+                ],
                 model.device,
             )
 
@@ -197,8 +225,21 @@ class SPHSolver:
     def compute_densities(self, model, state) -> None:
         """``rho`` from this step's lists, and the compression's sum for the step's statistics."""
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        launch_particles(compute_density, state.n, [model.boundary_psi, nf, nb, model.mass, model.support_radius, self.physics.rho0,
-                                                    state.rho, self.compression], model.device)
+        launch_particles(
+            compute_density,
+            state.n,
+            [
+                model.boundary_psi,
+                nf,
+                nb,
+                model.mass,
+                model.support_radius,
+                self.physics.rho0,
+                state.rho,
+                self.compression,
+            ],
+            model.device,
+        )
         sum_into(self.compression, state.n, self._compression_sum)
 
     def advect_velocity(self, model, state) -> None:

@@ -98,8 +98,15 @@ def dfsph_factor(
 
 
 @wp.func
-def density_rate(i: int, v: wp.array(dtype=wp.vec3), vb: wp.array(dtype=wp.vec3), psi: wp.array(dtype=float), nf: NeighborList,
-                 nb: NeighborList, mass: float) -> float:
+def density_rate(
+    i: int,
+    v: wp.array(dtype=wp.vec3),
+    vb: wp.array(dtype=wp.vec3),
+    psi: wp.array(dtype=float),
+    nf: NeighborList,
+    nb: NeighborList,
+    mass: float,
+) -> float:
     """``D rho_i/Dt = sum_j m (v_i - v_j) . grad W_ij + sum_b psi_b (v_i - v_b) . grad W_ib``."""
     v_i = v[i]
     r = float(0.0)
@@ -340,7 +347,9 @@ class DFSPHSolver(SPHSolver):
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         with timer("density"):
             self.compute_densities(model, state)
-            launch_particles(dfsph_factor, n, [model.boundary_psi, nf, nb, model.mass, self.least_denominator, self.factor], dev)
+            launch_particles(
+                dfsph_factor, n, [model.boundary_psi, nf, nb, model.mass, self.least_denominator, self.factor], dev
+            )
         with timer("pressure"):
             self.divergence_solve(model, state)
         with timer("advection"):
@@ -348,24 +357,56 @@ class DFSPHSolver(SPHSolver):
         with timer("pressure"):
             self.pressure_solve(model, state)
         with timer("integration"):
-            launch_particles(finish_step, n, [self.v_adv, state.rho, self.kappa, self.kappa_v, self.dt, state.v, state.x, state.p,
-                                              self.kappa_v_dt], dev)
+            launch_particles(
+                finish_step,
+                n,
+                [self.v_adv, state.rho, self.kappa, self.kappa_v, self.dt, state.v, state.x, state.p, self.kappa_v_dt],
+                dev,
+            )
 
     def predict_advection(self, model, state) -> None:
         """``v_adv = v + dt a_nonpressure`` from the divergence-free velocity."""
         self.advect_velocity(model, state)
 
     def _apply(self, model, state, kappa, v, blend=None) -> None:
-        launch_particles(apply_stiffness, state.n, [self.delta, self._no_blend if blend is None else blend, model.boundary_psi,
-                                                    self.search.fluid.lists, self.search.boundary.lists, model.mass, self.dt, kappa, v],
-                         model.device)
+        launch_particles(
+            apply_stiffness,
+            state.n,
+            [
+                self.delta,
+                self._no_blend if blend is None else blend,
+                model.boundary_psi,
+                self.search.fluid.lists,
+                self.search.boundary.lists,
+                model.mass,
+                self.dt,
+                kappa,
+                v,
+            ],
+            model.device,
+        )
 
     def divergence_solve(self, model, state) -> None:
         """Make the velocity the last step ended with divergence-free (compression rates only);
         the loop's test runs on the device (``wp.capture_while``), as IISPH's."""
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        launch_particles(start_divergence_solve, state.n, [state.v, self.kappa_v_dt, model.boundary_psi, model.boundary_v, nf, nb, model.mass,
-                                                           self.dt, self.kappa_v, self.delta], model.device)
+        launch_particles(
+            start_divergence_solve,
+            state.n,
+            [
+                state.v,
+                self.kappa_v_dt,
+                model.boundary_psi,
+                model.boundary_v,
+                nf,
+                nb,
+                model.mass,
+                self.dt,
+                self.kappa_v,
+                self.delta,
+            ],
+            model.device,
+        )
         self._apply(model, state, self.kappa_v, state.v)
         self._divergence_iterations.zero_()
         self.keep_going.fill_(1)
@@ -377,21 +418,60 @@ class DFSPHSolver(SPHSolver):
         launch_particles(
             divergence_jacobi,
             n,
-            [state.v, self.factor, model.boundary_psi, model.boundary_v, self.search.fluid.lists, self.search.boundary.lists, model.mass,
-             self.dt, ph.rho0, self.kappa_v, self.delta, self.error],
+            [
+                state.v,
+                self.factor,
+                model.boundary_psi,
+                model.boundary_v,
+                self.search.fluid.lists,
+                self.search.boundary.lists,
+                model.mass,
+                self.dt,
+                ph.rho0,
+                self.kappa_v,
+                self.delta,
+                self.error,
+            ],
             dev,
         )
         sum_into(self.error, n, self._divergence_error_sum)
-        wp.launch(solve_convergence, dim=1, device=dev, inputs=[
-            self._divergence_error_sum, max(n, 1), wp.float64(ph.eta_divergence), 1, ph.max_iterations, self._divergence_iterations,
-            self.keep_going])
+        wp.launch(
+            solve_convergence,
+            dim=1,
+            device=dev,
+            inputs=[
+                self._divergence_error_sum,
+                max(n, 1),
+                wp.float64(ph.eta_divergence),
+                1,
+                ph.max_iterations,
+                self._divergence_iterations,
+                self.keep_going,
+            ],
+        )
         self._apply(model, state, self.kappa_v, state.v)
 
     def pressure_solve(self, model, state) -> None:
         """Bring the predicted density of ``v_adv`` to rho0 (the constant-density solve)."""
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        launch_particles(start_density_solve, state.n, [self.v_adv, state.rho, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt,
-                                                        self.physics.rho0, self.kappa, self.delta], model.device)
+        launch_particles(
+            start_density_solve,
+            state.n,
+            [
+                self.v_adv,
+                state.rho,
+                model.boundary_psi,
+                model.boundary_v,
+                nf,
+                nb,
+                model.mass,
+                self.dt,
+                self.physics.rho0,
+                self.kappa,
+                self.delta,
+            ],
+            model.device,
+        )
         self._apply(model, state, self.kappa, self.v_adv)
         self._iterations.zero_()
         self._last_error_sum.zero_()
@@ -404,14 +484,40 @@ class DFSPHSolver(SPHSolver):
         launch_particles(
             density_jacobi,
             n,
-            [self.v_adv, state.rho, self.factor, model.boundary_psi, model.boundary_v, self.search.fluid.lists,
-             self.search.boundary.lists, model.mass, self.dt, ph.rho0, self.kappa, self.delta, self.error],
+            [
+                self.v_adv,
+                state.rho,
+                self.factor,
+                model.boundary_psi,
+                model.boundary_v,
+                self.search.fluid.lists,
+                self.search.boundary.lists,
+                model.mass,
+                self.dt,
+                ph.rho0,
+                self.kappa,
+                self.delta,
+                self.error,
+            ],
             dev,
         )
         sum_into(self.error, n, self._error_sum)
-        wp.launch(jacobi_convergence, dim=1, device=dev, inputs=[
-            self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations, self._iterations, self.keep_going,
-            self._last_error_sum, self._blend])
+        wp.launch(
+            jacobi_convergence,
+            dim=1,
+            device=dev,
+            inputs=[
+                self._error_sum,
+                max(n, 1),
+                wp.float64(ph.eta),
+                ph.min_iterations,
+                ph.max_iterations,
+                self._iterations,
+                self.keep_going,
+                self._last_error_sum,
+                self._blend,
+            ],
+        )
         self._apply(model, state, self.kappa, self.v_adv, self._blend)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:

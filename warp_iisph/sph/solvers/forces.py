@@ -198,7 +198,9 @@ class ViscousSubsteps:
             return
         src, dst = v_adv, self.scratch
         for k in range(1, self.most):
-            launch_particles(viscous_substep, state.n, [k, state.x, src, state.rho, nf, nb, self.terms, dt_step, dst], model.device)
+            launch_particles(
+                viscous_substep, state.n, [k, state.x, src, state.rho, nf, nb, self.terms, dt_step, dst], model.device
+            )
             src, dst = dst, src
         if src is not v_adv:
             wp.copy(v_adv, src, count=state.n)

@@ -164,7 +164,9 @@ def jacobi_sigma_term(mass: float, sdp_i: wp.vec3, disp_j: wp.vec3, d_ji_p_i: wp
 
 
 @wp.func
-def jacobi_boundary_sigma(i: int, psi: wp.array(dtype=float), nb: NeighborList, sdp_i: wp.vec3, fluid_sigma: float) -> float:
+def jacobi_boundary_sigma(
+    i: int, psi: wp.array(dtype=float), nb: NeighborList, sdp_i: wp.vec3, fluid_sigma: float
+) -> float:
     """``s_i``: the walls' parts added, in list order, to the fluid neighbours' sum."""
     sigma = fluid_sigma
     for m in range(nb.count[i]):
@@ -337,16 +339,46 @@ class IISPHSolver(SPHSolver):
         launch_particles(
             predict_advection_velocity,
             n,
-            [state.x, state.v, state.rho, nf, nb, self.viscous.terms, g, self.dt, self.wall_weight, state.p, self.v_adv, self.d_ii,
-             self.push],
+            [
+                state.x,
+                state.v,
+                state.rho,
+                nf,
+                nb,
+                self.viscous.terms,
+                g,
+                self.dt,
+                self.wall_weight,
+                state.p,
+                self.v_adv,
+                self.d_ii,
+                self.push,
+            ],
             dev,
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
         launch_particles(
             predict_advection_density,
             n,
-            [self.v_adv, state.rho, self.d_ii, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt, self.wall_weight,
-             self.push, self.smoothing_weight, self.W0, self.rho_adv, self.a_ii, self.a_diag, state.p],
+            [
+                self.v_adv,
+                state.rho,
+                self.d_ii,
+                model.boundary_psi,
+                model.boundary_v,
+                nf,
+                nb,
+                model.mass,
+                self.dt,
+                self.wall_weight,
+                self.push,
+                self.smoothing_weight,
+                self.W0,
+                self.rho_adv,
+                self.a_ii,
+                self.a_diag,
+                state.p,
+            ],
             dev,
         )
 
@@ -362,18 +394,66 @@ class IISPHSolver(SPHSolver):
         ph = self.physics
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = state.n, model.device
-        launch_particles(pressure_sum_dij_pj, n, [state.rho, state.p, model.boundary_psi, self.wall_weight, self.smoothing_weight, self.W0,
-                                                  nf, nb, model.mass, self.dt, self.d_ii, self.sum_dij_pj, self.displacement], dev)
+        launch_particles(
+            pressure_sum_dij_pj,
+            n,
+            [
+                state.rho,
+                state.p,
+                model.boundary_psi,
+                self.wall_weight,
+                self.smoothing_weight,
+                self.W0,
+                nf,
+                nb,
+                model.mass,
+                self.dt,
+                self.d_ii,
+                self.sum_dij_pj,
+                self.displacement,
+            ],
+            dev,
+        )
         launch_particles(
             pressure_jacobi,
             n,
-            [state.rho, self.rho_adv, self.a_ii, self.a_diag, self.displacement, self.sum_dij_pj, state.p, model.boundary_psi, nf, nb,
-             model.mass, self.dt, ph.rho0, float(ph.omega), self.p_next, self.density_error],
+            [
+                state.rho,
+                self.rho_adv,
+                self.a_ii,
+                self.a_diag,
+                self.displacement,
+                self.sum_dij_pj,
+                state.p,
+                model.boundary_psi,
+                nf,
+                nb,
+                model.mass,
+                self.dt,
+                ph.rho0,
+                float(ph.omega),
+                self.p_next,
+                self.density_error,
+            ],
             dev,
         )
         sum_into(self.density_error, n, self._error_sum)
-        wp.launch(jacobi_convergence, dim=1, inputs=[self._error_sum, max(n, 1), wp.float64(ph.eta), ph.min_iterations, ph.max_iterations,
-                                                     self._iterations, self.keep_going, self._last_error_sum, self._blend], device=dev)
+        wp.launch(
+            jacobi_convergence,
+            dim=1,
+            inputs=[
+                self._error_sum,
+                max(n, 1),
+                wp.float64(ph.eta),
+                ph.min_iterations,
+                ph.max_iterations,
+                self._iterations,
+                self.keep_going,
+                self._last_error_sum,
+                self._blend,
+            ],
+            device=dev,
+        )
         launch_particles(jacobi_advance, n, [self.keep_going, self._blend, self.p_next, state.p], dev)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:

@@ -35,4 +35,9 @@ class WCSPHSolver(SPHSolver):
         self.advect_velocity(model, state)
 
     def pressure_solve(self, model, state) -> None:
-        launch_particles(state_equation, state.n, [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p], model.device)
+        launch_particles(
+            state_equation,
+            state.n,
+            [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p],
+            model.device,
+        )

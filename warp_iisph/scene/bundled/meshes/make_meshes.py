@@ -46,8 +46,15 @@ def upper_tray() -> trimesh.Trimesh:
 
 def lower_cup() -> trimesh.Trimesh:
     """A round cup, inner radius 0.18 m, 0.25 m deep, 4 cm wall and floor."""
-    wall = moved(annulus(r_min=0.18, r_max=0.22, height=0.29, sections=48), offset=(0, 0.145, 0), angle=-np.pi / 2, axis=(1, 0, 0))
-    floor = moved(cylinder(radius=0.22, height=0.04, sections=48), offset=(0, 0.02, 0), angle=-np.pi / 2, axis=(1, 0, 0))
+    wall = moved(
+        annulus(r_min=0.18, r_max=0.22, height=0.29, sections=48),
+        offset=(0, 0.145, 0),
+        angle=-np.pi / 2,
+        axis=(1, 0, 0),
+    )
+    floor = moved(
+        cylinder(radius=0.22, height=0.04, sections=48), offset=(0, 0.02, 0), angle=-np.pi / 2, axis=(1, 0, 0)
+    )
     return trimesh.util.concatenate([wall, floor])
 
 
@@ -55,8 +62,19 @@ def wine_glass() -> trimesh.Trimesh:
     """A wine glass standing on y = 0, its axis along y: a foot of radius 4 cm, a stem, a bowl 5 cm
     wide inside at the rim and 9 cm deep (about 0.2 l), glass 4 mm thick: one closed solid, the
     profile (radius, height) revolved about the axis."""
-    outer = [(0.0, 0.0), (0.04, 0.0), (0.04, 0.004), (0.008, 0.008), (0.005, 0.02), (0.005, 0.07), (0.02, 0.078),
-             (0.035, 0.095), (0.043, 0.12), (0.045, 0.145), (0.044, 0.17)]
+    outer = [
+        (0.0, 0.0),
+        (0.04, 0.0),
+        (0.04, 0.004),
+        (0.008, 0.008),
+        (0.005, 0.02),
+        (0.005, 0.07),
+        (0.02, 0.078),
+        (0.035, 0.095),
+        (0.043, 0.12),
+        (0.045, 0.145),
+        (0.044, 0.17),
+    ]
     inner = [(0.040, 0.17), (0.041, 0.145), (0.039, 0.122), (0.031, 0.099), (0.017, 0.084), (0.0, 0.081)]
     profile = np.array(outer + inner)
     mesh = trimesh.creation.revolve(profile, sections=64)  # about z, from the profile's (x, z)
@@ -66,10 +84,18 @@ def wine_glass() -> trimesh.Trimesh:
 
 
 def main() -> None:
-    for name, make in (("submarine", submarine), ("upper_tray", upper_tray), ("lower_cup", lower_cup), ("wine_glass", wine_glass)):
+    for name, make in (
+        ("submarine", submarine),
+        ("upper_tray", upper_tray),
+        ("lower_cup", lower_cup),
+        ("wine_glass", wine_glass),
+    ):
         mesh = make()
         mesh.export(HERE / f"{name}.obj")
-        print(f"{name}.obj: {len(mesh.faces)} triangles, bounds {np.round(mesh.bounds, 3).tolist()}, watertight {mesh.is_watertight}")
+        print(
+            f"{name}.obj: {len(mesh.faces)} triangles, "
+            f"bounds {np.round(mesh.bounds, 3).tolist()}, watertight {mesh.is_watertight}"
+        )
 
 
 if __name__ == "__main__":
