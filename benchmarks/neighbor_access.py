@@ -252,8 +252,8 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 state.p,
                 model.boundary_psi,
                 0.0,
-                solver.smoothing_weight,
-                solver.W0,
+                solver.walls.weight,
+                solver.walls.W0,
                 lists,
                 nb,
                 model.mass,
@@ -283,7 +283,7 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 ph.rho0,
                 float(ph.omega),
                 p_out,
-                solver.density_error,
+                solver.solve.error,
             ],
             device,
         )
@@ -328,7 +328,7 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 ph.rho0,
                 float(ph.omega),
                 p_query,
-                solver.density_error,
+                solver.solve.error,
             ],
             device,
         )
@@ -367,7 +367,7 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 ph.rho0,
                 float(ph.omega),
                 p_index,
-                solver.density_error,
+                solver.solve.error,
             ],
             device,
         )

@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..engine.launch import launch_particles
+from .kernel import cubic_W_np
 from .neighbors import NeighborList, entry
 
 
@@ -80,3 +82,30 @@ def wall_heads(
         k = entry(nb, i, m)
         b = nb.index[k]
         nb.head[k] = rho_i * wp.dot(gravity - ab[b], xb[b] - c)
+
+
+class WallPressures:
+    """The walls' pressures a method's pressure force and solve use: extrapolated
+    (``physics.wall_pressure = "extrapolated"``, with boundary particles) or Akinci's (the fluid
+    particle's own, in one term). ``factor`` is the walls' 1/rho0^2 in the force and in IISPH's
+    ``sum_j d_ij p_j``, 0 for Akinci's walls; ``weight`` holds each fluid particle's
+    ``sum_j W_ij`` near walls (:func:`wall_heads`)."""
+
+    def __init__(self, model, capacity: int):
+        ph = model.physics
+        self.extrapolated = ph.wall_pressure == "extrapolated" and model.n_boundary > 0
+        self.factor = 1.0 / (ph.rho0 * ph.rho0) if self.extrapolated else 0.0
+        self.W0 = float(cubic_W_np(0.0, model.support_radius))
+        self.weight = wp.ones(max(capacity, 1), dtype=float, device=model.device)
+        self.gravity = wp.vec3(*ph.gravity)
+
+    def heads(self, model, state, nf: NeighborList, nb: NeighborList) -> None:
+        """Once per step, after densities: each wall entry's hydrostatic head (nothing with
+        Akinci's walls)."""
+        if self.extrapolated:
+            launch_particles(
+                wall_heads,
+                state.n,
+                [state.x, state.rho, model.boundary_x, model.boundary_a, self.gravity, nf, nb, self.W0, self.weight],
+                model.device,
+            )

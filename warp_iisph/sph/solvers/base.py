@@ -1,5 +1,5 @@
-"""What WCSPH and IISPH share: density, pressure acceleration with symplectic Euler and the step
-skeleton; with DFSPH, the density solves' convergence test and where it ends them.
+"""The services every method's step uses: neighbours, density, the advected velocity, and (for
+WCSPH and IISPH) the pressure acceleration with symplectic Euler.
 
 Density (Akinci boundaries): ``rho_i = sum_j m W_ij + sum_b psi_b W_ib`` (j includes i).
 Pressure acceleration: ``a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij
@@ -14,15 +14,13 @@ Neighbour lists store ``W`` beside ``grad W``; densities are summed from them.
 
 from __future__ import annotations
 
-from contextlib import nullcontext
-
 import warp as wp
 
 from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
-from ..kernel import cubic_W, cubic_W_np
+from ..kernel import cubic_W
 from ..neighbors import NeighborList, NeighborSearch, entry
-from ..wall_pressure import smoothed_pressure, wall_heads
+from ..wall_pressure import WallPressures, smoothed_pressure
 from .forces import ViscousSubsteps, predict_velocity
 
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
@@ -98,47 +96,13 @@ def integrate(
     x[i] = x[i] + dt * v_i
 
 
-@wp.kernel
-def jacobi_convergence(
-    error_sum: wp.array(dtype=wp.float64),
-    n: int,
-    eta: wp.float64,
-    min_iterations: int,
-    max_iterations: int,
-    iterations: wp.array(dtype=wp.int32),
-    keep_going: wp.array(dtype=wp.int32),
-    last_error_sum: wp.array(dtype=wp.float64),
-    blend: wp.array(dtype=float),
-):
-    """Count the iteration; stop once the mean predicted density error is at most eta (after
-    ``min_iterations``) or at ``max_iterations``. Where the error crossed eta in this iteration,
-    ``blend`` is the share of the way from the last iteration's pressures (IISPH) or stiffness
-    (DFSPH) to this one's at which the error (taken as linear between them) reaches eta, and the
-    error sum reported is eta's; otherwise ``blend`` is negative. Both solvers' density solves end
-    there."""
-    it = iterations[0] + 1
-    iterations[0] = it
-    mean = error_sum[0] / wp.float64(n)
-    converged = it >= min_iterations and mean <= eta
-    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
-    last = last_error_sum[0] / wp.float64(n)
-    b = float(-1.0)
-    if converged and it > 1 and last > eta and last > mean:
-        b = float((last - eta) / (last - mean))
-        # reported as eta: a hair under it, so that the logged mean (sum / n) never rounds above eta
-        error_sum[0] = eta * wp.float64(n) * (wp.float64(1.0) - wp.float64(1.0e-15))
-    blend[0] = b
-    last_error_sum[0] = error_sum[0]
-
-
 class SPHSolver:
-    """Skeleton of an SPH time step shared by the methods; subclasses supply
-    :meth:`predict_advection` and :meth:`pressure_solve`.
-
-    :meth:`launch_step` = neighbour search, density, non-pressure forces and advection, pressure,
-    integration (symplectic Euler), each a named stage; the step's statistics stay on the device
-    (:meth:`solver_stats`), where the time loop (``warp_iisph.stepping``) logs them.
-    """
+    """What every method's step uses, as services: the neighbour search, densities, the advected
+    velocity (gravity and viscosity), the pressure force with symplectic Euler, the step's dt on the
+    device and the compression statistic. Each method writes its own :meth:`launch_step`, one named
+    call per stage of its paper's algorithm (stages as :data:`STAGES`), and reads nothing back
+    unless ``sync``: what a graph records. The step's statistics stay on the device
+    (:meth:`solver_stats`), where the time loop (``warp_iisph.stepping``) logs them."""
 
     def __init__(self, model):
         self.physics = model.physics
@@ -150,13 +114,6 @@ class SPHSolver:
         self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
         self._no_iterations = wp.zeros(1, dtype=wp.int32, device=model.device)
         self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
-        # the walls' pressures: extrapolated from the smoothed fluid pressure (:mod:`..wall_pressure`)
-        # or Akinci's p_i in one term ("fluid"); wall_weight is their factor 1/rho0^2 in the force
-        # and in IISPH's sum_j d_ij p_j, 0 for Akinci's
-        self.extrapolated = self.physics.wall_pressure == "extrapolated" and model.n_boundary > 0
-        self.wall_weight = 1.0 / (self.physics.rho0 * self.physics.rho0) if self.extrapolated else 0.0
-        self.W0 = float(cubic_W_np(0.0, model.support_radius))
-        self.smoothing_weight = wp.ones(max(n, 1), dtype=float, device=model.device)  # sum_j W_ij, near walls
         self.viscous = ViscousSubsteps(model, n)  # the viscosity's sub-steps where a step exceeds its limit
 
     @property
@@ -165,62 +122,19 @@ class SPHSolver:
         return 0.0
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
-        """Every launch of a step (after the reorder, which the time loop schedules), reading
-        nothing back unless ``sync``: what a graph records. ``self.dt`` holds the step."""
-        timer = timer or nullcontext  # timer(name) -> a context that does nothing
-        n = state.n
-        with timer("neighbours"):
-            self.search.build(state.x, n, sync=sync)
-        nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        with timer("density"):
-            self.compute_densities(model, state)
-            if self.extrapolated:
-                launch_particles(
-                    wall_heads,
-                    n,
-                    [
-                        state.x,
-                        state.rho,
-                        model.boundary_x,
-                        model.boundary_a,
-                        wp.vec3(*self.physics.gravity),
-                        nf,
-                        nb,
-                        self.W0,
-                        self.smoothing_weight,
-                    ],
-                    model.device,
-                )
-        with timer("advection"):
-            self.predict_advection(model, state)
-        with timer("pressure"):
-            self.pressure_solve(model, state)
-        with timer("integration"):
-            launch_particles(
-                integrate,
-                n,
-                [
-                    self.v_adv,
-                    state.rho,
-                    state.p,
-                    model.boundary_psi,
-                    self.wall_weight,
-                    self.smoothing_weight,
-                    self.W0,
-                    nf,
-                    nb,
-                    model.mass,
-                    self.dt,
-                    state.v,
-                    state.x,
-                ],
-                model.device,
-            )
+        """Every launch of a step (after the reorder, which the time loop schedules); ``self.dt``
+        holds the step."""
+        raise NotImplementedError
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
         """The device sums of the pressure solver's final density error and its iteration count;
         WCSPH has no solver, so its error is the compression."""
         return self._compression_sum, self._no_iterations
+
+    def find_neighbours(self, state, sync: bool) -> tuple[NeighborList, NeighborList]:
+        """This step's fluid and boundary neighbour lists."""
+        self.search.build(state.x, state.n, sync=sync)
+        return self.search.fluid.lists, self.search.boundary.lists
 
     def compute_densities(self, model, state) -> None:
         """``rho`` from this step's lists, and the compression's sum for the step's statistics."""
@@ -256,8 +170,27 @@ class SPHSolver:
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
 
-    def predict_advection(self, model, state) -> None:
-        raise NotImplementedError
-
-    def pressure_solve(self, model, state) -> None:
-        raise NotImplementedError
+    def integrate(self, model, state, walls: WallPressures) -> None:
+        """The pressure acceleration from ``state.p`` (and the walls' pressures), then symplectic
+        Euler from ``v_adv``."""
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        launch_particles(
+            integrate,
+            state.n,
+            [
+                self.v_adv,
+                state.rho,
+                state.p,
+                model.boundary_psi,
+                walls.factor,
+                walls.weight,
+                walls.W0,
+                nf,
+                nb,
+                model.mass,
+                self.dt,
+                state.v,
+                state.x,
+            ],
+            model.device,
+        )

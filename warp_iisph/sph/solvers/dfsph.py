@@ -56,9 +56,9 @@ from contextlib import nullcontext
 import warp as wp
 
 from ...engine.launch import launch_particles
-from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
-from .base import SPHSolver, jacobi_convergence
+from .base import SPHSolver
+from .iteration import IterativeSolve
 
 # Fewer neighbours (fluid and wall, self excluded) than this, and a particle takes no part in
 # the divergence solve (the paper's particle deficiency rule; a resting particle has 26 fluid
@@ -250,7 +250,7 @@ def apply_stiffness(
 ):
     """Add the stiffness increments ``d`` to the stiffness and their velocity change,
     ``v_i -= dt (sum_j m (d_i + d_j) grad W_ij + sum_b psi_b d_i grad W_ib)``, to the velocities
-    (the wall pushes with the particle's own); where ``blend`` (:func:`~.base.jacobi_convergence`)
+    (the wall pushes with the particle's own); where ``blend`` (:mod:`.iteration`)
     is not negative, only that share of them: the solve ends at the Jacobi update of the iterate
     at which its error reaches eta (the update is affine in the stiffness, but for the clamp at
     zero, so that is the last iterate plus ``blend`` times this iteration's increments)."""
@@ -266,24 +266,6 @@ def apply_stiffness(
     b = wp.where(blend[0] < 0.0, 1.0, blend[0])
     kappa[i] = kappa[i] + b * d_i
     v[i] = v[i] - (dt_step[0] * b) * a
-
-
-@wp.kernel
-def solve_convergence(
-    error_sum: wp.array(dtype=wp.float64),
-    n: int,
-    eta: wp.float64,
-    min_iterations: int,
-    max_iterations: int,
-    iterations: wp.array(dtype=wp.int32),
-    keep_going: wp.array(dtype=wp.int32),
-):
-    """The divergence solve's test: count the iteration; stop once the mean error is at most eta
-    (after ``min_iterations``) or at ``max_iterations``."""
-    it = iterations[0] + 1
-    iterations[0] = it
-    converged = it >= min_iterations and error_sum[0] / wp.float64(n) <= eta
-    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
 
 
 @wp.kernel
@@ -325,37 +307,31 @@ class DFSPHSolver(SPHSolver):
         self.kappa_v_dt = wp.zeros(n, dtype=float, device=dev)  # kappa_v / rho * dt of the last divergence solve
         self.kappa_v = wp.zeros(n, dtype=float, device=dev)  # kappa_v / rho, this step's running sum
         self.delta = wp.zeros(n, dtype=float, device=dev)  # the iteration's stiffness increments
-        self.error = wp.zeros(n, dtype=wp.float64, device=dev)
-        self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
-        self._iterations = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._divergence_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
-        self._divergence_iterations = wp.zeros(1, dtype=wp.int32, device=dev)
-        self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._last_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
-        self._blend = wp.zeros(1, dtype=float, device=dev)  # where the density solve ends (jacobi_convergence)
-        self._no_blend = wp.full(1, -1.0, dtype=float, device=dev)  # no blend: whole increments
+        self.density_solve = IterativeSolve(n, dev)  # ends where its error reaches eta, as IISPH's
+        self.divergence_solve = IterativeSolve(n, dev, ends_at_eta=False)
+        self._whole = wp.full(1, -1.0, dtype=float, device=dev)  # no blend: whole increments
         # a denominator of alpha below this is a particle with next to no neighbours: (m / H^4)^2
         # is the scale of one neighbour's |m grad W|^2, 1e-6 of it a neighbour at the support's edge
         self.least_denominator = 1.0e-6 * (model.mass / model.support_radius**4) ** 2
         self.carried = {"dfsph_kappa": self.kappa, "dfsph_kappa_v_dt": self.kappa_v_dt}
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
+        """One DFSPH step (Bender & Koschier 2017, Algorithm 1), stage by stage."""
         timer = timer or nullcontext
         n, dev = state.n, model.device
         with timer("neighbours"):
-            self.search.build(state.x, n, sync=sync)
-        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+            nf, nb = self.find_neighbours(state, sync)
         with timer("density"):
             self.compute_densities(model, state)
             launch_particles(
                 dfsph_factor, n, [model.boundary_psi, nf, nb, model.mass, self.least_denominator, self.factor], dev
             )
         with timer("pressure"):
-            self.divergence_solve(model, state)
+            self.correct_divergence_error(model, state)
         with timer("advection"):
-            self.predict_advection(model, state)
+            self.advect_velocity(model, state)  # v_adv = v + dt a_nonpressure
         with timer("pressure"):
-            self.pressure_solve(model, state)
+            self.correct_density_error(model, state)
         with timer("integration"):
             launch_particles(
                 finish_step,
@@ -364,60 +340,58 @@ class DFSPHSolver(SPHSolver):
                 dev,
             )
 
-    def predict_advection(self, model, state) -> None:
-        """``v_adv = v + dt a_nonpressure`` from the divergence-free velocity."""
-        self.advect_velocity(model, state)
+    def correct_divergence_error(self, model, state) -> None:
+        """Make the velocity the last step ended with divergence-free (compression rates only)."""
+        ph = self.physics
+        self.start_solve(model, state, start_divergence_solve, [state.v, self.kappa_v_dt], self.kappa_v, state.v)
+        self.divergence_solve.run(
+            state.n,
+            ph.eta_divergence,
+            1,
+            ph.max_iterations,
+            lambda: self.divergence_iteration(model, state),
+            lambda blend: self.apply(model, state, self.kappa_v, state.v, self._whole),
+        )
 
-    def _apply(self, model, state, kappa, v, blend=None) -> None:
+    def correct_density_error(self, model, state) -> None:
+        """Bring the density ``v_adv`` predicts to rho0 (the constant-density solve)."""
+        ph = self.physics
+        self.start_solve(model, state, start_density_solve, [self.v_adv, state.rho], self.kappa, self.v_adv, ph.rho0)
+        self.density_solve.run(
+            state.n,
+            ph.eta,
+            ph.min_iterations,
+            ph.max_iterations,
+            lambda: self.density_iteration(model, state),
+            lambda blend: self.apply(model, state, self.kappa, self.v_adv, blend),
+        )
+
+    def start_solve(self, model, state, kernel, first, kappa, v, *constants) -> None:
+        """A solve's warm start (``kernel``: its increments from the last step's stiffness), applied
+        to ``kappa`` and the velocities ``v`` as the solve's first increment."""
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        launch_particles(
+            kernel,
+            state.n,
+            [*first, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt, *constants, kappa, self.delta],
+            model.device,
+        )
+        self.apply(model, state, kappa, v, self._whole)
+
+    def apply(self, model, state, kappa, v, blend) -> None:
+        """Add the increments ``delta`` (a ``blend`` share of them where it is not negative)."""
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
         launch_particles(
             apply_stiffness,
             state.n,
-            [
-                self.delta,
-                self._no_blend if blend is None else blend,
-                model.boundary_psi,
-                self.search.fluid.lists,
-                self.search.boundary.lists,
-                model.mass,
-                self.dt,
-                kappa,
-                v,
-            ],
+            [self.delta, blend, model.boundary_psi, nf, nb, model.mass, self.dt, kappa, v],
             model.device,
         )
-
-    def divergence_solve(self, model, state) -> None:
-        """Make the velocity the last step ended with divergence-free (compression rates only);
-        the loop's test runs on the device (``wp.capture_while``), as IISPH's."""
-        nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        launch_particles(
-            start_divergence_solve,
-            state.n,
-            [
-                state.v,
-                self.kappa_v_dt,
-                model.boundary_psi,
-                model.boundary_v,
-                nf,
-                nb,
-                model.mass,
-                self.dt,
-                self.kappa_v,
-                self.delta,
-            ],
-            model.device,
-        )
-        self._apply(model, state, self.kappa_v, state.v)
-        self._divergence_iterations.zero_()
-        self.keep_going.fill_(1)
-        wp.capture_while(self.keep_going, self.divergence_iteration, model=model, state=state)
 
     def divergence_iteration(self, model, state) -> None:
-        ph = self.physics
-        n, dev = state.n, model.device
         launch_particles(
             divergence_jacobi,
-            n,
+            state.n,
             [
                 state.v,
                 self.factor,
@@ -427,103 +401,41 @@ class DFSPHSolver(SPHSolver):
                 self.search.boundary.lists,
                 model.mass,
                 self.dt,
-                ph.rho0,
+                self.physics.rho0,
                 self.kappa_v,
                 self.delta,
-                self.error,
+                self.divergence_solve.error,
             ],
-            dev,
+            model.device,
         )
-        sum_into(self.error, n, self._divergence_error_sum)
-        wp.launch(
-            solve_convergence,
-            dim=1,
-            device=dev,
-            inputs=[
-                self._divergence_error_sum,
-                max(n, 1),
-                wp.float64(ph.eta_divergence),
-                1,
-                ph.max_iterations,
-                self._divergence_iterations,
-                self.keep_going,
-            ],
-        )
-        self._apply(model, state, self.kappa_v, state.v)
 
-    def pressure_solve(self, model, state) -> None:
-        """Bring the predicted density of ``v_adv`` to rho0 (the constant-density solve)."""
-        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+    def density_iteration(self, model, state) -> None:
         launch_particles(
-            start_density_solve,
+            density_jacobi,
             state.n,
             [
                 self.v_adv,
                 state.rho,
+                self.factor,
                 model.boundary_psi,
                 model.boundary_v,
-                nf,
-                nb,
+                self.search.fluid.lists,
+                self.search.boundary.lists,
                 model.mass,
                 self.dt,
                 self.physics.rho0,
                 self.kappa,
                 self.delta,
+                self.density_solve.error,
             ],
             model.device,
         )
-        self._apply(model, state, self.kappa, self.v_adv)
-        self._iterations.zero_()
-        self._last_error_sum.zero_()
-        self.keep_going.fill_(1)
-        wp.capture_while(self.keep_going, self.density_iteration, model=model, state=state)
-
-    def density_iteration(self, model, state) -> None:
-        ph = self.physics
-        n, dev = state.n, model.device
-        launch_particles(
-            density_jacobi,
-            n,
-            [
-                self.v_adv,
-                state.rho,
-                self.factor,
-                model.boundary_psi,
-                model.boundary_v,
-                self.search.fluid.lists,
-                self.search.boundary.lists,
-                model.mass,
-                self.dt,
-                ph.rho0,
-                self.kappa,
-                self.delta,
-                self.error,
-            ],
-            dev,
-        )
-        sum_into(self.error, n, self._error_sum)
-        wp.launch(
-            jacobi_convergence,
-            dim=1,
-            device=dev,
-            inputs=[
-                self._error_sum,
-                max(n, 1),
-                wp.float64(ph.eta),
-                ph.min_iterations,
-                ph.max_iterations,
-                self._iterations,
-                self.keep_going,
-                self._last_error_sum,
-                self._blend,
-            ],
-        )
-        self._apply(model, state, self.kappa, self.v_adv, self._blend)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
-        return self._error_sum, self._iterations
+        return self.density_solve.stats()
 
     def extra_stats(self) -> dict:
         """Per-step statistics beyond the shared ones: the divergence solve's final mean error
         (a float64 sum over particles) and its iteration count."""
-        return {"divergence_error": self._divergence_error_sum, "divergence_iterations": self._divergence_iterations}
+        error_sum, iterations = self.divergence_solve.stats()
+        return {"divergence_error": error_sum, "divergence_iterations": iterations}

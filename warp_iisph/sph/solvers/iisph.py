@@ -31,14 +31,16 @@ docs/physics.md, round 4).
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import warp as wp
 
 from ...engine.launch import launch_particles
-from ...engine.reduce import sum_into
 from ..neighbors import NeighborList, entry
-from ..wall_pressure import smoothed_pressure
-from .base import SPHSolver, jacobi_convergence
+from ..wall_pressure import WallPressures, smoothed_pressure
+from .base import SPHSolver
 from .forces import ViscousTerms, advected_velocity
+from .iteration import IterativeSolve
 
 
 @wp.kernel
@@ -291,18 +293,16 @@ def pressure_jacobi(
 @wp.kernel
 def jacobi_advance(
     offset: int,
-    keep_going: wp.array(dtype=wp.int32),
     blend: wp.array(dtype=float),
     p_next: wp.array(dtype=float),
     p: wp.array(dtype=float),
 ):
     """The Jacobi update ``p_next`` of this iteration's pressures ``p``, or, where the error
-    crossed eta in this iteration, the update of the pressures at which it reaches eta: the
-    update is affine in the pressures (but for the clamp at zero), so that is
-    ``p + blend (p_next - p)``, and the result does not jump with the iteration count."""
+    crossed eta in this iteration (``blend`` not negative, :mod:`.iteration`), the update of the
+    pressures at which it reaches eta: ``p + blend (p_next - p)``."""
     i = wp.tid() + offset
     b = blend[0]
-    if keep_going[0] == 0 and b >= 0.0:
+    if b >= 0.0:
         p[i] = p[i] + b * (p_next[i] - p[i])
     else:
         p[i] = p_next[i]
@@ -315,24 +315,45 @@ class IISPHSolver(SPHSolver):
     def __init__(self, model):
         super().__init__(model)
         n, dev = model.capacity, model.device
+        self.walls = WallPressures(model, n)
         self.d_ii = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.a_ii = wp.zeros(n, dtype=float, device=dev)
         # the diagonal the Jacobi step divides by: a_ii itself with Akinci's walls
-        self.a_diag = wp.zeros(n, dtype=float, device=dev) if self.extrapolated else self.a_ii
+        self.a_diag = wp.zeros(n, dtype=float, device=dev) if self.walls.extrapolated else self.a_ii
         self.rho_adv = wp.zeros(n, dtype=float, device=dev)
         self.sum_dij_pj = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.displacement = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.p_next = wp.zeros(n, dtype=float, device=dev)
         self.push = wp.zeros(n, dtype=wp.vec3, device=dev)
-        self.density_error = wp.zeros(n, dtype=wp.float64, device=dev)
-        self._error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
-        self._iterations = wp.zeros(1, dtype=wp.int32, device=dev)
-        self.keep_going = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._last_error_sum = wp.zeros(1, dtype=wp.float64, device=dev)
-        self._blend = wp.zeros(1, dtype=float, device=dev)
+        self.solve = IterativeSolve(n, dev)  # the pressure solve: relaxed Jacobi, ending where its error reaches eta
+
+    def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
+        """One IISPH step (Ihmsen et al. 2014, Algorithm 1), stage by stage."""
+        timer = timer or nullcontext
+        ph = self.physics
+        with timer("neighbours"):
+            nf, nb = self.find_neighbours(state, sync)
+        with timer("density"):
+            self.compute_densities(model, state)
+            self.walls.heads(model, state, nf, nb)
+        with timer("advection"):
+            self.predict_advection(model, state)  # v_adv, d_ii, rho_adv, a_ii; the warm start
+        with timer("pressure"):
+            self.solve.run(
+                state.n,
+                ph.eta,
+                ph.min_iterations,
+                ph.max_iterations,
+                lambda: self.jacobi_iteration(model, state),
+                lambda blend: launch_particles(jacobi_advance, state.n, [blend, self.p_next, state.p], model.device),
+            )
+        with timer("integration"):
+            self.integrate(model, state, self.walls)
 
     def predict_advection(self, model, state) -> None:
-        ph = self.physics
+        """``v_adv``, ``d_ii``, ``rho_adv``, ``a_ii`` (and the diagonal with the walls' share),
+        and the warm start ``0.5 p(t - dt)``."""
+        ph, walls = self.physics, self.walls
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = state.n, model.device
         g = wp.vec3(*ph.gravity)
@@ -348,7 +369,7 @@ class IISPHSolver(SPHSolver):
                 self.viscous.terms,
                 g,
                 self.dt,
-                self.wall_weight,
+                walls.factor,
                 state.p,
                 self.v_adv,
                 self.d_ii,
@@ -370,10 +391,10 @@ class IISPHSolver(SPHSolver):
                 nb,
                 model.mass,
                 self.dt,
-                self.wall_weight,
+                walls.factor,
                 self.push,
-                self.smoothing_weight,
-                self.W0,
+                walls.weight,
+                walls.W0,
                 self.rho_adv,
                 self.a_ii,
                 self.a_diag,
@@ -382,16 +403,9 @@ class IISPHSolver(SPHSolver):
             dev,
         )
 
-    def pressure_solve(self, model, state) -> None:
-        """Relaxed Jacobi until converged; the loop's test runs on the device
-        (``wp.capture_while``), so a captured graph holds the whole loop."""
-        self._iterations.zero_()
-        self._last_error_sum.zero_()
-        self.keep_going.fill_(1)
-        wp.capture_while(self.keep_going, self.jacobi_iteration, model=model, state=state)
-
     def jacobi_iteration(self, model, state) -> None:
-        ph = self.physics
+        """One relaxed Jacobi iteration: ``p_next`` and the predicted density error of ``p``."""
+        ph, walls = self.physics, self.walls
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev = state.n, model.device
         launch_particles(
@@ -401,9 +415,9 @@ class IISPHSolver(SPHSolver):
                 state.rho,
                 state.p,
                 model.boundary_psi,
-                self.wall_weight,
-                self.smoothing_weight,
-                self.W0,
+                walls.factor,
+                walls.weight,
+                walls.W0,
                 nf,
                 nb,
                 model.mass,
@@ -433,28 +447,10 @@ class IISPHSolver(SPHSolver):
                 ph.rho0,
                 float(ph.omega),
                 self.p_next,
-                self.density_error,
+                self.solve.error,
             ],
             dev,
         )
-        sum_into(self.density_error, n, self._error_sum)
-        wp.launch(
-            jacobi_convergence,
-            dim=1,
-            inputs=[
-                self._error_sum,
-                max(n, 1),
-                wp.float64(ph.eta),
-                ph.min_iterations,
-                ph.max_iterations,
-                self._iterations,
-                self.keep_going,
-                self._last_error_sum,
-                self._blend,
-            ],
-            device=dev,
-        )
-        launch_particles(jacobi_advance, n, [self.keep_going, self._blend, self.p_next, state.p], dev)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
-        return self._error_sum, self._iterations
+        return self.solve.stats()

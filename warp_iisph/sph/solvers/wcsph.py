@@ -8,10 +8,12 @@ Its time step is bounded by the speed of sound ``c = sqrt(7 k / rho0)``.
 from __future__ import annotations
 
 import math
+from contextlib import nullcontext
 
 import warp as wp
 
 from ...engine.launch import launch_particles
+from ..wall_pressure import WallPressures
 from .base import SPHSolver
 
 
@@ -27,17 +29,26 @@ class WCSPHSolver(SPHSolver):
     """Weakly compressible SPH. ``density_error`` in its statistics is the mean compression
     ``max(rho/rho0 - 1, 0)`` at the start of the step (there is no solver to converge)."""
 
+    def __init__(self, model):
+        super().__init__(model)
+        self.walls = WallPressures(model, model.capacity)
+
     @property
     def signal_speed(self) -> float:
         return math.sqrt(7.0 * self.physics.stiffness / self.physics.rho0)
 
-    def predict_advection(self, model, state) -> None:
-        self.advect_velocity(model, state)
-
-    def pressure_solve(self, model, state) -> None:
-        launch_particles(
-            state_equation,
-            state.n,
-            [state.rho, self.physics.rho0, float(self.physics.stiffness), state.p],
-            model.device,
-        )
+    def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
+        """One WCSPH step: densities, the state equation's pressure, forces, symplectic Euler."""
+        timer = timer or nullcontext
+        ph = self.physics
+        with timer("neighbours"):
+            nf, nb = self.find_neighbours(state, sync)
+        with timer("density"):
+            self.compute_densities(model, state)
+            self.walls.heads(model, state, nf, nb)
+        with timer("advection"):
+            self.advect_velocity(model, state)
+        with timer("pressure"):
+            launch_particles(state_equation, state.n, [state.rho, ph.rho0, float(ph.stiffness), state.p], model.device)
+        with timer("integration"):
+            self.integrate(model, state, self.walls)
