@@ -49,17 +49,22 @@ def fixed_step_limit(h: wp.float64, speed: wp.float64, longest: wp.float64) -> w
     return longest
 
 
+# steps fitted to a landing time are equal from this many steps before it on
+LANDING_STEPS = wp.constant(wp.float64(64.0))
+
+
 @wp.func
 def fit_to_landing(step: wp.float64, to_end: wp.float64) -> wp.float64:
-    """A step fitted to land on a time ``to_end`` ahead: all of it where less than a twentieth of
-    a step would remain, half of it where between one and two steps remain (two equal steps rather
-    than a full one and a sliver: a short step builds almost no pressure, and the next, full step
-    starts from half of that), else the step."""
-    if to_end - step < wp.float64(1.0e-9) + wp.float64(0.05) * step:
-        return to_end
-    if to_end < wp.float64(2.0) * step:
-        return wp.float64(0.5) * to_end
-    return step
+    """A step fitted to land on a time ``to_end`` ahead: the steps up to it are equal, as few as
+    fit at ``step`` (together up to a twentieth of a step longer, rather than one sliver more); a
+    landing further than :data:`LANDING_STEPS` steps away leaves the step as it is. A step
+    shortened alone would change the pressure the next one starts from (half of this step's, the
+    warm start) and the IISPH pressure's response to the state's compression, which grows as
+    1/dt^2: resting water's pressure kicked by percents at every frame."""
+    if to_end > LANDING_STEPS * step:
+        return step
+    n = wp.max(wp.ceil(to_end / step - wp.float64(0.05) - wp.float64(1.0e-9)), wp.float64(1.0))
+    return to_end / n
 
 
 @wp.kernel
@@ -85,9 +90,8 @@ def choose_dt(
     """The step: a requested one, the scene's fixed dt, or the CFL rule
     ``cfl h / (max(max|v|, sqrt(2 g y_top)) + c)`` clamped to [dt_min, dt_max] (the viscosity
     takes sub-steps of its own where a step exceeds its limit, ``sph.solvers.forces``); then
-    fitted to land on the end time: the last step is lengthened to it when less than a twentieth
-    of a step would remain, and where between one and two steps remain they become two equal
-    halves of what remains (for a fixed dt cut into substeps, two equal fixed steps, each cut).
+    fitted to land on the end time: the steps up to it are equal (:func:`fit_to_landing`; for a
+    fixed dt cut into substeps, equal fixed steps, each cut).
 
     With ``split``, a fixed dt longer than a step may be is cut into equal substeps (``pieces``:
     how many its step is cut into): no longer than ``h / (max(max|v|, 2 sqrt(g y_top)) + c)``, so
@@ -103,12 +107,13 @@ def choose_dt(
         if dt > wp.float64(0.0) and split != 0:
             splitting = True
             left = sub_left[0]
+            to_end = end[0] - time[0]
             if left <= wp.float64(0.0):
-                left = dt
+                # a new fixed step, fitted to the landing time (a frame, the end) as the CFL step is
+                left = fit_to_landing(dt, to_end)
                 sub_done[0] = 0
-            # a landing time (a frame, the end) near this fixed step: the step ends there, in equal
-            # pieces, and the next starts from it (no sliver left over)
-            left = fit_to_landing(left, end[0] - time[0])
+            elif to_end < left:
+                left = to_end  # a landing inside the fixed step being cut (a new end time) ends it there
             # from rest sqrt(2) times the free-fall speed: dt^2 g y_top / h^2 <= 1/4, where IISPH
             # water still rests with a steady pressure (about 0.3; docs/physics.md 4.12)
             speed = wp.max(wp.float64(wp.sqrt(max_speed2[0])), SQRT2 * velocity_scale) + signal_speed
