@@ -1,5 +1,5 @@
-"""Sweeps (`warp-iisph sweep`) on Dask: the same run folders as runs done one by one, failures
-recorded, resumes that run only what is missing, Ctrl-C that stops cleanly."""
+"""Sweeps (`warp-iisph sweep`) and render farms on Dask: the same run folders as runs done one by
+one, failures recorded, resumes that run only what is missing, Ctrl-C that stops cleanly."""
 
 import json
 import os
@@ -158,13 +158,15 @@ def test_a_sweep_folder_is_resumed_with_its_own_settings_or_not_at_all(tmp_path,
     assert [p.name for p in (tmp_path / "taken").iterdir()] == ["keep.txt"]
 
 
-def test_without_dask_the_cluster_options_say_what_to_install(tmp_path, monkeypatch, capsys):
+def test_without_dask_the_cluster_options_say_what_to_install(tmp_path, monkeypatch, capsys, tiny_run):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed now raises ImportError
+    frames = (tiny_run / "frames").exists()
     out = tmp_path / "sweep"
     assert main(["sweep", "martin_moyce", "--vary", "physics.eta=0.01", "--workers", "2", "--out", str(out)]) == 2
+    assert main(["render", str(tiny_run), "--workers", "2", "--no-progress"]) == 2
     err = capsys.readouterr().err.splitlines()
-    assert len(err) == 1 and all("Dask is not installed" in line and "pip install" in line for line in err)
-    assert not out.exists()
+    assert len(err) == 2 and all("Dask is not installed" in line and "pip install" in line for line in err)
+    assert not out.exists() and (tiny_run / "frames").exists() == frames
 
 
 def test_a_serial_sweep_repeats_charts_and_resumes_nothing_when_complete(tmp_path, capsys):
@@ -287,3 +289,26 @@ def test_ctrl_c_stops_the_workers_and_leaves_a_truthful_record(tmp_path):
         folder = out / e["name"]
         assert e["ended"] == (run_json(folder)["ended"] if folder.exists() else "pending")
     assert sorted(e["ended"] for e in record["variants"]) == ["interrupted", "interrupted", "pending"]
+
+
+# --- render farm -----------------------------------------------------------------------------------
+
+
+def test_render_on_two_workers_writes_and_skips_the_frames_render_does(tiny_run, tmp_path, scheduler, capsys):
+    pytest.importorskip("mitsuba", reason="the render extra (Mitsuba 3) is not installed")
+    import shutil
+
+    farm = tmp_path / "farm"
+    shutil.copytree(tiny_run, farm)
+    args = ["--resolution", "64x36", "--spp", "4", "--variant", "scalar_rgb", "--no-progress"]
+    assert main(["render", str(tiny_run), *args]) == 0
+    assert main(["render", str(farm), "--scheduler", scheduler, *args]) == 0
+    assert "rendered 4 frames (0 already there)" in capsys.readouterr().out
+    for k in range(4):
+        name = f"frame_{k:05d}.png"
+        assert (farm / "frames" / name).read_bytes() == (tiny_run / "frames" / name).read_bytes()
+    assert (farm / "video.mp4").stat().st_size > 0 and not list((farm / "frames").glob("*.part.png"))
+    (farm / "frames" / "frame_00002.png").unlink()
+    assert main(["render", str(farm), "--scheduler", scheduler, *args]) == 0
+    assert "rendered 1 frames (3 already there)" in capsys.readouterr().out
+    assert (farm / "frames" / "frame_00002.png").read_bytes() == (tiny_run / "frames" / "frame_00002.png").read_bytes()

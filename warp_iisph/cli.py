@@ -193,6 +193,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument("--gif", action="store_true", help="write video.gif instead of video.mp4")
     render.add_argument("--overwrite", action="store_true", help="re-render frames already rendered")
+    _cluster_options(render, "frames", "one after another")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
     preview = sub.add_parser(
         "preview", help="a fast look at a run (particles coloured by speed, or the mesh) in preview.mp4"
@@ -280,6 +281,7 @@ def _preview(args) -> int:
 
 
 def _render(args) -> int:
+    from .run.cluster import ClusterUnavailable
     from .view.render import RenderUnavailable, render_run
 
     try:
@@ -295,8 +297,10 @@ def _render(args) -> int:
             args.overwrite,
             args.variant,
             progress=not args.no_progress,
+            scheduler=args.scheduler,
+            workers=args.workers,
         )
-    except RenderUnavailable as e:
+    except (RenderUnavailable, ClusterUnavailable) as e:
         raise ValueError(f"render: {e}") from None
     print(
         f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
