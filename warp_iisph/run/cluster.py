@@ -55,6 +55,7 @@ def check_options(scheduler: str | None, workers: int | None) -> None:
 
 _one_task = threading.Lock()  # Warp's module loads and CPU thread pool are per process: one task at a time
 _warm: dict = {}
+_given_threads: list = [None]  # the CPU threads the running task was given
 
 
 def warm(key, make):
@@ -92,6 +93,12 @@ def task_threads(threads: int | None) -> int | None:
         return threads
     worker = _dask_worker()
     return int(worker.state.nthreads) if worker is not None else None
+
+
+def current_threads() -> int | None:
+    """The CPU threads the task running in this worker was given (``None`` outside a task of a
+    cluster: this process's own setting)."""
+    return _given_threads[0]
 
 
 def task_device(device: str) -> str:
@@ -162,9 +169,11 @@ def _busy() -> bool:
     return _one_task.locked()
 
 
-def _task(threads, fn, args):
+def _task(threads, warp, fn, args):
     with _one_task:
-        prepare_process(task_threads(threads))
+        _given_threads[0] = task_threads(threads)
+        if warp:
+            prepare_process(_given_threads[0])
         return fn(*args)
 
 
@@ -199,16 +208,24 @@ class Workers:
         }
 
     def run(
-        self, calls: list, on_done, on_start=None, gpu: bool = False, name: str = "task", wait_on_stop: bool = False
+        self,
+        calls: list,
+        on_done,
+        on_start=None,
+        gpu: bool = False,
+        name: str = "task",
+        wait_on_stop: bool = False,
+        warp: bool = True,
     ) -> None:
         """Run ``calls`` (function, args) and call ``on_done(index, result, error)`` as each ends
         (``error``: its exception, or its worker's loss; ``result`` is then ``None``). In this
         process the calls run in order, as this process is set up, ``on_start(index)`` before
         each, and an exception other than ``Exception`` (Ctrl-C) stops them; on a cluster they
         are submitted at once (asking for a ``GPU`` with ``gpu``), each worker's Warp set up for
-        them, and what is left is cancelled when this returns or raises (then, with
-        ``wait_on_stop``, the tasks running are given up to ``STOP_WAIT`` seconds to stop:
-        those that use :func:`stop_when_cancelled` record how they ended)."""
+        them (unless ``warp`` is false: tasks that launch no kernel), and what is left is
+        cancelled when this returns or raises (then, with ``wait_on_stop``, the tasks running are
+        given up to ``STOP_WAIT`` seconds to stop: those that use :func:`stop_when_cancelled`
+        record how they ended)."""
         if self.client is None:
             for i, (fn, args) in enumerate(calls):
                 if on_start is not None:
@@ -230,6 +247,7 @@ class Workers:
             self.client.submit(
                 _task,
                 self.threads,
+                warp,
                 fn,
                 args,
                 key=f"{name}-{i}-{tag}",

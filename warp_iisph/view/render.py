@@ -295,16 +295,14 @@ class FrameRenderer:
     def __init__(self, settings: dict):
         import mitsuba as mi
 
-        from ..run.cluster import in_worker
+        from ..run.cluster import current_threads
 
         self.settings = settings
         use_variant(settings["variant"])
-        if in_worker():  # Mitsuba's threads: the worker's share of the cores, as Warp's
+        if current_threads() is not None:  # in a worker: Mitsuba's threads are its share of the cores
             import drjit as dr
 
-            from ..engine.launch import get_threads
-
-            dr.set_thread_count(get_threads())
+            dr.set_thread_count(current_threads())
         self.sky = mi.load_dict(sky_emitter())
 
     def render(self, mesh: Path | None, obstacles: Path | None, seed: int) -> np.ndarray:
@@ -457,7 +455,7 @@ def render_run(
         bar = frame_bar(len(files), progress, "render")
         bar.update(len(files) - len(calls))
         try:
-            pool.run(calls, on_done, name="frame")
+            pool.run(calls, on_done, name="frame", warp=False)
         finally:
             bar.close()
     fps = run.fps(record)
