@@ -4,8 +4,9 @@ LocalCluster of worker processes started here, or on the cluster of any Dask sch
 Warp's CPU launches, and may keep warm objects there for the tasks after it.
 
 A LocalCluster has one thread per worker and gives each task ``cores // workers`` CPU threads; a
-worker of another cluster runs one task at a time with as many CPU threads as it has Dask
-threads (``dask worker --nthreads``). With a GPU, tasks ask for the Dask resource ``GPU`` (one
+worker of another cluster runs one task at a time (each worker is given one of the Dask resource
+``warp_iisph``, which every task asks for) with as many CPU threads as it has Dask threads
+(``dask worker --nthreads``). With a GPU, tasks ask for the Dask resource ``GPU`` (one
 task per GPU at a time): a LocalCluster's workers each hold one of this machine's GPUs, the
 workers of another cluster must offer it (``dask worker --resources GPU=1``).
 """
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 EXTRA = "pip install 'warp_iisph[cluster]'  (Dask distributed)"
 MAX_WORKERS = 1024
 CONNECT_TIMEOUT = "10s"
+SLOT = "warp_iisph"  # the Dask resource of which each worker has one and each task takes one
 STOP_WAIT = 60.0  # seconds a stopped sweep waits for its running variants to record how they ended
 
 
@@ -252,7 +254,7 @@ class Workers:
                 args,
                 key=f"{name}-{i}-{tag}",
                 pure=False,
-                resources={"GPU": 1} if gpu else None,
+                resources={SLOT: 1, "GPU": 1} if gpu else {SLOT: 1},
             )
             for i, (fn, args) in enumerate(calls)
         ]
@@ -352,6 +354,7 @@ def open_workers(
                     **extra,
                 )
             client = Client(cluster)
+            _one_task_per_worker(client)
             _say_dashboard(client)
             pool = Workers(client, workers, threads, cluster.scheduler_address, local=True, gpus=workers if gpu else 0)
         else:
@@ -367,12 +370,27 @@ def open_workers(
                     "(start them with: dask worker ADDRESS --resources GPU=1)"
                 )
             pool = Workers(client, len(info), threads, scheduler, gpus=gpus)
+        _one_task_per_worker(client)
         yield pool
     finally:
         if client is not None:
             client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _one_task_per_worker(client) -> None:
+    """Give every worker (those to come too) one ``SLOT``: Dask would hand a worker of n threads
+    n tasks at once, of which all but one would wait for the process while other workers idle."""
+    from distributed import WorkerPlugin
+
+    class OneTaskAtATime(WorkerPlugin):
+        name = "warp_iisph-one-task-at-a-time"
+
+        async def setup(self, worker):
+            await worker.set_resources(**{SLOT: 1})
+
+    client.register_plugin(OneTaskAtATime())
 
 
 def _say_dashboard(client) -> None:
