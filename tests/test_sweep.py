@@ -182,10 +182,16 @@ def test_a_serial_sweep_repeats_charts_and_resumes_nothing_when_complete(tmp_pat
     for e in record["variants"]:  # the summary is the run's own totals
         assert e["worker"] == "this process" and e["wall_seconds"] > 0
         assert e["summary"]["totals"] == run_json(out / e["name"])["totals"]
+    assert run_json(out / e["name"])["command"] == " ".join(sys.argv)  # the command that made it
     ids = {e["name"]: run_json(out / e["name"])["run_id"] for e in record["variants"]}
     assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
     assert "0 run now, 4 complete before" in capsys.readouterr().out
     assert {e["name"]: run_json(out / e["name"])["run_id"] for e in record["variants"]} == ids
+    # a measure no variant has: said, and no chart (not the other measure's)
+    assert main(["sweep", "--resume", str(out), "--no-progress", "--measure", "totals.nothing"]) == 0
+    err = capsys.readouterr().err
+    assert "--measure totals.nothing: no variant has it" in err and "totals.mean_compression" in err
+    assert json.loads((out / "sweep.json").read_text())["chart"] is None and not (out / "sweep.png").exists()
 
 
 # --- on a LocalCluster of 2 workers ----------------------------------------------------------------
@@ -200,6 +206,7 @@ def test_a_sweep_on_two_workers_gives_the_runs_done_one_by_one(tmp_path, capsys)
     record = json.loads((out / "sweep.json").read_text())
     workers = {e["worker"] for e in record["variants"]}
     assert record["sessions"][0]["workers"]["workers"] == 2 and len(workers) == 2 and "this process" not in workers
+    assert all(run_json(out / e["name"])["command"] == " ".join(sys.argv) for e in record["variants"])
     for eta in ("0.01", "0.001"):
         for cfl in ("0.4", "0.6"):
             alone = tmp_path / f"alone-{eta}-{cfl}"

@@ -545,9 +545,10 @@ def _sweep(args) -> int:
             print(f"warp-iisph: warning: variant {e['name']} {e['ended']}: {e['message']}", file=sys.stderr)
     if record["chart"] is None:
         names = next((sw.numbers_in(e["summary"]) for e in variants if e["summary"]), [])
+        names.sort(key=lambda n: not n.startswith("totals."))  # the totals first: what a study measures
         print(
             f"warp-iisph: warning: --measure {record['measure']}: no variant has it, no chart"
-            + (f" (e.g. {', '.join(names[:6])})" if names else ""),
+            + (f" (the variants have {', '.join(names)})" if names else ""),
             file=sys.stderr,
         )
     print(

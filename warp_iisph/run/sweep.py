@@ -24,6 +24,7 @@ import itertools
 import json
 import math
 import re
+import sys
 import time
 from pathlib import Path
 
@@ -293,13 +294,17 @@ def one_line(e: BaseException) -> str:
     return text if isinstance(e, ValueError) and text else f"{type(e).__name__}: {text}".rstrip(": ")
 
 
-def run_variant(scene: str, assignments: list[str], out: str, duration, fps, device: str, graph: bool) -> dict:
+def run_variant(
+    scene: str, assignments: list[str], out: str, duration, fps, device: str, graph: bool, command: list[str]
+) -> dict:
     """Run one variant into its folder (replacing what a stopped attempt left there): how it
-    ended, its wall time and its run.json's summary. Every error is caught and told in one line."""
+    ended, its wall time and its run.json's summary. Every error is caught and told in one line.
+    ``command``: the sweep's command line, which the run records as the one that made it."""
     from .cluster import in_worker, stop_when_cancelled, task_device, worker_name
     from .runner import run_scene
 
     t0 = time.perf_counter()
+    argv, sys.argv = sys.argv, list(command)  # a worker's own command line is Dask's
     try:
         with stop_when_cancelled():  # on a cluster, a stopped sweep stops its runs as Ctrl-C would
             record = run_scene(
@@ -319,6 +324,8 @@ def run_variant(scene: str, assignments: list[str], out: str, duration, fps, dev
         ended, message, kept = "interrupted", "stopped before its run began", {}
     except Exception as e:  # noqa: BLE001 - the variant failed; the others go on
         ended, message, kept = "failed", one_line(e), {}
+    finally:
+        sys.argv = argv
     return {
         "ended": ended,
         "message": message,
@@ -364,6 +371,7 @@ def run_sweep(record: dict, out, workers, progress: bool = True) -> dict:
                 record["fps"],
                 record["device"],
                 record["graph"],
+                list(sys.argv),
             ),
         )
         for e in todo
@@ -414,6 +422,8 @@ def run_sweep(record: dict, out, workers, progress: bool = True) -> dict:
         record.update(ended=ended, message=message)
         save(record, out)
     record["chart"] = chart(record, out / CHART)
+    if record["chart"] is None and (out / CHART).is_file():  # a chart of another measure would mislead
+        (out / CHART).unlink()
     save(record, out)
     return record
 
