@@ -274,13 +274,14 @@ def test_a_sweep_killed_and_resumed_runs_only_what_was_missing(tmp_path, schedul
     assert [s["variants_run"] for s in json.loads((out / "sweep.json").read_text())["sessions"]] == [4, 2]
 
 
-def test_ctrl_c_stops_the_workers_and_leaves_a_truthful_record(tmp_path):
+@pytest.mark.parametrize("where, running", [([], 1), (["--workers", "2"], 2)])
+def test_ctrl_c_stops_the_workers_and_leaves_a_truthful_record(tmp_path, where, running):
     out = tmp_path / "sweep"
     proc = cli(
         *["sweep", "martin_moyce", "--vary", "physics.eta=0.01,0.001,0.0005", "--set", "spacing=0.02"],
-        *["--duration", "2", "--workers", "2", "--out", str(out), "--no-progress"],
+        *["--duration", "2", *where, "--out", str(out), "--no-progress"],
     )
-    wait_until(lambda: len(list(out.glob("*/particles/frame_00002.ply"))) == 2, proc)
+    wait_until(lambda: len(list(out.glob("*/particles/frame_00002.ply"))) == running, proc)
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
     _, err = finish(proc)
     assert proc.returncode == 130 and err.strip().splitlines()[-1] == "warp-iisph: interrupted", err
@@ -295,7 +296,7 @@ def test_ctrl_c_stops_the_workers_and_leaves_a_truthful_record(tmp_path):
     for e in record["variants"]:  # each says what its run folder says
         folder = out / e["name"]
         assert e["ended"] == (run_json(folder)["ended"] if folder.exists() else "pending")
-    assert sorted(e["ended"] for e in record["variants"]) == ["interrupted", "interrupted", "pending"]
+    assert sorted(e["ended"] for e in record["variants"]) == ["interrupted"] * running + ["pending"] * (3 - running)
 
 
 # --- render farm -----------------------------------------------------------------------------------

@@ -388,9 +388,9 @@ def run_sweep(record: dict, out, workers, progress: bool = True) -> dict:
         todo[i].update(result)
         save(record, out)
         bar.update(1)
-        if result["ended"] == "terminated":  # in this process, the variant took the signal: stop
+        if workers.serial and result["ended"] == "terminated":  # the variant took this process's signal: stop
             raise Terminated()
-        if result["ended"] == "interrupted":
+        if workers.serial and result["ended"] == "interrupted":
             raise KeyboardInterrupt()
 
     bar = frame_bar(len(entries), progress, "sweep", unit="variant")
