@@ -551,8 +551,9 @@ def _sweep(args) -> int:
             + (f" (the variants have {', '.join(names)})" if names else ""),
             file=sys.stderr,
         )
+    n = len(variants)
     print(
-        f"swept {len(variants)} variants ({ran} run now, {len(variants) - ran} complete before): {counts} "
+        f"swept {n} variant{'s' if n != 1 else ''} ({ran} run now, {n - ran} complete before): {counts} "
         f"in {record['sessions'][-1]['wall_seconds']:.1f} s wall -> {out}"
         + (f" (chart {record['chart']}: {record['measure']})" if record["chart"] else "")
     )
