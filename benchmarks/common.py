@@ -1,5 +1,6 @@
 """What the benchmark scripts share: the run record's header (machine, device, versions, date),
-writing JSON next to its chart, a headless matplotlib, and compiling kernels outside the timing."""
+writing JSON next to its chart, a headless matplotlib, compiling kernels outside the timing, and
+running many measurements through the sweep machinery (in this process, or on a Dask cluster)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import datetime
 import json
 import os
 import platform
+import sys
 from pathlib import Path
 
 import warp as wp
@@ -94,3 +96,75 @@ def martin_moyce_front(resolution: int, a: float = 0.1, t_end: float = 3.2, samp
             wall += time.perf_counter() - t0
         Z.append(surge_front(sim.positions, h) / a)
     return T, np.asarray(Z), sim, wall
+
+
+TIMING_NOTE = (
+    "timings are taken inside each measurement, and measurements running side by side share the cores, "
+    "caches and memory bandwidth: parallel workers distort them (keep the default, one after another, for timings)"
+)
+
+
+def cluster_options(ap) -> None:
+    """``--workers N | --scheduler ADDRESS``: where the measurements run (Dask, the cluster extra)."""
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run the measurements on a Dask LocalCluster of N worker processes (cores/N CPU threads each); "
+        f"default: one after another in this process; {TIMING_NOTE}",
+    )
+    where.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help=f"run the measurements on the Dask cluster whose scheduler is at ADDRESS; {TIMING_NOTE}",
+    )
+
+
+def check_cluster_options(ap, args) -> None:
+    """``ap.error`` (one line, exit status 2) for a bad ``--workers``/``--scheduler``, or for
+    either without Dask; call it right after parsing, before any measurement."""
+    from warp_iisph.run.cluster import ClusterUnavailable, check_options
+
+    try:
+        check_options(args.scheduler, args.workers)
+    except (ClusterUnavailable, ValueError) as e:
+        ap.error(str(e))
+
+
+def measure_all(args, calls: list, report) -> None:
+    """Run ``calls`` (functions of no argument, e.g. ``functools.partial(measure, config)``) as
+    one sweep's variants, where ``args.workers`` / ``args.scheduler`` say (by default one after
+    another in this process), and ``report(result)`` each in the order given, as soon as it and
+    those before it have ended. A measurement's error stops the benchmark."""
+    from warp_iisph.run.cluster import open_workers
+
+    if args.scheduler is not None:  # the workers of another machine need no copy of benchmarks/
+        import cloudpickle
+
+        here = Path(__file__).resolve().parent
+        for module in list(sys.modules.values()):
+            path = getattr(module, "__file__", None)
+            if path and Path(path).resolve().parent == here and module.__name__ != "__main__":
+                cloudpickle.register_pickle_by_value(module)
+    done, reported = {}, [0]
+
+    def on_done(i, result, error):
+        if error is not None:
+            raise error
+        done[i] = result
+        while reported[0] in done:
+            report(done.pop(reported[0]))
+            reported[0] += 1
+
+    with open_workers(args.scheduler, args.workers) as workers:
+        workers.run([(call, ()) for call in calls], on_done, name="measurement")
+
+
+def warm_once(device: str = "cpu", method: str = "iisph") -> None:
+    """:func:`warm_up`, once per process (each worker of a cluster compiles and loads for itself)."""
+    from warp_iisph.run.cluster import warm
+
+    warm(("warm_up", device, method), lambda: warm_up(device, method) or True)

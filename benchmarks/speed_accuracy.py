@@ -7,14 +7,29 @@ this CPU. Runs that diverge are listed with the reason. Writes
 benchmarks/results/speed_accuracy.json and .png; the chart marks the Pareto front (the runs no
 other run beats on both cost and accuracy).
 
-    python benchmarks/speed_accuracy.py [--resolution 15] [--quick]
+    python benchmarks/speed_accuracy.py [--resolution 15] [--quick] [--workers N | --scheduler ADDRESS]
+
+Each configuration is a variant of one sweep (warp_iisph.run.cluster): one after another in this
+process by default, or side by side with --workers N (a Dask LocalCluster) or --scheduler
+ADDRESS, where the cost axis is then distorted by the runs beside each one.
 """
 
 import argparse
+import functools
 
 import numpy as np
 import warp as wp
-from common import RESULTS, header, martin_moyce_front, pyplot, save, warm_up
+from common import (
+    RESULTS,
+    check_cluster_options,
+    cluster_options,
+    header,
+    martin_moyce_front,
+    measure_all,
+    pyplot,
+    save,
+    warm_once,
+)
 
 from warp_iisph import DivergenceError
 from warp_iisph.analysis.dam_break import front_errors
@@ -39,6 +54,7 @@ def label(c: dict) -> str:
 
 
 def measure(resolution: int, config: dict) -> dict:
+    warm_once(method=config["method"])  # in a worker of a cluster: its kernels loaded outside the timing
     physics = dict(config)
     if "dt" not in physics:
         physics["dt_max"] = 5e-3
@@ -134,16 +150,19 @@ def main():
     ap.add_argument("--resolution", type=int, default=15, help="a/h")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
+    cluster_options(ap)
     args = ap.parse_args()
+    check_cluster_options(ap, args)
     if args.quick:
         args.resolution = 8
     wp.config.log_level = wp.LOG_WARNING
-    warm_up(method="iisph")
-    warm_up(method="wcsph")
+    if args.workers is None and args.scheduler is None:
+        warm_once(method="iisph")
+        warm_once(method="wcsph")
     rows = []
     print(f"{'run':<38} {'s/sim s':>8} {'density err %':>13} {'front err %':>11} {'steps':>6} {'iters':>5}")
-    for config in configurations(args.quick):
-        r = measure(args.resolution, config)
+
+    def report(r):
         rows.append(r)
         if "diverged" in r:
             print(f"{r['label']:<38} diverged: {r['diverged']}")
@@ -153,6 +172,8 @@ def main():
                 f"{100 * r['mean_density_error']:>13.3f} "
                 f"{100 * r['front_error']:>11.1f} {r['steps']:>6} {r['mean_iterations']:>5.1f}"
             )
+
+    measure_all(args, [functools.partial(measure, args.resolution, c) for c in configurations(args.quick)], report)
     ok = [r for r in rows if "diverged" not in r]
     for key in ("mean_density_error", "front_error"):
         front = pareto([(r["wall_seconds_per_simulated_second"], r[key]) for r in ok])

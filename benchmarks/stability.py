@@ -15,17 +15,23 @@
 Writes benchmarks/results/stability.json and .png.
 
     python benchmarks/stability.py [--spacings 0.04,0.02,0.0133] [--fixed 0.005,0.01] [--quick]
+        [--workers N | --scheduler ADDRESS]
 
 --quick: one resolution (h = 4 cm) over 0.3 s, and the dam break at 6 cm (4,096 particles) for
 0.3 s.
+
+Each bisection (a method at a resolution) and each dam break is a variant of one sweep
+(warp_iisph.run.cluster): one after another in this process by default, or side by side with
+--workers N (a Dask LocalCluster) or --scheduler ADDRESS.
 """
 
 import argparse
+import functools
 import time
 
 import numpy as np
 import warp as wp
-from common import RESULTS, header, pyplot, save
+from common import RESULTS, check_cluster_options, cluster_options, header, measure_all, pyplot, save
 
 from warp_iisph import DivergenceError, Simulation, scenes
 
@@ -126,7 +132,9 @@ def main():
     ap.add_argument("--fixed", default="0.005,0.01", help="fixed steps (s) of the 32k dam break")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
+    cluster_options(ap)
     args = ap.parse_args()
+    check_cluster_options(ap, args)
     duration = CRITERIA["duration_s"]
     dam_particles, dam_duration = 32768, 2.0
     if args.quick:
@@ -134,10 +142,15 @@ def main():
         dam_particles, dam_duration = 4096, 0.3
     wp.config.log_level = wp.LOG_WARNING
     v_ref = np.sqrt(2 * G * 2 * A)
-    rows = []
-    for h in (float(s) for s in args.spacings.split(",")):
-        for method in ("wcsph", "iisph"):
-            r = largest_stable_dt(method, h, 1e-4, 2e-2, args.steps, duration)
+    limits = [(method, float(h)) for h in args.spacings.split(",") for method in ("wcsph", "iisph")]
+    fixed = [(float(v), s) for v in args.fixed.split(",") for s in (True, False)]
+    calls = [functools.partial(largest_stable_dt, method, h, 1e-4, 2e-2, args.steps, duration) for method, h in limits]
+    calls += [functools.partial(fixed_step_dam_break, dt, dam_duration, dam_particles, s) for dt, s in fixed]
+    rows, dam = [], []
+
+    def report(r):
+        if len(rows) < len(limits):
+            method, h = limits[len(rows)]
             r.update(
                 {
                     "method": method,
@@ -149,9 +162,8 @@ def main():
             rows.append(r)
             dt = "none" if r["dt_max"] is None else f"{1e3 * r['dt_max']:.2f} ms (CFL {r['cfl_at_limit']:.2f})"
             print(f"{method:>5} h = {h:g} m: largest stable dt {dt}; fails by: {r.get('failure', r.get('note', ''))}")
-    dam = []
-    for dt, substeps in ((float(v), s) for v in args.fixed.split(",") for s in (True, False)):
-        r = fixed_step_dam_break(dt, dam_duration, dam_particles, substeps)
+            return
+        dt, substeps = fixed[len(dam)]
         dam.append(r)
         print(
             f"dam break ({r['particles']} particles) at a fixed {1e3 * dt:g} ms{'' if substeps else ', no substeps'}: "
@@ -164,6 +176,8 @@ def main():
             f"in one); mean compression {100 * r['mean_compression']:.3f} %, {r['mean_iterations']:.1f} iterations, "
             f"{r['wall_seconds']:.0f} s"
         )
+
+    measure_all(args, calls, report)
     record = header(
         "stability",
         scene="martin_moyce (a = 0.2 m, 0.1 m deep)",

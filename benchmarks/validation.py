@@ -15,23 +15,27 @@ quotes.
 Writes benchmarks/results/validation.json and validation.png (Z against T beside the experiment;
 the slope per step within the +-3 % band).
 
-    python benchmarks/validation.py [--nx 20,30,40] [--quick] [--peer]
+    python benchmarks/validation.py [--nx 20,30,40] [--quick] [--peer] [--workers N | --scheduler ADDRESS]
 
 --peer runs SPlisHSPlasH's IISPH (the `bench` extra, peer_splishsplash.py) on the same Martin &
 Moyce set-up at each nx in the same run, its front measured and scored as ours.
 
 --quick (the test suite's): nx 10 up to T = 1.5, and a 0.24 x 0.4 x 0.2 m tank at 4 cm settled
 0.5 s and measured 0.2 s.
+
+The runs are the variants of one sweep (warp_iisph.run.cluster): one after another in this
+process by default, or side by side with --workers N (a Dask LocalCluster) or --scheduler ADDRESS.
 """
 
 import argparse
+import functools
 import subprocess
 import time
 
 import numpy as np
 import peer_splishsplash
 import warp as wp
-from common import RESULTS, header, pyplot, save
+from common import RESULTS, check_cluster_options, cluster_options, header, measure_all, pyplot, save
 
 from warp_iisph import Box, DivergenceError, Scene, Simulation
 from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
@@ -191,40 +195,57 @@ def main():
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--peer", action="store_true", help="SPlisHSPlasH's IISPH on the same Martin & Moyce set-up")
+    cluster_options(ap)
     args = ap.parse_args()
+    check_cluster_options(ap, args)
     wp.config.log_level = wp.LOG_WARNING
     t_max = 3.0
     tank = {}
     if args.quick:
         args.nx, t_max = "10", 1.5
         tank = {"h": 0.04, "size": (0.24, 0.4, 0.2), "depth": 0.28, "settle": 0.5, "measure": 0.2}
-    runs = []
-    for nx in (int(v) for v in args.nx.split(",")):
-        r = martin_moyce(nx, t_max=t_max)
-        runs.append(r)
-        errs = ", ".join(f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None)
-        print(
-            f"Martin & Moyce nx {nx} ({r['particles']} particles): front error {errs} (T <= {t_max:g}); "
-            f"mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps, {r['wall_seconds']:.0f} s"
-            + (f"; DIVERGED: {r['diverged']}" if r["diverged"] else "")
-        )
-    peers = []
-    for nx in (int(v) for v in args.nx.split(",")) if args.peer else ():
-        r = peer_martin_moyce(nx, t_max=t_max)
-        if r is None:
+    nxs = [int(v) for v in args.nx.split(",")]
+    calls = [functools.partial(martin_moyce, nx, t_max=t_max) for nx in nxs]
+    calls += [functools.partial(peer_martin_moyce, nx, t_max=t_max) for nx in (nxs if args.peer else ())]
+    calls.append(functools.partial(resting_tank, **tank))
+    kinds = iter([("ours", nx) for nx in nxs] + [("peer", nx) for nx in (nxs if args.peer else ())] + [("rest", None)])
+    runs, peers, missing_peer, rests = [], [], [], []
+
+    def report(r):
+        kind, nx = next(kinds)
+        if kind == "ours":
+            runs.append(r)
+            errs = ", ".join(
+                f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None
+            )
+            print(
+                f"Martin & Moyce nx {nx} ({r['particles']} particles): front error {errs} (T <= {t_max:g}); "
+                f"mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps, "
+                f"{r['wall_seconds']:.0f} s" + (f"; DIVERGED: {r['diverged']}" if r["diverged"] else "")
+            )
+        elif kind == "rest":
+            rests.append(r)
+        elif missing_peer:
+            pass  # said once
+        elif r is None:
+            missing_peer.append(True)
             print("SPlisHSPlasH is not installed (the bench extra): no peer runs")
-            break
-        peers.append(r)
-        if "failed" in r:
+        elif "failed" in r:
+            peers.append(r)
             print(f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx}: failed: {r['failed']}")
-            continue
-        print(
-            f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx} ({r['particles']} particles): front error "
-            + ", ".join(f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None)
-            + f"; mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps"
-            + (f"; {r['escaped']} particles left the tank through its walls" if r["escaped"] else "")
-        )
-    rest = resting_tank(**tank)
+        else:
+            peers.append(r)
+            print(
+                f"SPlisHSPlasH IISPH, Martin & Moyce nx {nx} ({r['particles']} particles): front error "
+                + ", ".join(
+                    f"{k[6:]} {100 * v:.1f} %" for k, v in r.items() if k.startswith("error_") and v is not None
+                )
+                + f"; mean compression {100 * r['mean_compression']:.3f} %, {r['steps']} steps"
+                + (f"; {r['escaped']} particles left the tank through its walls" if r["escaped"] else "")
+            )
+
+    measure_all(args, calls, report)
+    (rest,) = rests
     print(
         f"resting tank ({rest['particles']} particles), {len(rest['steps'])} steps after {rest['settle_s']:g} s: "
         f"slope / rho0 g {rest['slope_min']:.3f} .. {rest['slope_max']:.3f} "

@@ -73,6 +73,31 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         assert abs(rest["slope_mean"] - 1.0) < 0.1 and rest["mean_speed_max"] < 0.02
 
 
+def test_a_benchmark_on_two_workers_measures_what_it_measures_alone(tmp_path):
+    """validation.py's runs as the variants of a sweep on a LocalCluster of 2 workers: the same
+    results as one after another in this process, but for the timings."""
+    pytest.importorskip("distributed", reason="Dask distributed (the cluster extra) is not installed")
+    records = []
+    for extra in ([], ["--workers", "2"]):
+        out = tmp_path / ("serial" if not extra else "workers")
+        proc = subprocess.run(
+            [sys.executable, str(ROOT / "benchmarks" / "validation.py"), "--quick", "--out", str(out), *extra],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert proc.returncode == 0, proc.stderr
+        records.append(json.loads((out / "validation_quick.json").read_text()))
+
+    def untimed(o):
+        if isinstance(o, dict):
+            return {k: untimed(v) for k, v in o.items() if k not in ("wall_seconds", "date")}
+        return [untimed(v) for v in o] if isinstance(o, list) else o
+
+    assert records[0]["runs"] and records[0]["resting_tank"]["steps"]
+    assert untimed(records[0]) == untimed(records[1])
+
+
 def test_validation_beside_the_peer_quick_mode(tmp_path):
     """With the bench extra, validation.py --peer runs SPlisHSPlasH's IISPH on the same Martin &
     Moyce set-up and scores its front as ours: it leaves the column's foot, moves on, and has an

@@ -1,4 +1,4 @@
-"""Command line: ``warp-iisph run | scenes | mesh | preview | render | usd | blender-script``.
+"""Command line: ``warp-iisph run | sweep | scenes | mesh | preview | render | usd | blender-script``.
 
 Every error is one line on stderr: exit status 2 for bad input (a file, key or argument and its
 allowed range), 1 for a failure at run time, 130 for Ctrl-C and 143 for SIGTERM; ``--debug``
@@ -82,6 +82,68 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sweep = sub.add_parser(
+        "sweep",
+        help="run a scene at every combination of --vary values (each a run folder) into sweep.json and a chart",
+    )
+    sweep.add_argument("scene", nargs="?", help="a scene file (.toml) or the name of a bundled scene")
+    sweep.add_argument(
+        "--vary",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="a scene key and its values (as --set takes them; commas inside [] or quotes are kept), "
+        "e.g. --vary spacing=0.02,0.01 --vary physics.eta=0.01,0.001: every combination is a variant",
+    )
+    sweep.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scene-file key for every variant (as in `warp-iisph run`)",
+    )
+    sweep.add_argument("--repeat", type=int, default=1, help="run each variant N times (to time them; default 1)")
+    sweep.add_argument(
+        "--duration", type=float, default=None, help="simulated seconds (default: the scene's output.duration)"
+    )
+    sweep.add_argument(
+        "--fps", type=float, default=None, help="frames per simulated second (default: the scene's output.fps)"
+    )
+    sweep.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="cpu (default) or cuda: each variant on a GPU, one at a time per GPU (Dask resource GPU)",
+    )
+    sweep.add_argument(
+        "--graph",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="as in `warp-iisph run` (default: on with cuda, off on the CPU)",
+    )
+    sweep.add_argument("--out", default=None, help="the sweep's folder (default sweeps/SCENE_NAME)")
+    sweep.add_argument(
+        "--resume",
+        metavar="SWEEP_DIR",
+        default=None,
+        help="run the variants of that sweep not yet complete (with its own settings)",
+    )
+    sweep.add_argument(
+        "--measure",
+        default=None,
+        help="what the chart shows: a value of the variants' run.json, e.g. mean_compression or "
+        "totals.mean_iterations (default totals.wall_seconds_per_simulated_second)",
+    )
+    _cluster_options(sweep, "variants", "one after another in this process")
+    sweep.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="CPU threads per variant (default: all cores in this process, the cores over the workers of "
+        "--workers, each worker's Dask threads with --scheduler)",
+    )
+    sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
     mesh = sub.add_parser("mesh", help="mesh a run's particle frames (or any particle files) into OBJ surfaces")
     mesh.add_argument(
@@ -131,6 +193,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument("--gif", action="store_true", help="write video.gif instead of video.mp4")
     render.add_argument("--overwrite", action="store_true", help="re-render frames already rendered")
+    _cluster_options(render, "frames", "one after another")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
     preview = sub.add_parser(
         "preview", help="a fast look at a run (particles coloured by speed, or the mesh) in preview.mp4"
@@ -175,6 +238,26 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _cluster_options(parser, what: str, default: str) -> None:
+    """``--scheduler ADDRESS | --workers N``: where the tasks run (Dask, the cluster extra)."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help=f"run the {what} on the Dask cluster whose scheduler is at ADDRESS (e.g. tcp://10.0.0.5:8786; "
+        "its workers must see this folder) (needs the cluster extra)",
+    )
+    where.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"run the {what} on N local worker processes (a Dask LocalCluster; needs the cluster extra); "
+        f"default: {default}",
+    )
+
+
 def _preview(args) -> int:
     from .view.preview import preview_run
 
@@ -198,6 +281,7 @@ def _preview(args) -> int:
 
 
 def _render(args) -> int:
+    from .run.cluster import ClusterUnavailable
     from .view.render import RenderUnavailable, render_run
 
     try:
@@ -213,8 +297,10 @@ def _render(args) -> int:
             args.overwrite,
             args.variant,
             progress=not args.no_progress,
+            scheduler=args.scheduler,
+            workers=args.workers,
         )
-    except RenderUnavailable as e:
+    except (RenderUnavailable, ClusterUnavailable) as e:
         raise ValueError(f"render: {e}") from None
     print(
         f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
@@ -396,8 +482,87 @@ def _run(args) -> int:
     return {"interrupted": EXIT_INTERRUPTED, "terminated": EXIT_TERMINATED}.get(record["ended"], EXIT_FAILED)
 
 
+def _sweep(args) -> int:
+    from .run import sweep as sw
+    from .run.cluster import ClusterUnavailable, check_options, open_workers
+
+    try:
+        check_options(args.scheduler, args.workers)
+        sw.require_chart()
+    except (ClusterUnavailable, RuntimeError) as e:
+        raise ValueError(f"sweep: {e}") from None
+    if args.threads is not None and not 1 <= args.threads <= 1024:
+        raise ValueError(f"--threads {args.threads}: must be in [1, 1024]")
+    if args.resume:
+        given = [
+            name
+            for name, value in (
+                ("SCENE", args.scene),
+                ("--vary", args.vary),
+                ("--set", args.overrides),
+                ("--repeat", args.repeat != 1),
+                ("--duration", args.duration is not None),
+                ("--fps", args.fps is not None),
+                ("--device", args.device != "cpu"),
+                ("--graph", args.graph is not None),
+                ("--out", args.out),
+            )
+            if value
+        ]
+        if given:
+            raise ValueError(f"--resume SWEEP_DIR: runs that sweep with its own settings; give no {', '.join(given)}")
+        record, out = sw.load_sweep(args.resume), args.resume
+        if args.measure:
+            record["measure"] = sw.check_measure(args.measure)
+    elif not args.scene:
+        raise ValueError("SCENE: required (a scene file or a bundled scene's name), or --resume SWEEP_DIR")
+    else:
+        record, out = sw.plan_sweep(
+            args.scene,
+            args.vary,
+            args.overrides,
+            args.repeat,
+            args.duration,
+            args.fps,
+            args.device,
+            use_graph(args.graph, args.device),
+            args.out,
+            args.measure or sw.DEFAULT_MEASURE,
+        )
+    if args.scheduler is None and args.workers is None:
+        _start_warp(args.threads)  # the variants run in this process
+        if record["device"] == "cuda":
+            from .engine.devices import checked_device
+
+            checked_device("cuda")
+    with open_workers(args.scheduler, args.workers, args.threads, gpu=record["device"] == "cuda") as workers:
+        record = sw.run_sweep(record, out, workers, progress=not args.no_progress)
+    variants = record["variants"]
+    ran = record["sessions"][-1]["variants_run"]
+    counts = ", ".join(f"{n} {state}" for state, n in record["counts"].items())
+    for e in variants:
+        if e["ended"] not in sw.DONE:
+            print(f"warp-iisph: warning: variant {e['name']} {e['ended']}: {e['message']}", file=sys.stderr)
+    if record["chart"] is None:
+        names = next((sw.numbers_in(e["summary"]) for e in variants if e["summary"]), [])
+        names.sort(key=lambda n: not n.startswith("totals."))  # the totals first: what a study measures
+        print(
+            f"warp-iisph: warning: --measure {record['measure']}: no variant has it, no chart"
+            + (f" (the variants have {', '.join(names)})" if names else ""),
+            file=sys.stderr,
+        )
+    n = len(variants)
+    print(
+        f"swept {n} variant{'s' if n != 1 else ''} ({ran} run now, {n - ran} complete before): {counts} "
+        f"in {record['sessions'][-1]['wall_seconds']:.1f} s wall -> {out}"
+        + (f" (chart {record['chart']}: {record['measure']})" if record["chart"] else "")
+    )
+    return 0 if all(e["ended"] in sw.DONE for e in variants) else EXIT_FAILED
+
+
 COMMANDS = {
     "run": _run,
+    "sweep": _sweep,
     "scenes": _scenes,
     "mesh": _mesh,
     "preview": _preview,

@@ -1,4 +1,4 @@
-"""The progress bar every long command shows: frames done, on stderr, off with --no-progress."""
+"""The progress bar every long command shows: frames (or a sweep's variants) done, on stderr, off with --no-progress."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import sys
 from tqdm import tqdm
 
 
-def frame_bar(total: int, enabled: bool = True, desc: str | None = None) -> tqdm:
-    """A bar over ``total`` frames; a disabled one accepts the same calls and draws nothing. It
+def frame_bar(total: int, enabled: bool = True, desc: str | None = None, unit: str = "frame") -> tqdm:
+    """A bar over ``total`` frames (or other ``unit``s); a disabled one accepts the same calls and draws nothing. It
     goes when closed: the command's last line (its summary or its error) stands alone."""
     return tqdm(
-        total=total, unit="frame", dynamic_ncols=True, file=sys.stderr, desc=desc, disable=not enabled, leave=False
+        total=total, unit=unit, dynamic_ncols=True, file=sys.stderr, desc=desc, disable=not enabled, leave=False
     )

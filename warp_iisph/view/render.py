@@ -7,6 +7,7 @@ guides. Frames go to ``frames/frame_NNNNN.png`` and, together, into ``video.mp4`
 from __future__ import annotations
 
 import glob
+import json
 import math
 import os
 import re
@@ -138,7 +139,10 @@ def scene_dict(
     fov: float,
     walls: list | None = None,
     obstacles: Path | None = None,
+    sky=None,
 ) -> dict:
+    """Mitsuba's scene of one frame; ``sky``: the sky emitter, loaded once for many frames (made
+    here otherwise)."""
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
@@ -168,7 +172,7 @@ def scene_dict(
                 "pixel_format": "rgb",
             },
         },
-        "sky": {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap())},
+        "sky": sky if sky is not None else sky_emitter(),
         "floor": {
             "type": "rectangle",
             "to_world": T()
@@ -213,6 +217,12 @@ def scene_dict(
             "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.72, 0.75]}},
         }
     return d
+
+
+def sky_emitter() -> dict:
+    import mitsuba as mi
+
+    return {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap())}
 
 
 def _rectangle(T, center, normal, size):
@@ -276,6 +286,75 @@ def render_image(scene: dict, use_denoiser: bool = True, seed: int = 0) -> np.nd
     return to_srgb8(color)
 
 
+class FrameRenderer:
+    """A run's frames seen with one set of ``settings`` (plain data: the Mitsuba variant, camera,
+    floor, material, samples, resolution, walls, denoising): the variant is set and the sky
+    loaded once, and each frame brings its liquid and obstacles. A render farm's worker keeps one
+    warm for all its frames."""
+
+    def __init__(self, settings: dict):
+        import mitsuba as mi
+
+        from ..run.cluster import current_threads
+
+        self.settings = settings
+        use_variant(settings["variant"])
+        if current_threads() is not None:  # in a worker: Mitsuba's threads are its share of the cores
+            import drjit as dr
+
+            dr.set_thread_count(current_threads())
+        self.sky = mi.load_dict(sky_emitter())
+
+    def render(self, mesh: Path | None, obstacles: Path | None, seed: int) -> np.ndarray:
+        s = self.settings
+        sd = scene_dict(
+            mesh,
+            (np.asarray(s["eye"]), np.asarray(s["target"])),
+            s["floor_y"],
+            s["extent"],
+            s["color"],
+            s["spp"],
+            s["width"],
+            s["height"],
+            s["fov"],
+            s["walls"],
+            obstacles=obstacles,
+            sky=self.sky,
+        )
+        return render_image(sd, s["denoise"], seed=seed)
+
+
+def use_variant(variant: str) -> None:
+    """Set Mitsuba's ``variant`` (the one :func:`choose_variant` chose) in this process."""
+    import mitsuba as mi
+
+    if variant == "llvm_ad_rgb":
+        good = [p for v, p in llvm_libraries() if v >= 16]
+        if good:
+            os.environ.setdefault("DRJIT_LIBLLVM_PATH", good[-1])
+    mi.set_variant(variant)
+
+
+def render_frame(settings: dict, mesh: str, obstacles: str | None, png: str) -> float:
+    """Render one mesh frame into ``png`` (written beside it, then renamed in) with the process's
+    :class:`FrameRenderer` for ``settings``; the seconds it took."""
+    import time
+
+    import imageio.v2 as imageio
+
+    from ..run.cluster import warm
+
+    t0 = time.perf_counter()
+    renderer = warm(("render", json.dumps(settings, sort_keys=True)), lambda: FrameRenderer(settings))
+    mesh, png = Path(mesh), Path(png)
+    empty = len(read_mesh(mesh).faces) == 0  # also: a file cut off mid-write is refused here
+    image = renderer.render(None if empty else mesh, None if obstacles is None else Path(obstacles), frame_index(mesh))
+    tmp = png.with_name(png.stem + ".part.png")
+    imageio.imwrite(tmp, image)
+    tmp.replace(png)
+    return time.perf_counter() - t0
+
+
 def render_run(
     run_dir,
     spp: int = 16,
@@ -288,13 +367,18 @@ def render_run(
     overwrite: bool = False,
     variant: str | None = None,
     progress: bool = True,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> dict:
     """Render every (selected) mesh frame of a run into ``frames/`` and ``video.mp4``; frames
-    already rendered are kept unless ``overwrite``."""
-    import time
-
+    already rendered are kept unless ``overwrite``. With ``workers`` (a LocalCluster of that
+    many processes) or ``scheduler`` (a Dask cluster's address) the frames render in parallel,
+    each worker keeping its renderer warm; the video is made here at the end."""
     import imageio.v2 as imageio
 
+    from ..run.cluster import check_options, open_workers
+
+    check_options(scheduler, workers)
     run = RunFolder.existing(run_dir)
     record = run.record()
     width, height = parse_resolution(resolution)
@@ -310,77 +394,78 @@ def render_run(
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
     wall_list = far_walls(*tank, eye) if walls and tank is not None else []
-    out = run.path / FRAMES
-    out.mkdir(exist_ok=True)
-    # rendered frames are a cache of this run's meshes seen with these settings: any made from
-    # another run, other meshes or other settings go
-    made = {
-        "run_id": record.get("run_id"),
-        "settings": {
-            "meshes": run.provenance(MESHES),
-            "spp": spp,
-            "resolution": [width, height],
-            "material": list(color),
-            "walls": walls,
-            "denoise": use_denoiser,
-            "variant": chosen_variant,
-            "camera": [eye.tolist(), np.asarray(target).tolist(), fov],
-        },
+    settings = {
+        "variant": chosen_variant,
+        "eye": eye.tolist(),
+        "target": np.asarray(target).tolist(),
+        "fov": float(fov),
+        "floor_y": floor_y,
+        "extent": extent,
+        "color": list(color),
+        "spp": spp,
+        "width": width,
+        "height": height,
+        "walls": [[np.asarray(c).tolist(), np.asarray(n).tolist(), [float(v) for v in z]] for c, n, z in wall_list],
+        "denoise": use_denoiser,
     }
-    if run.provenance(FRAMES) != made:
-        for old in out.glob("frame_*.png"):
-            old.unlink()
-        run.write_provenance(FRAMES, made["run_id"], made["settings"])
-    if progress:
-        print(f"rendering with Mitsuba {chosen_variant}: {why}", file=sys.stderr)
-    bar = frame_bar(len(files), progress, "render")
-    rendered, skipped, seconds = 0, 0, []
-    pngs = []
-    try:
-        for path in files:
-            png = out / f"frame_{frame_index(path):05d}.png"
-            pngs.append(png)
-            if png.exists() and not overwrite:
-                skipped += 1
-            else:
-                t0 = time.perf_counter()
-                empty = len(read_mesh(path).faces) == 0  # also: a file cut off mid-write is refused here
+    out = run.path / FRAMES
+    with open_workers(scheduler, workers) as pool:
+        out.mkdir(exist_ok=True)
+        # rendered frames are a cache of this run's meshes seen with these settings: any made from
+        # another run, other meshes or other settings go
+        made = {
+            "run_id": record.get("run_id"),
+            "settings": {
+                "meshes": run.provenance(MESHES),
+                "spp": spp,
+                "resolution": [width, height],
+                "material": list(color),
+                "walls": walls,
+                "denoise": use_denoiser,
+                "variant": chosen_variant,
+                "camera": [eye.tolist(), np.asarray(target).tolist(), fov],
+            },
+        }
+        if run.provenance(FRAMES) != made:
+            for old in out.glob("frame_*.png"):
+                old.unlink()
+            run.write_provenance(FRAMES, made["run_id"], made["settings"])
+        if progress:
+            print(f"rendering with Mitsuba {chosen_variant}: {why}", file=sys.stderr)
+        pngs = [out / f"frame_{frame_index(path):05d}.png" for path in files]
+        calls = []
+        for path, png in zip(files, pngs):
+            if overwrite or not png.exists():
                 k = frame_index(path)
                 obstacles = (
                     run.obstacle_frame(k)
                     if run.obstacle_frame(k).is_file()
                     else (run.obstacles if solid is not None else None)
                 )
-                sd = scene_dict(
-                    None if empty else path,
-                    (eye, target),
-                    floor_y,
-                    extent,
-                    color,
-                    spp,
-                    width,
-                    height,
-                    fov,
-                    wall_list,
-                    obstacles=obstacles,
-                )
-                image = render_image(sd, use_denoiser, seed=frame_index(path))
-                tmp = png.with_name(png.stem + ".part.png")
-                imageio.imwrite(tmp, image)
-                tmp.replace(png)
-                rendered += 1
-                seconds.append(time.perf_counter() - t0)
+                obstacles = None if obstacles is None else str(obstacles)
+                calls.append((render_frame, (settings, str(path), obstacles, str(png))))
+        seconds = []
+
+        def on_done(i, result, error):
+            if error is not None:
+                raise error
+            seconds.append(result)
             bar.update(1)
-    finally:
-        bar.close()
+
+        bar = frame_bar(len(files), progress, "render")
+        bar.update(len(files) - len(calls))
+        try:
+            pool.run(calls, on_done, name="frame", warp=False)
+        finally:
+            bar.close()
     fps = run.fps(record)
     video = run.path / ("video.gif" if gif else "video.mp4")
     write_video((imageio.imread(p) for p in pngs), video, fps, gif=gif)
     return {
         "variant": chosen_variant,
         "why": why,
-        "rendered": rendered,
-        "skipped": skipped,
+        "rendered": len(seconds),
+        "skipped": len(files) - len(calls),
         "frames": len(pngs),
         "video": video,
         "seconds_per_frame": float(np.median(seconds)) if seconds else 0.0,

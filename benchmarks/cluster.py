@@ -1,0 +1,183 @@
+"""Sweeps and render farms on Dask against the same work done one piece after another, in one run
+on the same cores: the wall time of the whole command, as a user types it.
+
+1. ``warp-iisph sweep`` of the Martin & Moyce dam break at 2 cm (2,000 particles: one CPU thread
+   per run either way) over 4 s, 4 variants (physics.viscosity 0.02, 0.05 x
+   physics.boundary_viscosity 0, 0.1): in this process one after another, then with
+   ``--workers N`` (a LocalCluster; its start and shut-down counted, some 4 s here). Target: at
+   most 0.6 x.
+2. ``warp-iisph render`` of 8 mesh frames of that dam break (640x360, 16 samples, as the
+   command's defaults) one after another, then with ``--workers N``. Target: at most 0.6 x.
+
+Both check that the parallel command wrote what the serial one did (the variants' particle frames
+and step records but their timings; the rendered PNGs, byte for byte). Writes
+benchmarks/results/cluster.json and cluster.png.
+
+    python benchmarks/cluster.py [--workers 2] [--quick]
+
+--quick (proves it works; its times say little): 0.5 s of simulation per variant, 160x90 frames
+at 4 samples. Needs the cluster extra (Dask) and, for the render, the render extra (Mitsuba).
+"""
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import warp as wp
+from common import RESULTS, header, pyplot, save
+
+from warp_iisph.engine.devices import init_warp
+
+TARGET = 0.6
+SCENE = ["martin_moyce", "--set", "spacing=0.02"]
+VARY = ["--vary", "physics.viscosity=0.02,0.05", "--vary", "physics.boundary_viscosity=0,0.1"]
+
+
+def command(*args) -> float:
+    """Run ``warp-iisph ARGS``; its wall seconds (a failure stops the benchmark with its stderr)."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "warp_iisph.cli", *args], capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    if proc.returncode != 0:
+        sys.exit(f"warp-iisph {' '.join(args)}: exit status {proc.returncode}\n{proc.stderr}")
+    return seconds
+
+
+def same_runs(a: Path, b: Path) -> bool:
+    """Whether two sweep folders hold the same variants: particle frames (but meshio's time stamp)
+    and step records (but their timings)."""
+
+    def content(sweep: Path) -> dict:
+        out = {}
+        for f in sorted(sweep.glob("*/particles/*.ply")):
+            out[str(f.relative_to(sweep))] = re.sub(rb"comment Created by meshio[^\n]*\n", b"", f.read_bytes())
+        for f in sorted(sweep.glob("*/stats.jsonl")):
+            out[str(f.relative_to(sweep))] = [
+                {k: v for k, v in json.loads(line).items() if k != "ms"} for line in f.read_text().splitlines()
+            ]
+        return out
+
+    ca = content(a)
+    return bool(ca) and ca == content(b)
+
+
+def sweep_timing(work: Path, workers: int, duration: float) -> dict:
+    args = [*SCENE, *VARY, "--duration", str(duration), "--no-progress"]
+    serial = command("sweep", *args, "--out", str(work / "serial"))
+    parallel = command("sweep", *args, "--workers", str(workers), "--out", str(work / "parallel"))
+    record = json.loads((work / "parallel" / "sweep.json").read_text())
+    return {
+        "scene": " ".join(SCENE),
+        "vary": VARY[1::2],
+        "duration": duration,
+        "variants": len(record["variants"]),
+        "particles": record["variants"][0]["summary"]["particles"]["fluid"],
+        "serial_seconds": serial,
+        "workers_seconds": parallel,
+        "ratio": parallel / serial,
+        "variant_seconds": [e["wall_seconds"] for e in record["variants"]],
+        "same_results": same_runs(work / "serial", work / "parallel"),
+    }
+
+
+def render_timing(work: Path, workers: int, resolution: str, spp: int) -> dict:
+    run = work / "meshed"
+    command("run", *SCENE, "--duration", str(7 / 30), "--fps", "30", "--mesh", "--out", str(run), "--no-progress")
+    args = ["--resolution", resolution, "--spp", str(spp), "--no-progress"]
+    twin = work / "meshed_farm"
+    shutil.copytree(run, twin)
+    serial = command("render", str(run), *args)
+    parallel = command("render", str(twin), *args, "--workers", str(workers))
+    pngs = sorted((run / "frames").glob("frame_*.png"))
+    return {
+        "frames": len(pngs),
+        "resolution": resolution,
+        "spp": spp,
+        "variant": json.loads((run / "frames" / "source.json").read_text())["settings"]["variant"],
+        "serial_seconds": serial,
+        "workers_seconds": parallel,
+        "ratio": parallel / serial,
+        "same_results": bool(pngs)
+        and all(p.read_bytes() == (twin / "frames" / p.name).read_bytes() for p in pngs)
+        and len(pngs) == len(list((twin / "frames").glob("frame_*.png"))),
+    }
+
+
+def chart(record: dict, path: Path) -> None:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    rows = [(name, record[key]) for name, key in (("sweep, 4 variants", "sweep"), ("render, 8 frames", "render"))]
+    rows = [(name, r) for name, r in rows if r]
+    for k, (_, r) in enumerate(rows):
+        serial, farm = ("one after another", f"{record['workers']} workers") if k == 0 else (None, None)
+        ax.bar(k - 0.2, r["serial_seconds"], 0.4, color="tab:gray", label=serial)
+        ax.bar(k + 0.2, r["workers_seconds"], 0.4, color="tab:blue", label=farm)
+        ax.annotate(
+            f"{r['ratio']:.2f} x" + ("" if r["same_results"] else " (results differ!)"),
+            (k + 0.2, r["workers_seconds"]),
+            textcoords="offset points",
+            xytext=(0, 4),
+            ha="center",
+        )
+    ax.set_xticks(range(len(rows)), [name for name, _ in rows])
+    ax.set_ylabel("wall seconds of the command")
+    ax.set_ylim(0, 1.2 * max(max(r["serial_seconds"], r["workers_seconds"]) for _, r in rows))
+    ax.set_title(f"Dask LocalCluster of {record['workers']} against one process (target <= {TARGET} x)")
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(RESULTS))
+    args = ap.parse_args()
+    wp.config.log_level = wp.LOG_WARNING
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        ap.error("Dask is not installed: pip install 'warp_iisph[cluster]'")
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError:
+        mitsuba = None
+    duration, resolution, spp = (0.5, "160x90", 4) if args.quick else (4.0, "640x360", 16)
+    with tempfile.TemporaryDirectory(prefix="cluster_bench_") as tmp:
+        work = Path(tmp)
+        # kernels compiled (and cached) before anything is timed
+        command("run", *SCENE, "--duration", "0.1", "--mesh", "--out", str(work / "warm"), "--no-progress")
+        sweep = sweep_timing(work, args.workers, duration)
+        print(
+            f"sweep of {sweep['variants']} variants ({sweep['particles']} particles, {duration:g} s each): "
+            f"{sweep['serial_seconds']:.1f} s one after another, {sweep['workers_seconds']:.1f} s on "
+            f"{args.workers} workers: {sweep['ratio']:.2f} x (target <= {TARGET}); "
+            f"same results: {sweep['same_results']}"
+        )
+        render = None
+        if mitsuba is None:
+            print("render: Mitsuba (the render extra) is not installed, skipped")
+        else:
+            render = render_timing(work, args.workers, resolution, spp)
+            print(
+                f"render of {render['frames']} frames ({resolution}, {spp} spp, {render['variant']}): "
+                f"{render['serial_seconds']:.1f} s one after another, {render['workers_seconds']:.1f} s on "
+                f"{args.workers} workers: {render['ratio']:.2f} x (target <= {TARGET}); "
+                f"same frames: {render['same_results']}"
+            )
+    init_warp()  # without the no-driver warning of a machine with no GPU
+    record = header("cluster", workers=args.workers, cores_available=len(os.sched_getaffinity(0)), target=TARGET)
+    record.update(sweep=sweep, render=render)
+    chart(record, save(record, args.out, "cluster", args.quick))
+
+
+if __name__ == "__main__":
+    main()

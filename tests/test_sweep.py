@@ -1,0 +1,322 @@
+"""Sweeps (`warp-iisph sweep`) and render farms on Dask: the same run folders as runs done one by
+one, failures recorded, resumes that run only what is missing, Ctrl-C that stops cleanly."""
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import finish, terminal_signals
+
+from warp_iisph.cli import main
+from warp_iisph.run import sweep as sw
+
+ROOT = Path(__file__).resolve().parent.parent
+SMALL = ["--set", "spacing=0.04", "--duration", "0.1", "--no-progress"]
+# the run.json fields a run's physics decides (its wall times, ids and command line differ)
+PHYSICS = ("ended", "message", "scene", "device", "particles", "duration", "requested_duration", "fps", "output")
+TIMED = ("wall_seconds", "wall_seconds_per_simulated_second")
+
+distributed = pytest.importorskip("distributed", reason="Dask distributed (the cluster extra) is not installed")
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    """A LocalCluster of 2 worker processes, one thread each, shared by this module's tests."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        yield c.scheduler_address
+
+
+def cli(*args) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "warp_iisph.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=terminal_signals,
+        start_new_session=True,  # a process group of its own, as at a terminal
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+
+
+def exit_status(args) -> int:
+    """``main``'s exit status, also for argparse's own errors (which exit)."""
+    try:
+        return main(args)
+    except SystemExit as e:
+        return e.code
+
+
+def states(folder: Path) -> dict:
+    return {e["name"]: e["ended"] for e in json.loads((folder / "sweep.json").read_text())["variants"]}
+
+
+def wait_until(test, proc, seconds=240) -> None:
+    t0 = time.time()
+    while not test():
+        assert proc.poll() is None, proc.communicate()
+        assert time.time() - t0 < seconds
+        time.sleep(0.1)
+
+
+def run_json(folder: Path) -> dict:
+    return json.loads((folder / "run.json").read_text())
+
+
+def ply_data(path: Path) -> bytes:
+    """A PLY file without the line meshio stamps with the time it wrote it."""
+    return re.sub(rb"comment Created by meshio[^\n]*\n", b"", path.read_bytes())
+
+
+def assert_same_run(a: Path, b: Path) -> None:
+    """Two run folders hold the same run: particle frames, step records (but their timings),
+    checkpoint and run.json's physics."""
+    frames = sorted(p.name for p in (a / "particles").iterdir())
+    assert frames and frames == sorted(p.name for p in (b / "particles").iterdir())
+    for name in frames:
+        assert ply_data(a / "particles" / name) == ply_data(b / "particles" / name), name
+
+    def steps(run):
+        return [{k: v for k, v in json.loads(line).items() if k != "ms"} for line in (run / "stats.jsonl").open()]
+
+    assert steps(a) == steps(b)
+    with np.load(a / "checkpoint.npz") as x, np.load(b / "checkpoint.npz") as y:
+        assert x.files == y.files and all(np.array_equal(x[k], y[k]) for k in x.files)
+    ra, rb = run_json(a), run_json(b)
+    for r in (ra, rb):  # how long the frame writer worked and was waited for
+        del r["output"]["writer_seconds"], r["output"]["waited_seconds"]
+    assert {k: ra[k] for k in PHYSICS} == {k: rb[k] for k in PHYSICS}
+    drop = dict.fromkeys(TIMED)
+    assert {**ra["totals"], **drop} == {**rb["totals"], **drop}
+
+
+# --- variants, names, measures (no cluster) ----------------------------------------------------------
+
+
+def test_values_split_at_top_level_commas_and_names_are_plain_folders():
+    assert sw.split_values("0.01,0.001") == ["0.01", "0.001"]
+    assert sw.split_values('[0, -9.81, 0],[0,-1,0], "a,b"') == ["[0, -9.81, 0]", "[0,-1,0]", '"a,b"']
+    assert sw.variant_name({"spacing": "0.02", "physics.method": '"iisph"'}) == "spacing=0.02,physics.method=iisph"
+    assert sw.variant_name({"spacing": "0.02"}, 3) == "spacing=0.02,repeat=3"
+    odd = [{"k": v} for v in ("a/b", "a_b", "../x", "a\nb", "a b", "[0, -9.81, 0]", "x" * 300, "..")]
+    names = [sw.variant_name(s) for s in odd]
+    assert len(set(names)) == len(names)  # distinct settings, distinct folders
+    for name in names:
+        assert re.fullmatch(r"[A-Za-z0-9._=,+~-]+", name) and ".." not in name and len(name) <= sw.MAX_NAME
+        assert not name.startswith((".", "-"))
+    assert names == [sw.variant_name(s) for s in odd]  # stable: a resume finds them again
+    vs = sw.variants(sw.parse_vary(["a=1,2", "b=x,y,z"]), repeat=2)
+    assert len(vs) == 12 and [v["settings"] for v in vs[:3]] == [{"a": "1", "b": "x"}] * 2 + [{"a": "1", "b": "y"}]
+
+
+def test_a_measure_is_a_path_or_a_name_in_the_summary():
+    s = {"totals": {"mean_compression": 0.001, "steps": 21, "flag": True}, "particles": {"fluid": 250}}
+    assert sw.measure_value(s, "totals.mean_compression") == 0.001
+    assert sw.measure_value(s, "mean_compression") == 0.001 and sw.measure_value(s, "fluid") == 250
+    assert sw.measure_value(s, "totals.flag") is None and sw.measure_value(s, "totals.nothing") is None
+    assert "totals.steps" in sw.numbers_in(s) and "particles.fluid" in sw.numbers_in(s)
+
+
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["martin_moyce", "--vary", "spacing"], "must be KEY=V1,V2"),
+        (["martin_moyce", "--vary", "spacing=0.04,"], "an empty value"),
+        (["martin_moyce", "--vary", "spacing=0.04,0.04"], "a value given twice"),
+        (["martin_moyce", "--vary", "spacing=0.04", "--set", "spacing=0.05"], "also given with --set"),
+        (["martin_moyce", "--vary", "physics.eta=0.01,-1"], "variant physics.eta=-1: "),
+        (["martin_moyce", "--vary", "physics.nothing=1,2"], "unknown key"),
+        (["martin_moyce"], "at least one"),
+        (["martin_moyce", "--vary", "spacing=0.04", "--measure", "a..b"], "--measure"),
+        (["martin_moyce", "--vary", "spacing=0.04", "--workers", "0"], "--workers 0"),
+        (["martin_moyce", "--vary", "spacing=0.04", "--workers", "2", "--scheduler", "tcp://x:1"], "not allowed"),
+        (["martin_moyce", "--vary", "spacing=0.04", "--repeat", "0"], "--repeat 0"),
+    ],
+)
+def test_bad_sweep_input_is_one_line_and_touches_nothing(tmp_path, capsys, args, says):
+    out = tmp_path / "sweep"
+    assert exit_status(["sweep", *args, "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("warp-iisph: error:") and says in err, err
+    assert not out.exists()
+
+
+def test_a_sweep_folder_is_resumed_with_its_own_settings_or_not_at_all(tmp_path, capsys):
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "keep.txt").write_text("mine")
+    assert main(["sweep", "--resume", str(tmp_path / "taken")]) == 2
+    assert main(["sweep", "martin_moyce", "--resume", str(tmp_path / "taken")]) == 2
+    assert main(["sweep", "martin_moyce", "--vary", "physics.eta=0.01", "--out", str(tmp_path / "taken")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert "no sweep.json" in err[0] and "give no SCENE" in err[1] and "not empty" in err[2]
+    assert [p.name for p in (tmp_path / "taken").iterdir()] == ["keep.txt"]
+
+
+def test_without_dask_the_cluster_options_say_what_to_install(tmp_path, monkeypatch, capsys, tiny_run):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed now raises ImportError
+    frames = (tiny_run / "frames").exists()
+    out = tmp_path / "sweep"
+    assert main(["sweep", "martin_moyce", "--vary", "physics.eta=0.01", "--workers", "2", "--out", str(out)]) == 2
+    assert main(["render", str(tiny_run), "--workers", "2", "--no-progress"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and all("Dask is not installed" in line and "pip install" in line for line in err)
+    assert not out.exists() and (tiny_run / "frames").exists() == frames
+
+
+def test_a_serial_sweep_repeats_charts_and_resumes_nothing_when_complete(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    args = ["sweep", "martin_moyce", "--vary", "physics.eta=0.01,0.001", "--repeat", "2", "--out", str(out), *SMALL]
+    assert main([*args, "--measure", "mean_iterations"]) == 0
+    assert "4 completed" in capsys.readouterr().out
+    record = json.loads((out / "sweep.json").read_text())
+    assert record["ended"] == "completed" and record["chart"] == "sweep.png" and (out / "sweep.png").stat().st_size
+    assert [e["name"] for e in record["variants"]] == [
+        f"physics.eta={eta},repeat={k}" for eta in ("0.01", "0.001") for k in (1, 2)
+    ]
+    for e in record["variants"]:  # the summary is the run's own totals
+        assert e["worker"] == "this process" and e["wall_seconds"] > 0
+        assert e["summary"]["totals"] == run_json(out / e["name"])["totals"]
+    assert run_json(out / e["name"])["command"] == " ".join(sys.argv)  # the command that made it
+    ids = {e["name"]: run_json(out / e["name"])["run_id"] for e in record["variants"]}
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
+    assert "0 run now, 4 complete before" in capsys.readouterr().out
+    assert {e["name"]: run_json(out / e["name"])["run_id"] for e in record["variants"]} == ids
+    # a measure no variant has: said, and no chart (not the other measure's)
+    assert main(["sweep", "--resume", str(out), "--no-progress", "--measure", "totals.nothing"]) == 0
+    err = capsys.readouterr().err
+    assert "--measure totals.nothing: no variant has it" in err and "totals.mean_compression" in err
+    assert json.loads((out / "sweep.json").read_text())["chart"] is None and not (out / "sweep.png").exists()
+
+
+# --- on a LocalCluster of 2 workers ----------------------------------------------------------------
+
+
+def test_a_sweep_on_two_workers_gives_the_runs_done_one_by_one(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    vary = ["--vary", "physics.eta=0.01,0.001", "--vary", "physics.cfl=0.4,0.6"]
+    assert main(["sweep", "martin_moyce", *vary, "--workers", "2", "--out", str(out), *SMALL]) == 0
+    cap = capsys.readouterr()
+    assert "Dask dashboard at http" in cap.err and "4 completed" in cap.out
+    record = json.loads((out / "sweep.json").read_text())
+    workers = {e["worker"] for e in record["variants"]}
+    assert record["sessions"][0]["workers"]["workers"] == 2 and len(workers) == 2 and "this process" not in workers
+    assert all(run_json(out / e["name"])["command"] == " ".join(sys.argv) for e in record["variants"])
+    for eta in ("0.01", "0.001"):
+        for cfl in ("0.4", "0.6"):
+            alone = tmp_path / f"alone-{eta}-{cfl}"
+            assert main(["run", "martin_moyce", "--set", f"physics.eta={eta}", "--set", f"physics.cfl={cfl}"] +
+                        ["--out", str(alone), *SMALL]) == 0  # fmt: skip
+            assert_same_run(out / f"physics.eta={eta},physics.cfl={cfl}", alone)
+
+
+def test_a_failing_variant_is_recorded_and_the_others_complete(tmp_path, scheduler, capsys):
+    out = tmp_path / "sweep"
+    code = main(
+        ["sweep", "martin_moyce", "--vary", "spacing=0.04,0.0004", "--vary", "physics.dt=0.002,0.03"]
+        + ["--set", 'physics.method="wcsph"', "--set", "physics.substeps=false", "--duration", "0.3"]
+        + ["--scheduler", scheduler, "--out", str(out), "--no-progress"]
+    )
+    cap = capsys.readouterr()
+    assert code == 1
+    assert states(out) == {
+        "spacing=0.04,physics.dt=0.002": "completed",
+        "spacing=0.04,physics.dt=0.03": "diverged",  # a result, charted hollow
+        "spacing=0.0004,physics.dt=0.002": "failed",  # 250 million particles: more memory than there is
+        "spacing=0.0004,physics.dt=0.03": "failed",
+    }
+    record = json.loads((out / "sweep.json").read_text())
+    failed = [e for e in record["variants"] if e["ended"] == "failed"]
+    assert all("increase spacing" in e["message"] and "\n" not in e["message"] for e in failed)
+    assert record["ended"] == "completed" and record["counts"] == {"completed": 1, "diverged": 1, "failed": 2}
+    assert run_json(out / "spacing=0.04,physics.dt=0.03")["ended"] == "diverged"
+    assert cap.err.count("warning: variant spacing=0.0004") == 2 and "1 completed, 1 diverged, 2 failed" in cap.out
+    assert (out / "sweep.png").is_file()
+
+
+def test_a_sweep_killed_and_resumed_runs_only_what_was_missing(tmp_path, scheduler, capsys):
+    out = tmp_path / "sweep"
+    # two quick variants (4 cm) and two slow ones (1.5 cm): the kill comes while the slow ones run
+    proc = cli(
+        *["sweep", "martin_moyce", "--vary", "spacing=0.04,0.015", "--vary", "physics.eta=0.01,0.001"],
+        *["--duration", "0.5", "--scheduler", scheduler, "--out", str(out), "--no-progress"],
+    )
+    quick = ["spacing=0.04,physics.eta=0.01", "spacing=0.04,physics.eta=0.001"]
+    slow = ["spacing=0.015,physics.eta=0.01", "spacing=0.015,physics.eta=0.001"]
+
+    def quick_done_slow_running():
+        if not (out / "sweep.json").is_file() or any(states(out)[q] != "completed" for q in quick):
+            return False
+        return all((out / n / "run.json").is_file() for n in slow)
+
+    wait_until(quick_done_slow_running, proc)
+    os.killpg(proc.pid, signal.SIGKILL)
+    finish(proc)
+    assert all(states(out)[n] == "pending" for n in slow)  # the sweep never heard of them again
+    ids = {q: run_json(out / q)["run_id"] for q in quick}
+    # the client gone, the cluster stops its variants: they say they were interrupted
+    for n in slow:
+        t0 = time.time()
+        while run_json(out / n)["ended"] == "running":
+            assert time.time() - t0 < 120
+            time.sleep(0.2)
+        assert run_json(out / n)["ended"] == "interrupted"
+    assert main(["sweep", "--resume", str(out), "--scheduler", scheduler, "--no-progress"]) == 0
+    assert "2 run now, 2 complete before" in capsys.readouterr().out
+    assert set(states(out).values()) == {"completed"}
+    assert {q: run_json(out / q)["run_id"] for q in quick} == ids  # not run again
+    assert all(run_json(out / n)["ended"] == "completed" for n in slow)
+    assert [s["variants_run"] for s in json.loads((out / "sweep.json").read_text())["sessions"]] == [4, 2]
+
+
+@pytest.mark.parametrize("where, running", [([], 1), (["--workers", "2"], 2)])
+def test_ctrl_c_stops_the_workers_and_leaves_a_truthful_record(tmp_path, where, running):
+    out = tmp_path / "sweep"
+    proc = cli(
+        *["sweep", "martin_moyce", "--vary", "physics.eta=0.01,0.001,0.0005", "--set", "spacing=0.02"],
+        *["--duration", "2", *where, "--out", str(out), "--no-progress"],
+    )
+    wait_until(lambda: len(list(out.glob("*/particles/frame_00002.ply"))) == running, proc)
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
+    _, err = finish(proc)
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "warp-iisph: interrupted", err
+    assert "Traceback" not in err
+    t0 = time.time()
+    with pytest.raises(ProcessLookupError):  # the workers are gone with it
+        while time.time() - t0 < 10:
+            os.killpg(proc.pid, 0)
+            time.sleep(0.2)
+    record = json.loads((out / "sweep.json").read_text())
+    assert record["ended"] == "interrupted"
+    for e in record["variants"]:  # each says what its run folder says
+        folder = out / e["name"]
+        assert e["ended"] == (run_json(folder)["ended"] if folder.exists() else "pending")
+    assert sorted(e["ended"] for e in record["variants"]) == ["interrupted"] * running + ["pending"] * (3 - running)
+
+
+# --- render farm -----------------------------------------------------------------------------------
+
+
+def test_render_on_two_workers_writes_and_skips_the_frames_render_does(tiny_run, tmp_path, scheduler, capsys):
+    pytest.importorskip("mitsuba", reason="the render extra (Mitsuba 3) is not installed")
+    import shutil
+
+    farm = tmp_path / "farm"
+    shutil.copytree(tiny_run, farm)
+    args = ["--resolution", "64x36", "--spp", "4", "--variant", "scalar_rgb", "--no-progress"]
+    assert main(["render", str(tiny_run), *args]) == 0
+    assert main(["render", str(farm), "--scheduler", scheduler, *args]) == 0
+    assert "rendered 4 frames (0 already there)" in capsys.readouterr().out
+    for k in range(4):
+        name = f"frame_{k:05d}.png"
+        assert (farm / "frames" / name).read_bytes() == (tiny_run / "frames" / name).read_bytes()
+    assert (farm / "video.mp4").stat().st_size > 0 and not list((farm / "frames").glob("*.part.png"))
+    (farm / "frames" / "frame_00002.png").unlink()
+    assert main(["render", str(farm), "--scheduler", scheduler, *args]) == 0
+    assert "rendered 1 frames (3 already there)" in capsys.readouterr().out
+    assert (farm / "frames" / "frame_00002.png").read_bytes() == (tiny_run / "frames" / "frame_00002.png").read_bytes()

@@ -1,0 +1,497 @@
+"""Parameter sweeps: a scene run at the product of ``--vary`` values (and ``--repeat`` times),
+each variant a normal run folder under the sweep's folder, with ``sweep.json`` and a chart.
+
+```
+SWEEP/sweep.json                       the settings, and every variant: its settings, how it ended,
+                                       its wall time and its run.json's summary (SUMMARY)
+SWEEP/sweep.png                        a measure against the varied keys
+SWEEP/spacing=0.02,physics.eta=0.001/  one variant's run folder (run.json, stats.jsonl, particles/)
+```
+
+A variant's folder is named by its settings (sanitised to a plain folder name; a hash keeps it
+unique when the text had to change) and builds its scene from the scene file with the sweep's
+``--set`` and its own settings, exactly as ``warp-iisph run --set`` does: it is the same run,
+bitwise. ``sweep.json`` is rewritten (atomically) as variants end and however the sweep ends; a
+variant whose run folder says it completed (or diverged: a result, not a failure) is not run again
+by ``--resume``.
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import itertools
+import json
+import math
+import re
+import sys
+import time
+from pathlib import Path
+
+from ..scene import load_scene
+from ..scene.library import bundled_scenes, resolve_scene
+from .atomic import write_json
+from .folder import RECORD, RunError
+from .progress import frame_bar
+from .runner import Terminated, plan_frames
+
+SWEEP = "sweep.json"
+CHART = "sweep.png"
+DONE = ("completed", "diverged")  # a variant that ended so is a result: --resume leaves it
+# the parts of a variant's run.json that sweep.json copies as its summary (the measures come from them)
+SUMMARY = ("device", "particles", "duration", "totals")
+DEFAULT_MEASURE = "totals.wall_seconds_per_simulated_second"
+MAX_VARIANTS = 10_000
+MAX_REPEAT = 1000
+MAX_NAME = 100
+CHART_EXTRA = "pip install 'warp_iisph[cluster]'  (Dask distributed, matplotlib)"
+
+
+# --- the variants ----------------------------------------------------------------------------------
+
+
+def split_values(text: str) -> list[str]:
+    """``V1,V2,...`` split at the commas outside brackets and quotes (``[0,1],[1,0]`` is two values)."""
+    values, current, depth, quote = [], [], 0, None
+    for ch in text:
+        if quote:
+            quote = None if ch == quote else quote
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            values.append("".join(current).strip())
+            current = []
+            continue
+        current.append(ch)
+    values.append("".join(current).strip())
+    return values
+
+
+def parse_vary(specs: list[str], sets: list[str] = ()) -> dict[str, list[str]]:
+    """``--vary KEY=V1,V2,...`` options as {key: [value texts]}, in the order given; ``ValueError``
+    naming the option for a malformed one, a key given twice, or a key also given with ``--set``."""
+    vary: dict[str, list[str]] = {}
+    fixed = {s.partition("=")[0].strip() for s in sets}
+    for spec in specs:
+        key, eq, text = spec.partition("=")
+        key = key.strip()
+        if not eq or not key or any(c.isspace() for c in key):
+            raise ValueError(f"--vary {spec!r}: must be KEY=V1,V2,..., e.g. --vary spacing=0.02,0.01")
+        values = split_values(text)
+        if any(not v for v in values):
+            raise ValueError(f"--vary {spec!r}: an empty value (values are separated by commas)")
+        if len(set(values)) != len(values):
+            raise ValueError(f"--vary {spec!r}: a value given twice")
+        if key in vary:
+            raise ValueError(f"--vary {key}: given twice (put all its values in one --vary)")
+        if key in fixed:
+            raise ValueError(f"--vary {key}: also given with --set")
+        vary[key] = values
+    return vary
+
+
+def _bare(value: str) -> str:
+    """A value's text without the quotes of a TOML string."""
+    if len(value) >= 2 and value[0] == value[-1] and value[0] in "\"'":
+        return value[1:-1]
+    return value
+
+
+def variant_name(settings: dict[str, str], repeat: int | None = None) -> str:
+    """The folder of a variant: ``key=value`` pairs joined by commas (``repeat=k`` last for a
+    repeated one), with any character but letters, digits and ``._=,+-`` replaced, no leading
+    dot or dash and no ``..``; a hash of the settings is added when the text changed or was cut,
+    so distinct settings never share a folder."""
+    pairs = [f"{k}={_bare(v)}" for k, v in settings.items()] + ([f"repeat={repeat}"] if repeat is not None else [])
+    text = ",".join(pairs) or "default"
+    name = re.sub(r"\.{2,}", "_", re.sub(r"[^A-Za-z0-9._=,+-]", "_", text)).lstrip(".-")
+    if name != text or len(name) > MAX_NAME:
+        digest = hashlib.sha1(json.dumps([settings, repeat]).encode()).hexdigest()[:8]
+        name = f"{name[: MAX_NAME - 9]}~{digest}".lstrip(".-~") or digest
+    return name
+
+
+def variants(vary: dict[str, list[str]], repeat: int = 1) -> list[dict]:
+    """The product of the values (the last key varying fastest), each ``repeat`` times: one
+    sweep.json entry each, not yet run."""
+    out = []
+    for combo in itertools.product(*vary.values()):
+        settings = dict(zip(vary, combo))
+        for k in range(1, repeat + 1) if repeat > 1 else (None,):
+            out.append(
+                {
+                    "name": variant_name(settings, k),
+                    "settings": settings,
+                    "repeat": k or 1,
+                    "ended": "pending",
+                    "message": "",
+                    "wall_seconds": None,
+                    "worker": None,
+                    "summary": {},
+                }
+            )
+    return out
+
+
+def overrides(record: dict, entry: dict) -> list[str]:
+    """The ``--set`` assignments a variant's scene is built with: the sweep's, then its own."""
+    return list(record["set"]) + [f"{k}={v}" for k, v in entry["settings"].items()]
+
+
+# --- measures --------------------------------------------------------------------------------------
+
+
+def check_measure(measure: str) -> str:
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*", measure or ""):
+        raise ValueError(
+            f"--measure {measure!r}: must name a value of a run's run.json, e.g. totals.mean_compression "
+            f"or mean_iterations (looked up in {', '.join(SUMMARY)})"
+        )
+    return measure
+
+
+def measure_value(summary: dict, measure: str) -> float | None:
+    """The number ``measure`` names in a variant's summary: a dotted path (``totals.mean_iterations``),
+    or a bare name looked up in each part (``mean_iterations``); ``None`` where there is none."""
+    node = summary
+    for part in measure.split("."):
+        node = node.get(part) if isinstance(node, dict) else None
+    if node is None and "." not in measure:
+        node = next((s[measure] for s in summary.values() if isinstance(s, dict) and measure in s), None)
+    if isinstance(node, bool) or not isinstance(node, (int, float)) or not math.isfinite(node):
+        return None
+    return float(node)
+
+
+def numbers_in(summary: dict, prefix: str = "") -> list[str]:
+    """Every dotted name with a number in ``summary`` (what ``--measure`` may name)."""
+    names = []
+    for key, value in summary.items():
+        if isinstance(value, dict):
+            names += numbers_in(value, f"{prefix}{key}.")
+        elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            names.append(f"{prefix}{key}")
+    return names
+
+
+def require_chart() -> None:
+    """``RuntimeError`` saying what to install when matplotlib (the chart's) is missing."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise RuntimeError(f"the chart needs matplotlib (the cluster extra): {CHART_EXTRA}") from None
+
+
+# --- sweep.json ------------------------------------------------------------------------------------
+
+
+def plan_sweep(
+    scene: str,
+    vary_specs: list[str],
+    sets: list[str] = (),
+    repeat: int = 1,
+    duration: float | None = None,
+    fps: float | None = None,
+    device: str = "cpu",
+    graph: bool = False,
+    out=None,
+    measure: str = DEFAULT_MEASURE,
+) -> tuple[dict, Path]:
+    """A new sweep's record and folder, every variant's scene built and checked first (nothing on
+    disk changes): ``ValueError`` naming the option or the variant otherwise."""
+    check_measure(measure)
+    if not 1 <= repeat <= MAX_REPEAT:
+        raise ValueError(f"--repeat {repeat}: must be in [1, {MAX_REPEAT}]")
+    vary = parse_vary(vary_specs, sets)
+    if not vary and repeat == 1:
+        raise ValueError("--vary KEY=V1,V2,...: at least one (or --repeat N to time one setting N times)")
+    count = math.prod(len(v) for v in vary.values()) * repeat
+    if count > MAX_VARIANTS:
+        raise ValueError(f"--vary: {count} variants; at most {MAX_VARIANTS} in one sweep")
+    source = resolve_scene(scene)
+    # a bundled scene is kept by name (found on every worker), a file by its absolute path
+    scene = scene if bundled_scenes().get(scene) == source else str(source.resolve())
+    record = {
+        "scene": scene,
+        "set": list(sets),
+        "vary": vary,
+        "repeat": repeat,
+        "duration": duration,
+        "fps": fps,
+        "device": device,
+        "graph": graph,
+        "measure": measure,
+        "ended": "pending",
+        "message": "",
+        "sessions": [],
+        "variants": variants(vary, repeat),
+    }
+    for entry in record["variants"]:
+        if entry["repeat"] > 1:
+            continue  # a repeat builds the same scene as the first
+        try:
+            plan_frames(load_scene(scene, overrides(record, entry)), duration, fps)
+        except ValueError as e:
+            raise ValueError(f"variant {entry['name']}: {e}") from None
+    names = [e["name"] for e in record["variants"]]
+    if len(set(names)) != len(names):  # only a hash collision could do it
+        raise ValueError("--vary: two variants would share a folder name")
+    out = Path(out) if out is not None else Path("sweeps") / load_scene(scene, list(sets)).name
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        hint = "; --resume it to run what it has left" if (out / SWEEP).is_file() else ""
+        raise ValueError(f"--out {out}: folder exists and is not empty{hint}")
+    return record, out
+
+
+def load_sweep(path) -> dict:
+    """The record of the sweep in folder ``path`` (``RunError`` when it has none)."""
+    path = Path(path)
+    file = path / SWEEP
+    if not file.is_file():
+        raise RunError(f"{path}: no {SWEEP} (not a sweep folder)")
+    try:
+        record = json.loads(file.read_text())
+        if not isinstance(record.get("variants"), list) or "scene" not in record:
+            raise KeyError
+    except json.JSONDecodeError as e:
+        raise RunError(f"{file}: not valid JSON ({e.msg}, line {e.lineno})") from None
+    except (KeyError, AttributeError):
+        raise RunError(f"{file}: not a sweep record") from None
+    return record
+
+
+def save(record: dict, out: Path) -> None:
+    counts: dict[str, int] = {}
+    for e in record["variants"]:
+        counts[e["ended"]] = counts.get(e["ended"], 0) + 1
+    record["counts"] = counts
+    write_json(out / SWEEP, record)
+
+
+def _run_record(folder: Path) -> dict:
+    try:
+        return json.loads((folder / RECORD).read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def summary(run_record: dict) -> dict:
+    """What a variant's entry in sweep.json keeps of its run.json."""
+    return {k: run_record[k] for k in SUMMARY if k in run_record}
+
+
+# --- running ---------------------------------------------------------------------------------------
+
+
+def one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split())
+    return text if isinstance(e, ValueError) and text else f"{type(e).__name__}: {text}".rstrip(": ")
+
+
+def run_variant(
+    scene: str, assignments: list[str], out: str, duration, fps, device: str, graph: bool, command: list[str]
+) -> dict:
+    """Run one variant into its folder (replacing what a stopped attempt left there): how it
+    ended, its wall time and its run.json's summary. Every error is caught and told in one line.
+    ``command``: the sweep's command line, which the run records as the one that made it."""
+    from .cluster import in_worker, stop_when_cancelled, task_device, worker_name
+    from .runner import run_scene
+
+    t0 = time.perf_counter()
+    argv, sys.argv = sys.argv, list(command)  # a worker's own command line is Dask's
+    try:
+        with stop_when_cancelled():  # on a cluster, a stopped sweep stops its runs as Ctrl-C would
+            record = run_scene(
+                load_scene(scene, assignments),
+                out,
+                duration,
+                fps,
+                task_device(device),
+                overwrite=True,
+                progress=False,
+                graph=graph,
+            )
+        ended, message, kept = record["ended"], record["message"], summary(record)
+    except KeyboardInterrupt:
+        if not in_worker():  # in this process, Ctrl-C stops the sweep
+            raise
+        ended, message, kept = "interrupted", "stopped before its run began", {}
+    except Exception as e:  # noqa: BLE001 - the variant failed; the others go on
+        ended, message, kept = "failed", one_line(e), {}
+    finally:
+        sys.argv = argv
+    return {
+        "ended": ended,
+        "message": message,
+        "wall_seconds": time.perf_counter() - t0,
+        "worker": worker_name(),
+        "summary": kept,
+    }
+
+
+def run_sweep(record: dict, out, workers, progress: bool = True) -> dict:
+    """Run the variants of ``record`` not yet complete (their run folder's run.json says
+    completed or diverged) on ``workers`` (:class:`~warp_iisph.run.cluster.Workers`), keeping
+    ``sweep.json`` in ``out`` up to date; then draw the chart. Returns the record, whose
+    ``ended`` is ``completed`` when every variant ran (each entry says how it ended). Ctrl-C
+    (or SIGTERM) stops the sweep: the record says so and what each variant got to, then the
+    interrupt goes on."""
+    out = Path(out)
+    entries = record["variants"]
+    for e in entries:  # the run folders say what is done, whatever an earlier sweep.json said
+        run = _run_record(out / e["name"])
+        if run.get("ended") in DONE:
+            e.update(ended=run["ended"], message=run.get("message", ""), summary=summary(run))
+        else:
+            e.update(ended="pending", message="")
+    todo = [e for e in entries if e["ended"] not in DONE]
+    session = {
+        "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "variants_run": len(todo),
+        "workers": workers.describe(),
+    }
+    record.setdefault("sessions", []).append(session)
+    record.update(ended="running", message="")
+    out.mkdir(parents=True, exist_ok=True)
+    save(record, out)
+    calls = [
+        (
+            run_variant,
+            (
+                record["scene"],
+                overrides(record, e),
+                str((out / e["name"]).resolve()),
+                record["duration"],
+                record["fps"],
+                record["device"],
+                record["graph"],
+                list(sys.argv),
+            ),
+        )
+        for e in todo
+    ]
+
+    def on_start(i: int) -> None:
+        todo[i]["ended"] = "running"
+        save(record, out)
+
+    def on_done(i: int, result: dict | None, error: BaseException | None) -> None:
+        if error is not None:  # the task never reported: its worker was lost
+            result = {"ended": "failed", "message": one_line(error), "wall_seconds": None, "worker": None}
+            result["summary"] = {}
+        todo[i].update(result)
+        save(record, out)
+        bar.update(1)
+        if workers.serial and result["ended"] == "terminated":  # the variant took this process's signal: stop
+            raise Terminated()
+        if workers.serial and result["ended"] == "interrupted":
+            raise KeyboardInterrupt()
+
+    bar = frame_bar(len(entries), progress, "sweep", unit="variant")
+    bar.update(len(entries) - len(todo))
+    t0 = time.perf_counter()
+    ended, message = "failed", ""
+    try:
+        workers.run(calls, on_done, on_start, gpu=record["device"] == "cuda", name="variant", wait_on_stop=True)
+        ended = "completed"
+    except Terminated:
+        ended, message = "terminated", "terminated"
+        raise
+    except KeyboardInterrupt:
+        ended, message = "interrupted", "interrupted"
+        raise
+    except Exception as e:
+        message = one_line(e)
+        raise
+    finally:
+        bar.close()
+        for e in todo:  # a variant that did not report: its run folder (if any) says how far it got
+            if e["ended"] in ("pending", "running"):
+                run = _run_record(out / e["name"])
+                if run.get("ended") in DONE:
+                    e.update(ended=run["ended"], message=run.get("message", ""), summary=summary(run))
+                elif run:
+                    e.update(ended="interrupted", message=run.get("message") or "stopped while running")
+        session["wall_seconds"] = time.perf_counter() - t0
+        record.update(ended=ended, message=message)
+        save(record, out)
+    record["chart"] = chart(record, out / CHART)
+    if record["chart"] is None and (out / CHART).is_file():  # a chart of another measure would mislead
+        (out / CHART).unlink()
+    save(record, out)
+    return record
+
+
+# --- the chart -------------------------------------------------------------------------------------
+
+
+def _numeric(values: list[str]) -> list[float] | None:
+    try:
+        return [float(_bare(v)) for v in values]
+    except ValueError:
+        return None
+
+
+def chart(record: dict, path: Path, measure: str | None = None) -> str | None:
+    """Draw ``measure`` (default: the sweep's) of every variant that ran to a result against the
+    first varied key, a line per setting of the others (the mean of repeats, each repeat a dot);
+    diverged variants are hollow. Returns the chart's file name, ``None`` when no variant has
+    the measure (nothing is drawn)."""
+    measure = measure or record["measure"]
+    keys = list(record["vary"])
+    points = []  # (x key value, rest, value, diverged)
+    for e in record["variants"]:
+        if e["ended"] not in DONE:
+            continue
+        value = measure_value(e.get("summary") or {}, measure)
+        if value is None:
+            continue
+        s = e["settings"]
+        x = s[keys[0]] if keys else str(e["repeat"])
+        # a line per setting of the other keys (named in the legend's title when there is one)
+        rest = ", ".join(_bare(s[k]) if len(keys) == 2 else f"{k}={_bare(s[k])}" for k in keys[1:])
+        points.append((x, rest, value, e["ended"] == "diverged"))
+    if not points:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    xs = record["vary"][keys[0]] if keys else [str(k) for k in range(1, record["repeat"] + 1)]
+    numeric = _numeric(xs)
+    where = dict(zip(xs, numeric if numeric is not None else range(len(xs))))
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for rest in dict.fromkeys(p[1] for p in points):
+        mine = [p for p in points if p[1] == rest]
+        line_x, line_y = [], []
+        for x in xs:
+            at = [p[2] for p in mine if p[0] == x]
+            if at:
+                line_x.append(where[x])
+                line_y.append(sum(at) / len(at))
+        (line,) = ax.plot(line_x, line_y, "-", label=rest or None)
+        for x, _, value, diverged in mine:
+            ax.plot(where[x], value, "o", ms=5, color=line.get_color(), mfc="none" if diverged else line.get_color())
+    if numeric is None:
+        ax.set_xticks(list(where.values()), [_bare(x) for x in xs], rotation=30 if len(xs) > 6 else 0)
+    elif min(numeric) > 0 and max(numeric) / min(numeric) >= 20:
+        ax.set_xscale("log")
+    ax.set_xlabel(keys[0] if keys else "repeat")
+    ax.set_ylabel(measure)
+    diverged = sum(p[3] for p in points)
+    hollow = f" ({diverged} diverged: hollow)" if diverged else ""
+    ax.set_title(f"{Path(record['scene']).stem}: {len(points)} variants{hollow}")
+    if any(p[1] for p in points):
+        ax.legend(fontsize=8, title=", ".join(keys[1:]), title_fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
