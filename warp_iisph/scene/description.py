@@ -15,10 +15,10 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_PARTICLES, floats, positive
+from .checks import MAX_PARTICLES, floats, folder_name, positive
 from .flows import Emitter, Sink
 from .settings import Camera, Output, Physics, SurfaceSettings
-from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere
+from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere, contains
 
 
 @dataclass
@@ -72,6 +72,7 @@ class Scene:
         scene validated before and not changed since is trusted as it is."""
         if getattr(self, "_validated", None) == self._fingerprint():
             return self
+        self.name = folder_name(self.name, "name")
         self.spacing = positive(self.spacing, "spacing", "metres, the particle diameter")
         if not isinstance(self.tank, (Box, MeshShape)):
             raise ValueError(f"tank = {self.tank!r}: must be a box or a mesh")
@@ -123,15 +124,22 @@ class Scene:
             if not isinstance(e, Emitter):
                 raise ValueError(f"{name} = {e!r}: must be an emitter")
             e.validate(name)
-            c = np.asarray(e.center)
-            if np.any(c < tlo) or np.any(c > thi):
-                raise ValueError(
-                    f"{name}.center = {list(e.center)}: must lie inside the tank {floats(tlo)}..{floats(thi)}"
-                )
+            self._check_nozzle(e, name, tlo, thi)
         for k, s in enumerate(self.sinks):
+            name = f"sinks[{k}]"
             if not isinstance(s, Sink):
-                raise ValueError(f"sinks[{k}] = {s!r}: must be a box")
-            s.validate(f"sinks[{k}]")
+                raise ValueError(f"{name} = {s!r}: must be a box")
+            s.validate(name)
+            lo, hi = s.bounds
+            if np.any(hi <= tlo) or np.any(lo >= thi):
+                raise ValueError(f"{name}: lies entirely outside the tank {floats(tlo)}..{floats(thi)}")
+            # particles are checked against sinks whenever the fastest could have crossed half the
+            # thinnest: a sink much thinner than a spacing would need a check every few nanoseconds
+            if float(np.min(hi - lo)) < 0.5 * self.spacing:
+                raise ValueError(
+                    f"{name}: {float(np.min(hi - lo)):g} m thin; every side must be at least half the "
+                    f"spacing ({0.5 * self.spacing:g} m)"
+                )
         if self.max_particles is not None:
             m = self.max_particles
             if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= MAX_PARTICLES:
@@ -143,6 +151,23 @@ class Scene:
         self.camera.validate()
         self._validated = self._fingerprint()
         return self
+
+    def _check_nozzle(self, e: Emitter, name: str, tlo: np.ndarray, thi: np.ndarray) -> None:
+        """An emitter's nozzle lies inside the tank, and not inside an obstacle (where it stands at
+        the start)."""
+        c, half = np.asarray(e.center), e.half_extent()
+        eps = 1e-9 * max(1.0, float(np.max(np.abs(thi))))
+        if np.any(c < tlo) or np.any(c > thi):
+            raise ValueError(f"{name}.center = {list(e.center)}: must lie inside the tank {floats(tlo)}..{floats(thi)}")
+        if np.any(c - half < tlo - eps) or np.any(c + half > thi + eps):
+            raise ValueError(
+                f"{name}: the nozzle {floats(c - half)}..{floats(c + half)} (centre and "
+                f"{'radius' if e.shape == 'disc' else 'size'}) must lie inside the tank {floats(tlo)}..{floats(thi)}"
+            )
+        rim = e.rim()
+        for k, o in enumerate(self.obstacles):
+            if np.any(contains(o, rim)):
+                raise ValueError(f"{name}: the nozzle at {list(e.center)} lies inside obstacles[{k}]; move it out")
 
     def particle_estimate(self) -> tuple[float, float]:
         """About how many fluid and boundary particles the scene makes (from volumes and areas,

@@ -11,7 +11,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from .checks import SceneFileError
+from .checks import SceneFileError, folder_name
 from .description import Scene
 from .flows import Emitter, Sink
 from .library import resolve_scene
@@ -59,19 +59,21 @@ def apply_override(data: dict, assignment: str) -> None:
     key, _, text = assignment.partition("=")
     parts = key.strip().split(".")
     node = data
+    if not all(parts):
+        raise SceneFileError(f"--set {key.strip()!r}: must be a dotted key, e.g. physics.eta or fluids.0.radius")
     for depth, part in enumerate(parts[:-1]):
         where = ".".join(parts[: depth + 1])
         if isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
                 raise SceneFileError(f"--set {key}: {where} must index one of the {len(node)} items")
             node = node[int(part)]
-        elif isinstance(node, dict):
-            node = node.setdefault(part, {})
         else:
-            raise SceneFileError(f"--set {key}: {where} is not a table")
+            node = node.setdefault(part, {})
+        if not isinstance(node, (dict, list)):  # e.g. spacing.x: spacing is a number
+            raise SceneFileError(f"--set {key.strip()}: {where} is a value ({node!r}), not a table")
     last = parts[-1]
     if isinstance(node, list):
-        raise SceneFileError(f"--set {key}: cannot replace a whole list item")
+        raise SceneFileError(f"--set {key.strip()}: cannot replace a whole list item")
     node[last] = _parse_value(text.strip())
 
 
@@ -141,9 +143,9 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
     output = _check_keys(data.get("output", {}), _fields(Output), "output")
     surface = _check_keys(data.get("surface", {}), _fields(SurfaceSettings), "surface")
     camera = _check_keys(data.get("camera", {}), _fields(Camera), "camera")
-    name = data.get("name", default_name)
-    if not isinstance(name, str):
-        raise ValueError(f"name = {name!r}: must be a string")
+    name = folder_name(
+        data.get("name", default_name), "name" if "name" in data else "name (the file's, as it gives none)"
+    )
     scene = Scene(
         spacing=data["spacing"],
         tank=_shape(data["tank"], "tank", ("box", "mesh"), base_dir),

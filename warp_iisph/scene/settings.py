@@ -18,6 +18,11 @@ MESH_FORMATS = ("obj", "ply")
 
 PARTICLE_FORMATS = ("ply", "vtu")  # output.format: binary PLY (splashsurf reads it) or VTU (ParaView)
 
+# The shortest time step (s) a scene (physics.dt, dt_min, dt_max) or Simulation.step may ask for:
+# a step of 1e-300 s would need 1e300 steps to reach a frame, and below about 1e-10 s a step no
+# longer moves a float64 clock at long times.
+MIN_STEP = 1.0e-7
+
 
 @dataclass
 class SurfaceSettings:
@@ -210,10 +215,10 @@ class Physics:
         self.omega = in_range(self.omega, "physics.omega", 0.0, 1.0, "Jacobi relaxation", lo_open=True)
         self.stiffness = positive(self.stiffness, "physics.stiffness", "Pa")
         if self.dt is not None:
-            self.dt = in_range(self.dt, "physics.dt", 0.0, 1.0, "seconds", lo_open=True)
+            self.dt = in_range(self.dt, "physics.dt", MIN_STEP, 1.0, "seconds")
         self.substeps = flag(self.substeps, "physics.substeps")
         self.cfl = in_range(self.cfl, "physics.cfl", 0.0, 2.0, "Courant number", lo_open=True)
-        self.dt_min = in_range(self.dt_min, "physics.dt_min", 0.0, 1.0, "seconds", lo_open=True)
+        self.dt_min = in_range(self.dt_min, "physics.dt_min", MIN_STEP, 1.0, "seconds")
         self.dt_max = in_range(self.dt_max, "physics.dt_max", self.dt_min, 1.0, "seconds, >= dt_min")
         if self.max_velocity is not None:
             self.max_velocity = positive(self.max_velocity, "physics.max_velocity", "m/s")

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..engine.devices import init_warp
 from ..scene import Scene
+from ..scene.settings import MIN_STEP
 from ..setup import build_model
 from ..sph.solvers import make_solver
 from .flows import Flows
@@ -92,9 +93,9 @@ class Simulation:
         statistics record (also appended to ``stats``)."""
         if dt is not None and (
             isinstance(dt, bool)
-            or not (isinstance(dt, (int, float, np.floating, np.integer)) and 0.0 < float(dt) <= 1.0)
+            or not (isinstance(dt, (int, float, np.floating, np.integer)) and MIN_STEP <= float(dt) <= 1.0)
         ):
-            raise ValueError(f"dt = {dt!r}: must be a number in (0, 1] seconds")
+            raise ValueError(f"dt = {dt!r}: must be a number in [{MIN_STEP:g}, 1] seconds")
         (record,) = self._steps(math.inf, None if dt is None else float(dt), 1)
         return record
 
