@@ -20,6 +20,30 @@ class SceneFileError(ValueError):
     """A scene file that cannot be used; the message is one line naming the file and the key."""
 
 
+class Record:
+    """A scene's data class that can be frozen (:func:`freeze`): the copy a ``Simulation`` keeps
+    refuses changes, since it was validated once and a change would reach the run unchecked."""
+
+    def __setattr__(self, name, value):
+        if self.__dict__.get("_frozen") and not name.startswith("_"):
+            raise AttributeError(
+                f"{type(self).__name__}.{name}: read-only, a Simulation's own validated copy of the scene; "
+                "change the Scene and build a new Simulation"
+            )
+        object.__setattr__(self, name, value)
+
+
+def freeze(value) -> None:
+    """Freeze a :class:`Record` and every record it holds (in fields, lists and tuples)."""
+    if isinstance(value, (list, tuple)):
+        for item in value:
+            freeze(item)
+    elif isinstance(value, Record):
+        for item in list(vars(value).values()):
+            freeze(item)
+        object.__setattr__(value, "_frozen", True)
+
+
 def _number(value) -> float:
     """``float(value)``, refusing booleans (TOML's true would pass as 1) and strings."""
     if isinstance(value, (bool, np.bool_, str, bytes)):

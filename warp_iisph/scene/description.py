@@ -9,20 +9,21 @@ the field and its allowed range. No Warp here.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_PARTICLES, floats, folder_name, positive
+from .checks import MAX_PARTICLES, Record, floats, folder_name, freeze, positive
 from .flows import Emitter, Sink
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere, contains
 
 
 @dataclass
-class Scene:
+class Scene(Record):
     """A tank holding fluid blocks, with optional obstacles.
 
     Example::
@@ -168,6 +169,20 @@ class Scene:
         for k, o in enumerate(self.obstacles):
             if np.any(contains(o, rim)):
                 raise ValueError(f"{name}: the nozzle at {list(e.center)} lies inside obstacles[{k}]; move it out")
+
+    def frozen_copy(self) -> "Scene":
+        """A validated deep copy of this scene that refuses changes (``AttributeError``): what a
+        ``Simulation`` keeps, so that later changes to this scene, or to its copy, never reach a
+        run unvalidated. Meshes already read are shared, not copied."""
+        self.validate()
+        memo = {}
+        for shape in [self.tank, *self.obstacles]:
+            loaded = getattr(shape, "_loaded", None)
+            if loaded is not None:
+                memo[id(loaded[1])] = loaded[1]
+        scene = copy.deepcopy(self, memo)
+        freeze(scene)
+        return scene
 
     def particle_estimate(self) -> tuple[float, float]:
         """About how many fluid and boundary particles the scene makes (from volumes and areas,

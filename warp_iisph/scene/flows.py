@@ -9,13 +9,13 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, box_corners, floats, in_range, position, vec3
+from .checks import MAX_COORDINATE, Record, box_corners, floats, in_range, position, vec3
 
 NOZZLES = ("disc", "rectangle")
 
 
 @dataclass
-class Emitter:
+class Emitter(Record):
     """A nozzle at ``center`` facing ``direction`` that injects liquid at ``speed`` (m/s) from
     ``start`` to ``end`` (s): a disc of ``radius``, or a rectangle of ``size`` [width, height]
     (width along ``direction x up``, ``up`` the world's y, or x for a vertical nozzle). It emits
@@ -133,7 +133,7 @@ class Emitter:
 
 
 @dataclass
-class Sink:
+class Sink(Record):
     """A box from ``lower`` to ``upper`` (metres): particles that enter it leave the scene."""
 
     lower: tuple

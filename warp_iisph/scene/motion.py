@@ -16,14 +16,14 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, position, vec3
+from .checks import MAX_COORDINATE, Record, position, vec3
 
 INTERPOLATIONS = ("linear", "smooth")
 MAX_KEYS = 256
 
 
 @dataclass
-class Motion:
+class Motion(Record):
     times: list
     translate: list = field(default_factory=list)
     rotate: list = field(default_factory=list)

@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import flag, floats, in_range, position, positive, vec3
+from .checks import Record, flag, floats, in_range, position, positive, vec3
 
 METHODS = ("iisph", "wcsph", "dfsph")
 
@@ -25,7 +25,7 @@ MIN_STEP = 1.0e-7
 
 
 @dataclass
-class SurfaceSettings:
+class SurfaceSettings(Record):
     """Surface reconstruction settings, in particle spacings ``h``: ``cell`` the distance-field
     grid's cell (h/2), ``r0`` the particle radius of Zhu & Bridson's distance (h/2), ``radius``
     their kernel radius R (2h); ``smoothing`` ``laplacian`` (the report's), ``taubin`` (keeps
@@ -68,7 +68,7 @@ class SurfaceSettings:
 
 
 @dataclass
-class Output:
+class Output(Record):
     """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
     particle files (``particles``, in ``format``: ``ply`` or ``vtu``), surface meshes (``mesh``),
     and the full state every ``checkpoint_every`` frames (0: never) for ``warp-iisph run --resume``."""
@@ -95,7 +95,7 @@ class Output:
 
 
 @dataclass
-class Camera:
+class Camera(Record):
     """Where `warp-iisph render` looks from: ``position`` and ``target`` (m) and a horizontal
     field of view ``fov`` (degrees). Without a position the camera frames the liquid itself."""
 
@@ -116,7 +116,7 @@ class Camera:
 
 
 @dataclass
-class Physics:
+class Physics(Record):
     """Physical and numerical parameters.
 
     - ``method``: ``"iisph"``, ``"wcsph"`` or ``"dfsph"`` (divergence-free SPH, Bender & Koschier

@@ -7,7 +7,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, box_corners, flag, floats, in_range, position, positive, vec3
+from .checks import MAX_COORDINATE, Record, box_corners, flag, floats, in_range, position, positive, vec3
 from .motion import Motion
 
 
@@ -29,7 +29,7 @@ def _check_motion(shape, name: str) -> None:
 
 
 @dataclass
-class Box:
+class Box(Record):
     """Axis-aligned box from ``lower`` to ``upper`` (metres); an obstacle may move (``motion``)."""
 
     lower: tuple
@@ -46,7 +46,7 @@ class Box:
 
 
 @dataclass
-class Sphere:
+class Sphere(Record):
     """Ball of ``radius`` around ``center`` (metres); an obstacle may move (``motion``)."""
 
     center: tuple
@@ -65,7 +65,7 @@ class Sphere:
 
 
 @dataclass
-class MeshShape:
+class MeshShape(Record):
     """A triangle mesh file (OBJ, STL, PLY, ... anything trimesh reads), transformed by ``scale``
     (a number or three), then ``rotate`` (degrees about x, then y, then z), then ``translate``
     (metres). A relative ``path`` is relative to ``base_dir`` (the scene file's folder). An obstacle

@@ -52,8 +52,10 @@ class Simulation:
         writes them to disk keeps the last few, so memory stays flat). ``until``: how long it will
         run (s), for the room emitters need (default: the scene's ``output.duration``)."""
         init_warp()
-        self.scene = scene.validate()
-        self.physics = scene.physics
+        # its own validated copy, read-only: a change to the scene (or to sim.physics) after this
+        # point would otherwise reach the run without validation
+        self.scene = scene.frozen_copy()
+        self.physics = self.scene.physics
         self.model, self.state = build_model(self.scene, device, until)
         self.device = self.model.device
         self.solver = make_solver(self.model)
