@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..engine.signals import Terminated
 from ..engine.timing import StageTimes
 from ..scene import Scene, obstacles_mesh, scene_to_dict
 from ..scene.checks import in_range
@@ -39,10 +40,6 @@ from .progress import frame_bar
 
 class OutputExistsError(ValueError):
     pass
-
-
-class Terminated(KeyboardInterrupt):
-    """The process was asked to stop (SIGTERM); raised in the main thread like Ctrl-C."""
 
 
 def versions() -> dict:
