@@ -340,6 +340,7 @@ def _run(args) -> int:
             progress=not args.no_progress,
             graph=use_graph(args.graph, device),
             resume=bool(args.resume),
+            inputs=[] if args.resume else [source],
         )
     except ValueError as e:
         if str(e).startswith("--") or isinstance(e, RunError):  # an argument, or a run folder's file: named already

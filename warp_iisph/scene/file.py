@@ -8,6 +8,8 @@ documented in ``docs/scenes.md``.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import sys
 from pathlib import Path
 
@@ -210,6 +212,27 @@ def scene_to_dict(scene: Scene) -> dict:
         "sinks": [_settings_table(s) for s in scene.sinks],
         **({"max_particles": scene.max_particles} if scene.max_particles is not None else {}),
     }
+
+
+# what a resumed run keeps: its particles (--set may change physics, output, surface and camera)
+GEOMETRY_KEYS = ("spacing", "tank", "fluids", "obstacles", "emitters", "sinks", "max_particles")
+
+
+def scene_fingerprint(scene: Scene) -> dict:
+    """What a checkpoint was taken of: a hash of the scene's geometry (its table, mesh paths
+    included) and of each mesh file's contents, by key (``tank``, ``obstacles[0]``), so that a
+    resume can say what changed."""
+    table = scene_to_dict(scene)
+    geometry = json.dumps({k: table.get(k) for k in GEOMETRY_KEYS}, sort_keys=True, separators=(",", ":"))
+    meshes = {}
+    for key, shape in [("tank", scene.tank), *((f"obstacles[{k}]", o) for k, o in enumerate(scene.obstacles))]:
+        if isinstance(shape, MeshShape):
+            path = Path(shape.base_dir) / shape.path
+            try:
+                meshes[key] = hashlib.sha256(path.read_bytes()).hexdigest()
+            except OSError as e:
+                raise ValueError(f"{key}.path = {shape.path!r}: cannot be read ({e.strerror})") from None
+    return {"geometry": hashlib.sha256(geometry.encode()).hexdigest(), "meshes": meshes}
 
 
 def load_scene(path, overrides=()) -> Scene:
