@@ -17,6 +17,7 @@ import numpy as np
 
 from ..run.atomic import atomic_write
 from ..run.folder import MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.lock import writing_into
 from .camera import framing_box, run_camera
 from .materials import THICKNESS, material_color
 
@@ -244,5 +245,6 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
         floor=json.dumps([[cx, cy, round(floor_y, 6)], floor_size]),
         handler=HANDLER,
     )
-    atomic_write(out, lambda tmp: Path(tmp).write_text(text))
+    with writing_into(run.path, out):  # one writer in the run folder
+        atomic_write(out, lambda tmp: Path(tmp).write_text(text))
     return out

@@ -14,6 +14,13 @@ from ..run.formats import read_mesh
 DEFAULT_FOV = 40.0  # degrees, horizontal; the scene's camera.fov default
 
 
+def camera_up(eye, target) -> list[float]:
+    """The up direction of a camera at ``eye`` looking at ``target``: y, or -z when it looks
+    (almost) straight up or down, where y would leave its orientation undefined."""
+    view = np.asarray(target, float) - np.asarray(eye, float)
+    return [0.0, 1.0, 0.0] if abs(view[1]) < 0.999 * float(np.linalg.norm(view)) else [0.0, 0.0, -1.0]
+
+
 def auto_camera(lower, upper, fov: float, aspect: float) -> tuple[np.ndarray, np.ndarray]:
     """Look at the box's centre from the front, right and above, far enough to see all of it."""
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
