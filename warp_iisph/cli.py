@@ -12,9 +12,11 @@ import sys
 
 from .engine import signals
 
-# Ctrl-C and SIGTERM are exceptions (and remembered) from here on, before anything heavy loads:
-# the package's __init__ imports nothing, so this runs within milliseconds of the start
-signals.install()
+# As a program (the warp-iisph script, or python -m warp_iisph.cli), Ctrl-C and SIGTERM are
+# remembered from here on, within milliseconds of the start (the package's __init__ imports
+# nothing), and raised once main can catch them; imported by other code, main installs them.
+if __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") in ("warp-iisph", "warp-iisph.exe"):
+    signals.install(armed=False)
 
 EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 2, 1, 130, 143
 
@@ -418,18 +420,23 @@ def main(argv=None) -> int:
     """The command line (``argv``: its arguments; ``None``: this process's, as a program)."""
     program = argv is None
     seen = 0 if program else signals.count()  # as a program, a signal before this line counts too
-    _standard_streams()
     try:
+        signals.install()
+        signals.arm()
+        _standard_streams()
         argv = list(sys.argv[1:] if argv is None else argv)
         debug = "--debug" in argv
         argv = [a for a in argv if a != "--debug"]  # anywhere on the line, before or after the command
         code = _command(argv, debug) if signals.count() == seen else _stopped(signals.received())
         if signals.count() != seen and code == 0:  # a library swallowed the signal's exception
             code = _stopped(signals.received())
-    except KeyboardInterrupt as e:  # a signal while an error was being reported
+        if program:  # what is left is the interpreter's shutdown: a signal now would only cost a traceback
+            signals.ignore()
+    except KeyboardInterrupt as e:  # a signal while an error was being reported, or the work was done
         code = _stopped(signal_of(e))
-    if program:  # what is left is the interpreter's shutdown: a signal now would only cost a traceback
-        signals.ignore()
+        if program:
+            signals.ignore()
+    if program:
         _flush_stdout()
     return code
 
@@ -450,7 +457,11 @@ def _stopped(signum) -> int:
 
 def _command(argv: list, debug: bool) -> int:
     try:
-        args = _parser().parse_args(argv)
+        parser = _parser()
+        args = parser.parse_args(argv)
+        for key, value in vars(args).items():  # argparse gives [] for --opt=-- (it drops the "--")
+            if isinstance(value, list) and key != "overrides":
+                parser.error(f"argument --{key.replace('_', '-')}: expected one value")
         return COMMANDS[args.command](args)
     except KeyboardInterrupt as e:
         return _stopped(signal_of(e))

@@ -44,10 +44,11 @@ def _cgroup_dirs(controller_root: Path, relative: str) -> list[Path]:
     return dirs
 
 
-def _cgroup_room() -> int | None:
-    """The least room any of the process's memory control groups leaves (limit less use)."""
+def cgroup_room(membership: Path = Path("/proc/self/cgroup"), root: Path = CGROUP) -> int | None:
+    """The least room any of the process's memory control groups leaves (limit less use), from
+    its ``membership`` (/proc/self/cgroup) and the groups mounted at ``root``."""
     try:
-        lines = Path("/proc/self/cgroup").read_text().splitlines()
+        lines = Path(membership).read_text().splitlines()
     except OSError:
         return None
     room = None
@@ -57,12 +58,12 @@ def _cgroup_room() -> int | None:
             continue
         _, controllers, relative = parts
         if controllers == "":  # cgroup v2: one unified hierarchy
-            for d in _cgroup_dirs(CGROUP, relative):
+            for d in _cgroup_dirs(root, relative):
                 limit, used = _read_int(d / "memory.max"), _read_int(d / "memory.current")
                 if limit is not None and used is not None:
                     room = min(room, limit - used) if room is not None else limit - used
         elif "memory" in controllers.split(","):  # cgroup v1
-            for d in _cgroup_dirs(CGROUP / "memory", relative):
+            for d in _cgroup_dirs(root / "memory", relative):
                 limit, used = _read_int(d / "memory.limit_in_bytes"), _read_int(d / "memory.usage_in_bytes")
                 if limit is not None and used is not None and limit < UNLIMITED:
                     room = min(room, limit - used) if room is not None else limit - used
@@ -108,7 +109,7 @@ def host_memory_room() -> tuple[int, str] | None:
             available = None
     if available is not None:
         candidates.append((available, "available"))
-    group = _cgroup_room()
+    group = cgroup_room()
     if group is not None:
         candidates.append((group, "left under the control group's memory limit"))
     limited = _rlimit_room()

@@ -3,7 +3,8 @@ on, and kept through what could lose them.
 
 - :func:`install`: SIGINT raises ``KeyboardInterrupt``, SIGTERM :class:`Terminated`, and both are
   remembered (:func:`received`), so that a signal whose exception a library swallowed still
-  ends the command with its status.
+  ends the command with its status; installed ``armed=False`` (a program's first instruction,
+  before its ``main`` can catch anything) they are only remembered until :func:`arm`.
 - :func:`held`: a block both wait for (two renames that must not be parted); they are raised
   when it ends.
 - :func:`deferred`: a third-party library loading (Mitsuba, usd-core): it may install handlers of
@@ -25,27 +26,46 @@ class Terminated(KeyboardInterrupt):
 
 
 _received: list[int] = []
+_armed = [True]
+_holding = [0]  # held() blocks entered and not left
+_pending: list[int] = []  # signals that came while held
+
+
+def _raise(signum):
+    if signum == signal.SIGTERM:
+        raise Terminated()
+    raise KeyboardInterrupt()
 
 
 def _handler(signum, frame):
     _received.append(signum)
-    if signum == signal.SIGTERM:
-        raise Terminated()
-    raise KeyboardInterrupt()
+    if not _armed[0]:
+        return
+    if _holding[0]:
+        _pending.append(signum)
+        return
+    _raise(signum)
 
 
 def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def install() -> None:
-    """Our handlers, where Python's defaults are in place (a host that set its own keeps it)."""
+def install(armed: bool = True) -> None:
+    """Our handlers, where Python's defaults are in place (a host that set its own keeps it);
+    ``armed=False``: signals are remembered, not raised, until :func:`arm`."""
     if not _main_thread():
         return
+    _armed[0] = armed
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, _handler)
     if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _handler)
+
+
+def arm() -> None:
+    """From now on our handlers raise (a program's ``main`` is ready to catch)."""
+    _armed[0] = True
 
 
 def received() -> int | None:
@@ -67,15 +87,24 @@ def ignore() -> None:
 
 @contextmanager
 def held():
-    """Ctrl-C and SIGTERM wait until the block has run (then they are raised as usual)."""
-    if not _main_thread() or not hasattr(signal, "pthread_sigmask"):
+    """Ctrl-C and SIGTERM wait until the block has run, then are raised as usual: our handlers
+    keep them (another thread may be the one the signal reaches), and the main thread blocks
+    them (for a library's handlers, while it loads)."""
+    if not _main_thread():
         yield
         return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
+    _holding[0] += 1
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS) if hasattr(signal, "pthread_sigmask") else None
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        if before is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        _holding[0] -= 1
+        if not _holding[0] and _pending:
+            signum = _pending[-1]
+            _pending.clear()
+            _raise(signum)
 
 
 @contextmanager

@@ -4,16 +4,20 @@ run's (``mesh/frame_00000.obj`` ...), or any particle files."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
 from pathlib import Path
 
+from ..engine import signals
 from ..engine.timing import StageTimes
 from ..scene import SurfaceSettings
 from ..scene.checks import positive
+from ..scene.settings import MESH_FORMATS
 from ..surface import SurfaceMesh, SurfaceReconstructor
 from .atomic import write_json
-from .folder import MESHES, PARTICLES, RECORD, SOURCE, RunError, RunFolder, frame_index
+from .folder import MESHES, PARTICLES, RECORD, SOURCE, RunError, RunFolder, frame_files, frame_index
 from .formats import read_particles, write_mesh
-from .lock import FolderLock
+from .lock import LOCK_NAME, FolderLock
 from .progress import frame_bar
 from .replace import Target, commit, discard, recover, stage
 
@@ -118,16 +122,35 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
         write_json(new / SOURCE, {"run_id": record.get("run_id"), "settings": settings})
         jobs = [(f, new / run.mesh_frame(frame_index(f)).name) for f in frames]
         result = _mesh_jobs(jobs, mesher, True, progress, folder)
-        stale = run.usd_files()  # a stage made of the old meshes
-        commit(target, new, lock)
-        for old in stale:
-            old.unlink(missing_ok=True)
+        with signals.held():  # the meshes and what was made of them change together
+            _carry_foreign_files(folder, new)
+            stale = run.usd_files()  # a stage made of the old meshes
+            commit(target, new, lock)
+            for old in stale:
+                old.unlink(missing_ok=True)
     except BaseException:
         if new.exists():
             discard(new, lock)
         raise
     lock.release()
     return result
+
+
+def _carry_foreign_files(folder: Path, new: Path) -> None:
+    """Files in the meshes' folder that are not meshes (the user's) linked into the new one, so
+    the swap keeps them (a link, not a move: a swap rolled back leaves them where they were);
+    a folder there refuses the overwrite."""
+    ours = {p.name for p in new.iterdir()} | {SOURCE, LOCK_NAME}
+    meshes = {p.name for e in MESH_FORMATS for p in frame_files(folder, e)}
+    for p in folder.iterdir():
+        if p.name in ours or p.name in meshes or (p.name.startswith(".") and ".tmp" in p.name):
+            continue
+        if p.is_dir() and not p.is_symlink():
+            raise RunError(f"{folder}: holds {p.name}/, not a mesh, which --overwrite would delete; move it first")
+        try:
+            os.link(p, new / p.name, follow_symlinks=False)
+        except OSError:  # a file system without hard links
+            shutil.copy2(p, new / p.name, follow_symlinks=False)
 
 
 def _jobs_of_files(path: Path, overrides, spacing, out):

@@ -116,6 +116,8 @@ def recover(path) -> None:
             hidden = [p for p, pid in _siblings(path, "old") if not _alive(pid) and RunFolder(p).is_run()]
             if len(hidden) == 1:
                 os.rename(hidden[0], path)
+        if (path / LOCK_NAME).is_file() and holder(path) is None:  # left by a process that was killed
+            (path / LOCK_NAME).unlink(missing_ok=True)
 
 
 def resolved(out, what: str = "--out") -> Path:

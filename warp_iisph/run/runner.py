@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..engine import signals
 from ..engine.signals import Terminated
 from ..engine.timing import StageTimes
 from ..scene import MeshShape, Scene, obstacles_mesh, scene_to_dict
@@ -330,8 +331,9 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
             write_frame(0)
             queue.wait()
             update_record()
-            run.path = place()  # the new run is on disk: it takes its place (and the old one's)
-            placed = True
+            with signals.held():  # a Ctrl-C now is raised once the run is in place and knows it
+                run.path = place()  # the new run is on disk: it takes its place (and the old one's)
+                placed = True
             first = 1
         bar.update(first)
         for k in range(first, plan.frames):
