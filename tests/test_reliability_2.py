@@ -817,6 +817,68 @@ def test_a_record_that_is_not_an_object_is_one_line(run_copy, capsys):
     assert snapshot(run_copy) == before
 
 
+@pytest.mark.parametrize(
+    "key, value, words",
+    [
+        ("scene", [1], "scene = [1]: must be a table"),
+        ("scene.camera", "up", "scene.camera = 'up': must be a table"),
+        ("scene.camera.position", "up", "camera.position = 'up': must be three numbers"),
+        ("scene.spacing", "x", "spacing = 'x'"),
+        ("scene.tank.lower", [0, 0], "tank.lower = [0, 0]"),
+        ("fps", "30", "fps = '30'"),
+        ("run_id", 5, "run_id = 5: must be a string"),
+        ("output", 3, "output = 3: must be a table"),
+    ],
+)
+def test_a_record_edited_by_hand_is_one_line_naming_the_key(run_copy, capsys, key, value, words):
+    record = json.loads((run_copy / "run.json").read_text())
+    node, parts = record, key.split(".")
+    for part in parts[:-1]:
+        node = node[part]
+    node[parts[-1]] = value
+    (run_copy / "run.json").write_text(json.dumps(record))
+    before = snapshot(run_copy)
+    for argv in (
+        ["preview", str(run_copy), "--no-progress"],
+        ["blender-script", str(run_copy)],
+        ["run", "--resume", str(run_copy), "--no-progress"],
+    ):
+        capsys.readouterr()
+        code = main(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        if code == 0:  # a part this command does not read
+            continue
+        assert code == 2, (argv, err)
+        one_line(err, "run.json", words)
+    views = ("preview.mp4", "blender_scene.py")  # what a command that does not read the broken part writes
+    assert {k: v for k, v in snapshot(run_copy).items() if k.name not in views} == before
+
+
+def test_a_view_never_writes_over_the_runs_own_files(run_copy, tmp_path, capsys):
+    before = snapshot(run_copy)
+    for argv, words in (
+        (["preview", str(run_copy), "--out", str(run_copy / "run.json")], "must end in .mp4"),
+        (
+            ["preview", str(run_copy), "--out", str(run_copy / "frames" / "frame_00000.png"), "--frames", "0:1"],
+            "own files",
+        ),
+        (["preview", str(run_copy), "--out", str(run_copy / "x.mp4"), "--gif"], "with --gif"),
+        (["blender-script", str(run_copy), "--out", str(run_copy / "run.json")], "must be a .py file"),
+        (["blender-script", str(run_copy), "--out", str(run_copy / "mesh" / "x.py")], "must be a .py file outside"),
+        (["usd", str(run_copy), "--out", str(run_copy / "particles" / "x.usda")], "frame folders"),
+        (["mesh", str(run_copy / "particles"), "--spacing", "0.04"], "lies in the run"),
+        (["mesh", str(run_copy / "particles" / "frame_00001.ply"), "--spacing", "0.04"], "lies in the run"),
+        (
+            ["mesh", str(run_copy / "particles"), "--spacing", "0.04", "--out", str(run_copy / "mesh")],
+            "lies in the run",
+        ),
+    ):
+        capsys.readouterr()
+        assert main([*argv, "--no-progress"] if argv[0] != "blender-script" else argv) == 2, argv
+        one_line(capsys.readouterr().err.strip().splitlines(), words)
+    assert snapshot(run_copy) == before
+
+
 def test_stray_files_beside_the_frames_are_not_frames(run_copy):
     stray = run_copy / "particles" / "frame_00001 copy.ply"
     stray.write_bytes((run_copy / "particles" / "frame_00001.ply").read_bytes())

@@ -14,6 +14,7 @@ RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
 from __future__ import annotations
 
 import json
+import os
 import re
 import uuid
 from pathlib import Path
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 # the extensions of particle frames and meshes, as output.format and surface.format name them
+from ..scene.checks import box_corners, positive
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from .atomic import write_json
 
@@ -35,8 +37,16 @@ CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, 
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
 USD_NAMES = (USD, "run.usda", "run.usd")
+DATA_FOLDERS = (PARTICLES, MESHES, FRAMES, OBSTACLE_FRAMES)
 DEFAULT_FPS = 30.0
 MAX_FPS = 10_000.0  # output.fps's limit, and a video's
+
+
+# parts of a run record that the commands read, and their kinds
+RECORD_TABLES = ("scene", "output", "totals", "particles", "versions")
+RECORD_TEXTS = ("run_id", "device", "ended")
+SCENE_TABLES = ("tank", "camera", "surface", "physics", "output")
+SCENE_LISTS = ("fluids", "obstacles", "emitters", "sinks")
 
 
 class RunError(ValueError):
@@ -65,7 +75,7 @@ def is_frame(path: Path) -> bool:
 
 def frame_files(folder: Path, ext: str) -> list[Path]:
     """The frames ``frame_NNNNN.ext`` in ``folder``, in frame order."""
-    files = [p for p in Path(folder).glob(f"frame_*.{ext}") if is_frame(p) and p.suffix == f".{ext}"]
+    files = [p for p in Path(folder).glob(f"frame_*.{ext}") if is_frame(p) and p.suffix == f".{ext}" and p.is_file()]
     return sorted(files, key=frame_index)
 
 
@@ -159,6 +169,14 @@ class RunFolder:
         folders = (self.path, self.path / PARTICLES, self.path / MESHES, self.path / OBSTACLE_FRAMES)
         return [p for d in folders for p in d.glob(".*.tmp*") if p.is_file()]
 
+    def holds_as_its_own(self, path) -> bool:
+        """Whether ``path`` is one of the run's own files (its record, step records, checkpoint,
+        obstacles) or lies in a folder of its frames: what a view's --out must never replace."""
+        root, target = Path(os.path.realpath(self.path)), Path(os.path.realpath(path))
+        if target.parent == root and target.name in (RECORD, STATS, CHECKPOINT, OBSTACLES):
+            return True
+        return any(root / d == target or root / d in target.parents for d in DATA_FOLDERS)
+
     def usd_files(self) -> list[Path]:
         """The run's USD stages: ``run.usdc``, ``run.usda``, ``run.usd``, those that exist."""
         return [self.path / name for name in USD_NAMES if (self.path / name).is_file()]
@@ -215,7 +233,32 @@ class RunFolder:
             raise RunError(f"{self.record_path}: cannot be read ({e})") from None
         if not isinstance(record, dict):
             raise RunError(f"{self.record_path}: not a run record (a JSON object), but {type(record).__name__}")
+        self._check_record(record)
         return record
+
+    def _check_record(self, record: dict) -> None:
+        """``RunError`` naming the key when a part of the record the commands read is of the
+        wrong kind (a record edited by hand, or not written by warp-iisph)."""
+        scene = record.get("scene", {})
+        parts = [(k, record.get(k), dict) for k in RECORD_TABLES] + [(k, record.get(k), str) for k in RECORD_TEXTS]
+        if isinstance(scene, dict):
+            parts += [(f"scene.{k}", scene.get(k), dict) for k in SCENE_TABLES]
+            parts += [(f"scene.{k}", scene.get(k), list) for k in SCENE_LISTS]
+        for key, value, kind in parts:
+            if value is not None and not isinstance(value, kind):
+                what = {dict: "a table (a JSON object)", str: "a string", list: "a list"}[kind]
+                raise RunError(f"{self.record_path}: {key} = {value!r:.80}: must be {what}")
+
+    def spacing(self, record: dict | None = None) -> float | None:
+        """The run's particle spacing (``None`` when the record has none)."""
+        record = self.record() if record is None else record
+        h = (record.get("scene") or {}).get("spacing")
+        if h is None:
+            return None
+        try:
+            return positive(h, "scene.spacing", "metres")
+        except ValueError as e:
+            raise RunError(f"{self.record_path}: {e}") from None
 
     def is_run(self) -> bool:
         """Whether the folder holds a run of warp-iisph: its ``run.json`` is one's record (a run id
@@ -277,6 +320,15 @@ class RunFolder:
         return mesh if len(getattr(mesh, "faces", ())) else None
 
 
+def enclosing_run(path) -> Path | None:
+    """The run folder that ``path`` lies in (or is), if any."""
+    p = Path(os.path.realpath(path))
+    for folder in (p, *p.parents):
+        if (folder / RECORD).is_file() and RunFolder(folder).is_run():
+            return folder
+    return None
+
+
 def select_frames(files: list[Path], spec: str | None) -> list[Path]:
     """Frames whose number is in ``a:b`` (b excluded; either end may be left out, like a Python
     slice of frame numbers); all of them for ``None``."""
@@ -299,9 +351,14 @@ def select_frames(files: list[Path], spec: str | None) -> list[Path]:
     return chosen
 
 
-def tank_bounds(record: dict) -> tuple[np.ndarray, np.ndarray] | None:
-    """The box tank's corners from a run record; ``None`` for a mesh tank or no record."""
-    tank = record.get("scene", {}).get("tank", {})
+def tank_bounds(record: dict, source=RECORD) -> tuple[np.ndarray, np.ndarray] | None:
+    """The box tank's corners from a run record (``source``: its file, for messages); ``None``
+    for a mesh tank or no record."""
+    tank = (record.get("scene") or {}).get("tank") or {}
     if "lower" in tank and "upper" in tank:
-        return np.asarray(tank["lower"], float), np.asarray(tank["upper"], float)
+        try:
+            lo, hi = box_corners(tank["lower"], tank["upper"], "scene.tank")
+        except ValueError as e:
+            raise RunError(f"{source}: {e}") from None
+        return np.asarray(lo, float), np.asarray(hi, float)
     return None

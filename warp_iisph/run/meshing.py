@@ -15,7 +15,7 @@ from ..scene.checks import positive
 from ..scene.settings import MESH_FORMATS
 from ..surface import SurfaceMesh, SurfaceReconstructor
 from .atomic import write_json
-from .folder import MESHES, PARTICLES, RECORD, SOURCE, RunError, RunFolder, frame_files, frame_index
+from .folder import MESHES, PARTICLES, RECORD, SOURCE, RunError, RunFolder, enclosing_run, frame_files, frame_index
 from .formats import read_particles, write_mesh
 from .lock import LOCK_NAME, FolderLock
 from .progress import frame_bar
@@ -93,11 +93,10 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
     frames = run.frames(PARTICLES)
     scene = record.get("scene") or {}
     if spacing is None:
-        try:
-            spacing = float(scene["spacing"])
-        except (KeyError, TypeError, ValueError):
-            raise RunError(f"{run.record_path}: has no particle spacing; pass --spacing") from None
-    stored = scene.get("surface") if isinstance(scene.get("surface"), dict) else {}
+        spacing = run.spacing(record)
+        if spacing is None:
+            raise RunError(f"{run.record_path}: has no particle spacing; pass --spacing")
+    stored = scene.get("surface") or {}
     params = _settings(stored, overrides)
     mesher = _mesher(spacing, params, device)
     settings = mesh_settings(params, mesher.reconstructor.h)
@@ -168,6 +167,9 @@ def _jobs_of_files(path: Path, overrides, spacing, out):
         target = Path(out) if out else path.parent
     if target.exists() and not target.is_dir():
         raise RunError(f"--out {target}: is a file, not a folder")
+    run = enclosing_run(target)
+    if run is not None:  # meshes of other files would mix with a run's own, unrecorded
+        raise RunError(f"{target}: lies in the run {run}; mesh the run itself (warp-iisph mesh {run}) or choose --out")
     return [(f, target / f"{f.stem}.obj") for f in files], spacing, _settings({}, overrides), target
 
 

@@ -166,6 +166,7 @@ class Target:
 
     def __init__(self, path: Path, given, replacing: bool, lock: FolderLock | None):
         self.path, self.given, self.replacing, self.lock = path, given, replacing, lock
+        self.created: list[Path] = []
 
     def release(self) -> None:
         if self.lock is not None:
@@ -224,7 +225,9 @@ def stage(target: Target, what: str = "--out") -> tuple[Path, FolderLock]:
     new = path.parent / f".{path.name}.new-{os.getpid()}"
     if new.exists() and _staged_for(new, path):  # this process's own, from a start that failed
         shutil.rmtree(new)
+    made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
     path.parent.mkdir(parents=True, exist_ok=True)
+    target.created = made  # folders above the target that a start which fails removes again
     new.mkdir()
     lock = FolderLock(new)
     try:
@@ -237,10 +240,17 @@ def stage(target: Target, what: str = "--out") -> tuple[Path, FolderLock]:
     return new, lock
 
 
-def discard(new: Path, lock: FolderLock) -> None:
-    """Remove a staging folder that never got in place."""
+def discard(new: Path, lock: FolderLock, target: Target | None = None) -> None:
+    """Remove a staging folder that never got in place (and the folders above the target that
+    were made for it, if they are empty)."""
     lock.release()
     shutil.rmtree(new, ignore_errors=True)
+    if target is not None and not target.path.exists():
+        for folder in target.created:  # nearest first
+            try:
+                folder.rmdir()
+            except OSError:
+                break
 
 
 def commit(target: Target, new: Path, lock: FolderLock) -> Path:

@@ -198,11 +198,11 @@ def run_scene(
         place = None if resume else (lambda: commit(target, *staging))
         record = _simulate(scene, sim, run, plan, first, t_start, background_output, progress, graph, before, place)
         if staging is not None and run.path == staging[0]:  # the new run never got its first frame in place
-            discard(*staging)
+            discard(*staging, target)
         return record
     except BaseException:
         if staging is not None and staging[0].exists():
-            discard(*staging)
+            discard(*staging, target)
         raise
     finally:
         for h in held:
@@ -405,7 +405,7 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
     run = RunFolder.existing(path)
     record = run.record()
     data = record.get("scene")
-    if not data or "tank" not in data:
+    if not data or "tank" not in data:  # the record's parts are of their kinds (RunFolder.record)
         raise RunError(f"{run.record_path}: records no scene to resume")
     # the run's own length and frame rate (asked on its command line, not in its scene file)
     data.setdefault("output", {}).update(

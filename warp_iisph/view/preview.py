@@ -178,6 +178,11 @@ def preview_run(
     out = Path(out) if out else run.path / ("preview.gif" if gif else "preview.mp4")
     if out.is_dir():
         raise RunError(f"--out {out}: is a folder; give a video file name (.{'gif' if gif else 'mp4'}) or a .png")
+    if out.suffix.lower() not in (".mp4", ".gif", ".png") or (gif and out.suffix.lower() == ".mp4"):
+        raise RunError(f"--out {out}: must end in .mp4, .gif (with --gif) or .png (one frame's still)")
+    if run.holds_as_its_own(out):
+        raise RunError(f"--out {out}: one of the run's own files or frame folders; put the preview elsewhere")
+    gif = gif or out.suffix.lower() == ".gif"
     with writing_into(run.path, out):  # one writer in the run folder (a preview put elsewhere reads it as it is)
         return _preview(run, record, files, source, out, width, height, fps, gif, yaw, pitch, progress)
 
@@ -196,14 +201,14 @@ def _preview(run, record, files, source, out, width, height, fps, gif, yaw, pitc
 
     from ..run.formats import read_particles
 
-    h = float(record.get("scene", {}).get("spacing") or 0.0)
+    h = run.spacing(record) or 0.0
     load = read_particles if source == PARTICLES else _read_mesh_points
     first = load(files[0])
     if h <= 0:  # no record: estimate the spacing from the particle volume
         ext = np.ptp(first["x"], axis=0)
         h = float(np.cbrt(np.prod(np.maximum(ext, 1e-6)) / max(len(first["x"]), 1)))
     obstacles = run.obstacle_mesh()
-    bounds = tank_bounds(record)
+    bounds = tank_bounds(record, run.record_path)
     if bounds is None:
         lo, hi = first["x"].min(0) - h, first["x"].max(0) + h
         last = load(files[-1])["x"]

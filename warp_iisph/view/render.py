@@ -335,10 +335,10 @@ def render_run(
     color = material_color(material)
     files = select_frames(run.frames(MESHES), frames)
     chosen_variant, why = choose_variant(str(record.get("device") or "cpu").split(":")[0], variant)
-    tank = tank_bounds(record)
+    tank = tank_bounds(record, run.record_path)
     solid = run.obstacle_mesh()
     box = framing_box(run, record, files, solid)  # the obstacles are framed with the liquid
-    eye, target, fov = run_camera(record, box, width / height)
+    eye, target, fov = run_camera(record, box, width / height, run.record_path)
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
     wall_list = far_walls(*tank, eye) if walls and tank is not None else []

@@ -190,6 +190,8 @@ def usd_path(run: RunFolder, out=None) -> Path:
         raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / USD}")
     if out.suffix.lower() not in SUFFIXES:
         raise RunError(f"--out {out}: must end in {', '.join(SUFFIXES)}")
+    if run.holds_as_its_own(out):
+        raise RunError(f"--out {out}: inside one of the run's frame folders; put the stage elsewhere")
     return out
 
 
@@ -227,7 +229,7 @@ def _write_stage(run: RunFolder, record: dict, files: list, color, out: Path, pa
                 f"(frames {numbers[0]}..{numbers[-1]})"
             )
     fps = run.fps(record)
-    h = float((record.get("scene") or {}).get("spacing") or 0.0)
+    h = run.spacing(record) or 0.0
     if particles and not h > 0:
         raise RunError(f"{run.record_path}: has no particle spacing, which --particles needs for the points' widths")
 
@@ -267,7 +269,7 @@ def _write_stage(run: RunFolder, record: dict, files: list, color, out: Path, pa
     if obstacles is not None:
         moving = {k: run.obstacle_mesh(k) for k in numbers if run.obstacle_frame(k).is_file()}
         add_obstacles(stage, obstacles, meshes=moving)
-    eye, target, fov = run_camera(record, framing_box(run, record, files, obstacles), ASPECT)
+    eye, target, fov = run_camera(record, framing_box(run, record, files, obstacles), ASPECT, run.record_path)
     add_camera(stage, eye, target, fov)
     if particles:
         _add_particles(stage, particle_files, numbers, h, progress)
