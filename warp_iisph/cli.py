@@ -381,7 +381,7 @@ def _run(args) -> int:
             if t.get("substeps")
             else ""
         )
-        + f" -> {out}"
+        + (f" -> {out}" if t["frames"] else f"; nothing written ({out} as it was)")
     )
     if t.get("not_emitted"):
         print(

@@ -9,6 +9,7 @@ is still the one at that path, so two processes never both hold a folder.
 
 from __future__ import annotations
 
+import errno
 import os
 import sys
 from contextlib import nullcontext
@@ -22,6 +23,7 @@ except ImportError:  # pragma: no cover - not POSIX: no lock
     fcntl = None
 
 LOCK_NAME = ".warp-iisph.lock"
+UNLOCKABLE = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
 
 
 class FolderBusy(RunError):
@@ -58,7 +60,13 @@ class FolderLock:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, FILE_MODE)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
+            except OSError as e:
+                if e.errno in UNLOCKABLE:  # a file system without locks (some network mounts): none taken
+                    os.close(fd)
+                    return self
+                if not isinstance(e, BlockingIOError):
+                    os.close(fd)
+                    raise
                 holder = _describe(os.pread(fd, 4096, 0).decode(errors="replace"))
                 os.close(fd)
                 raise FolderBusy(

@@ -174,9 +174,11 @@ class Target:
 
 
 def _check_no_staging(path: Path, given, what: str) -> None:
-    for staging, pid in _siblings(path, "new") + _siblings(path, "swap"):
-        if _alive(pid) and pid != os.getpid():
-            raise FolderBusy(f"{what} {given}: PID {pid} is writing a run there ({holder(staging) or staging.name})")
+    """``FolderBusy`` while another process stages a new folder for ``path`` (it holds its lock)."""
+    for staging, pid in _siblings(path, "new"):
+        who = holder(staging) if pid != os.getpid() else None
+        if who is not None:
+            raise FolderBusy(f"{what} {given}: {who} is writing a new run there; wait until it ends")
 
 
 def prepare(out, overwrite: bool, inputs=(), what: str = "--out") -> Target:
@@ -272,7 +274,11 @@ def commit(target: Target, new: Path, lock: FolderLock) -> Path:
             marker = path.parent / f".{path.name}.swap-{pid}"
             write_json(marker, {"target": path.name, "old": old.name, "new": new.name, "pid": pid})
             _fsync_dir(path.parent)
-            os.rename(path, old)
+            try:
+                os.rename(path, old)
+            except BaseException:  # the old folder went away, or cannot move: nothing was swapped
+                marker.unlink(missing_ok=True)
+                raise
             try:
                 os.rename(new, path)
             except BaseException:
@@ -287,6 +293,7 @@ def commit(target: Target, new: Path, lock: FolderLock) -> Path:
         if target.replacing:
             target.release()
             shutil.rmtree(old, ignore_errors=True)
-            marker.unlink(missing_ok=True)
+            if not old.exists():  # else the marker stays, and a later start finishes the removal
+                marker.unlink(missing_ok=True)
     target.lock, target.replacing = lock, False
     return path

@@ -22,15 +22,25 @@ class SceneFileError(ValueError):
 
 class Record:
     """A scene's data class that can be frozen (:func:`freeze`): the copy a ``Simulation`` keeps
-    refuses changes, since it was validated once and a change would reach the run unchecked."""
+    refuses changes, since it was validated once and a change would reach the run unchecked
+    (setting a field to the value it has, as validating it again does, is no change)."""
 
     def __setattr__(self, name, value):
-        if self.__dict__.get("_frozen") and not name.startswith("_"):
+        if self.__dict__.get("_frozen") and not name.startswith("_") and not _same(self.__dict__.get(name), value):
             raise AttributeError(
                 f"{type(self).__name__}.{name}: read-only, a Simulation's own validated copy of the scene; "
                 "change the Scene and build a new Simulation"
             )
         object.__setattr__(self, name, value)
+
+
+def _same(a, b) -> bool:
+    if type(a) is not type(b):
+        return False
+    try:
+        return bool(np.all(a == b))
+    except (TypeError, ValueError):
+        return a is b
 
 
 def freeze(value) -> None:
