@@ -562,6 +562,10 @@ def test_a_resume_never_goes_back(run_copy, capsys):
         ("physics.gravity=[[0,-9.81,0]]", "physics.gravity = [[0, -9.81, 0]]"),
         ("camera.position=[[1,1,1]]", "camera.position"),
         ("spacing.x=1", "--set spacing.x: spacing is a value (0.04), not a table"),
+        (
+            "sinks=[" + ",".join(["{lower=[0,0,0],upper=[0.1,0.1,0.1]}"] * 1001) + "]",
+            "sinks: must be a list of at most 1000",
+        ),
         ("tank..upper=1", "must be a dotted key"),
     ],
 )

@@ -186,6 +186,7 @@ def run_scene(
         t_start = time.perf_counter()
         # everything is built before the disk changes; step records go to stats.jsonl, not memory
         sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration)
+        scene = sim.scene  # its own validated copy, which the caller cannot change while it runs
         first = 0
         if resume:
             check_positions(checkpoint, run, (sim.model.domain_lower, sim.model.domain_upper))

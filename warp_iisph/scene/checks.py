@@ -11,6 +11,9 @@ import numpy as np
 MAX_COORDINATE = 1.0e3
 # Most particles a scene may hold: Warp indexes arrays with 32-bit integers.
 MAX_PARTICLES = 2**31 - 1
+# Most fluid blocks, obstacles, emitters or sinks a scene may list (fluid blocks are checked for
+# overlap pair by pair).
+MAX_ITEMS = 1000
 # Longest scene name (characters): it names the output folder runs/NAME, and the folders a run is
 # staged in beside it (.NAME.new-PID) must stay within the file system's 255 bytes.
 MAX_NAME = 100

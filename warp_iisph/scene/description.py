@@ -16,7 +16,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_PARTICLES, Record, floats, folder_name, freeze, positive
+from .checks import MAX_ITEMS, MAX_PARTICLES, Record, floats, folder_name, freeze, positive
 from .flows import Emitter, Sink
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere, contains
@@ -85,6 +85,10 @@ class Scene(Record):
         tlo, thi = self.tank.bounds
         if np.any((thi - tlo) < self.spacing):
             raise ValueError(f"tank: every side must be at least spacing = {self.spacing} m long")
+        for key in ("fluids", "obstacles", "emitters", "sinks"):
+            items = getattr(self, key)
+            if not isinstance(items, (list, tuple)) or len(items) > MAX_ITEMS:
+                raise ValueError(f"{key}: must be a list of at most {MAX_ITEMS} items")
         if not self.fluids and not self.emitters:
             raise ValueError("fluids: the scene needs at least one fluid block or an emitter")
         for k, f in enumerate(self.fluids):
