@@ -38,9 +38,10 @@ class FolderLock:
     """The lock of one folder: ``acquire`` (``FolderBusy`` naming the holder when another
     process has it), ``release``; a context manager that takes and releases it."""
 
-    def __init__(self, folder, what: str = "run folder"):
+    def __init__(self, folder, what: str = "run folder", hint: str = ""):
         self.folder = Path(folder)
         self.what = what
+        self.hint = hint  # what else the refused command may do, said after the refusal
         self._fd: int | None = None
 
     @property
@@ -71,6 +72,7 @@ class FolderLock:
                 os.close(fd)
                 raise FolderBusy(
                     f"{self.folder}: in use by {holder}; wait until it ends (one writer per {self.what})"
+                    + (f", {self.hint}" if self.hint else "")
                 ) from None
             except BaseException:
                 os.close(fd)
@@ -142,5 +144,5 @@ def writing_into(folder, *outputs):
     for out in outputs:
         target = Path(os.path.realpath(out))
         if target == root or root in target.parents:
-            return FolderLock(folder)
+            return FolderLock(folder, hint="or write to a file outside it with --out")
     return nullcontext()

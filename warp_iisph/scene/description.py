@@ -149,9 +149,12 @@ class Scene(Record):
             m = self.max_particles
             if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= MAX_PARTICLES:
                 raise ValueError(f"max_particles = {m!r}: must be a whole number in [1, {MAX_PARTICLES}]")
+        for key, kind in (("physics", Physics), ("output", Output), ("surface", SurfaceSettings), ("camera", Camera)):
+            if not isinstance(getattr(self, key), kind):
+                raise ValueError(f"{key} = {getattr(self, key)!r:.60}: must be a {kind.__name__}")
+        self.output.validate()  # before the counts: the emitters' particles follow output.duration
         self._check_particle_counts()
         self.physics.validate()
-        self.output.validate()
         self.surface.validate()
         self.camera.validate()
         self._validated = self._fingerprint()
