@@ -8,31 +8,27 @@ stage shares (devices, CPU thread launches, timing), ``analysis`` the checks aga
 
 __version__ = "0.1.0"
 
-from .scene import Box, Camera, MeshShape, Output, Physics, Scene, Sphere, load_scene
-from .scene import cases as scenes
+# Everything is imported when first asked for, so that importing the package costs nothing: the
+# command line (warp_iisph.cli) takes over Ctrl-C first, and starts (or reports bad input) before
+# NumPy and Warp load.
+_SCENE = ("Box", "Camera", "MeshShape", "Output", "Physics", "Scene", "Sphere", "load_scene")
+_STEPPING = ("Simulation", "DivergenceError")
 
 
 def __getattr__(name: str):
-    # the simulation imports Warp: only when asked for, so that `warp-iisph` starts (and can be
-    # interrupted, or report bad input) before Warp loads
-    if name in ("Simulation", "DivergenceError"):
+    if name in _SCENE:
+        from . import scene
+
+        return getattr(scene, name)
+    if name == "scenes":
+        from .scene import cases
+
+        return cases
+    if name in _STEPPING:
         from . import stepping
 
         return getattr(stepping, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = [
-    "Box",
-    "Camera",
-    "MeshShape",
-    "Output",
-    "Physics",
-    "Scene",
-    "Sphere",
-    "Simulation",
-    "DivergenceError",
-    "load_scene",
-    "scenes",
-    "__version__",
-]
+__all__ = [*_SCENE, "scenes", *_STEPPING, "__version__"]

@@ -7,23 +7,31 @@ shows the traceback instead.
 
 from __future__ import annotations
 
-import argparse
-import signal
+import os
 import sys
 
-from .scene.settings import METHODS
+from .engine import signals
+
+# As a program (the warp-iisph script, or python -m warp_iisph.cli), Ctrl-C and SIGTERM are
+# remembered from here on, within milliseconds of the start (the package's __init__ imports
+# nothing), and raised once main can catch them; imported by other code, main installs them.
+if __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") in ("warp-iisph", "warp-iisph.exe"):
+    signals.install(armed=False)
 
 EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED = 2, 1, 130, 143
 
 
-class OneLineParser(argparse.ArgumentParser):
-    """argparse, with its usage errors in one line."""
+def _parser():
+    import argparse
 
-    def error(self, message: str):
-        self.exit(EXIT_BAD_INPUT, f"warp-iisph: error: {message} (see {self.prog} --help)\n")
+    from .scene.settings import METHODS
 
+    class OneLineParser(argparse.ArgumentParser):
+        """argparse, with its usage errors in one line."""
 
-def _parser() -> argparse.ArgumentParser:
+        def error(self, message: str):
+            self.exit(EXIT_BAD_INPUT, f"warp-iisph: error: {message} (see {self.prog} --help)\n")
+
     p = OneLineParser(prog="warp-iisph", description="IISPH liquids on NVIDIA Warp")
     p.add_argument("--debug", action="store_true", help="show the Python traceback of an error instead of one line")
     sub = p.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
@@ -420,6 +428,7 @@ def _run(args) -> int:
             progress=not args.no_progress,
             graph=use_graph(args.graph, device),
             resume=bool(args.resume),
+            inputs=[] if args.resume else [source],
         )
     except ValueError as e:
         if str(e).startswith("--") or isinstance(e, RunError):  # an argument, or a run folder's file: named already
@@ -458,7 +467,7 @@ def _run(args) -> int:
             if t.get("substeps")
             else ""
         )
-        + f" -> {out}"
+        + (f" -> {out}" if t["frames"] else f"; nothing written ({out} as it was)")
     )
     if t.get("not_emitted"):
         print(
@@ -572,31 +581,114 @@ COMMANDS = {
 }
 
 
-def _on_sigterm(signum, frame):
-    from .run.runner import Terminated
-
-    raise Terminated()
-
-
 def main(argv=None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in argv
-    argv = [a for a in argv if a != "--debug"]  # anywhere on the line, before or after the command
+    """The command line (``argv``: its arguments; ``None``: this process's, as a program)."""
+    program = argv is None
+    seen = 0 if program else signals.count()  # as a program, a signal before this line counts too
     try:
-        if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-            signal.signal(signal.SIGTERM, _on_sigterm)
-        args = _parser().parse_args(argv)
+        signals.install()
+        signals.arm()
+        _standard_streams()
+        argv = list(sys.argv[1:] if argv is None else argv)
+        debug = "--debug" in argv
+        argv = [a for a in argv if a != "--debug"]  # anywhere on the line, before or after the command
+        code = _command(argv, debug) if signals.count() == seen else _stopped(signals.received())
+        if signals.count() != seen and code == 0:  # a library swallowed the signal's exception
+            code = _stopped(signals.received())
+        if program:  # what is left is the interpreter's shutdown: a signal now would only cost a traceback
+            signals.ignore()
+    except KeyboardInterrupt as e:  # a signal while an error was being reported, or the work was done
+        code = _stopped(signal_of(e))
+        if program:
+            signals.ignore()
+    if program:
+        _flush_stdout()
+    return code
+
+
+def signal_of(e: KeyboardInterrupt):
+    import signal
+
+    return signal.SIGTERM if isinstance(e, signals.Terminated) else signal.SIGINT
+
+
+def _stopped(signum) -> int:
+    import signal
+
+    terminated = signum == signal.SIGTERM
+    _say(f"warp-iisph: {'terminated' if terminated else 'interrupted'}")
+    return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+def _command(argv: list, debug: bool) -> int:
+    try:
+        parser = _parser()
+        args = parser.parse_args(argv)
+        repeatable = _repeatable(parser)
+        for key, value in vars(args).items():  # argparse gives [] for --opt=-- (it drops the "--")
+            if isinstance(value, list) and key not in repeatable:
+                parser.error(f"argument --{key.replace('_', '-')}: expected one value")
         return COMMANDS[args.command](args)
     except KeyboardInterrupt as e:
-        terminated = type(e).__name__ == "Terminated"
-        print(f"warp-iisph: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
-        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+        return _stopped(signal_of(e))
     except Exception as e:
         if debug:
             raise
         code, text = _one_line(e)
-        print(f"warp-iisph: error: {text}", file=sys.stderr)
+        _say(f"warp-iisph: error: {text}")
         return code
+
+
+def _repeatable(parser) -> set:
+    """The destinations of options that may be given more than once (``--set``, ``--vary``)."""
+    import argparse
+
+    found = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._AppendAction):
+            found.add(action.dest)
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _repeatable(sub)
+    return found
+
+
+def _say(line: str) -> None:
+    """One line on stderr, if anything is there to take it."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+def _standard_streams() -> None:
+    """Standard streams the shell closed (``2>&-``) opened on /dev/null: else the next file this
+    process opens would take the descriptor, and receive what is written to the stream."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    if sys.stdout is None:
+        sys.stdout = open(1, "w", closefd=False)  # lives as long as the process
+    if sys.stderr is None:
+        sys.stderr = open(2, "w", closefd=False)
+
+
+def _flush_stdout() -> None:
+    """Flush stdout now: a reader that went away (``| head``) costs nothing at the shutdown."""
+    try:
+        sys.stdout.flush()
+    except (OSError, ValueError):
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 1)
+            os.close(null)
+        except OSError:
+            pass
 
 
 def use_graph(asked: bool | None, device: str) -> bool:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+from contextlib import contextmanager
 
 
 def device_name(name: str) -> str:
@@ -33,6 +34,29 @@ def checked_device(name: str) -> str:
 NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
 
 
+@contextmanager
+def native_stderr():
+    """What native code writes to stderr (file descriptor 2) inside the block, caught instead of
+    shown: yields a list that holds the text once the block is done (a library that fails says
+    so in many lines of its own, and the caller reports it in one)."""
+    caught: list[str] = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no stderr to catch
+        yield caught
+        return
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            yield caught
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            caught.append(capture.read().decode(errors="replace"))
+
+
 def init_warp() -> None:
     """``wp.init()`` without Warp's native no-driver warning on stderr (anything else it prints
     there is passed on)."""
@@ -41,17 +65,8 @@ def init_warp() -> None:
 
     if context.runtime is not None:
         return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as capture:
-        os.dup2(capture.fileno(), 2)
-        try:
-            wp.init()
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        capture.seek(0)
-        text = capture.read().decode(errors="replace")
-    for line in text.splitlines(keepends=True):
+    with native_stderr() as caught:
+        wp.init()
+    for line in "".join(caught).splitlines(keepends=True):
         if NO_DRIVER not in line:
             sys.stderr.write(line)

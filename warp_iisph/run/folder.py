@@ -14,12 +14,15 @@ RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
 from __future__ import annotations
 
 import json
+import os
+import re
 import uuid
 from pathlib import Path
 
 import numpy as np
 
 # the extensions of particle frames and meshes, as output.format and surface.format name them
+from ..scene.checks import box_corners, positive
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from .atomic import write_json
 
@@ -34,7 +37,16 @@ CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, 
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
 USD_NAMES = (USD, "run.usda", "run.usd")
+DATA_FOLDERS = (PARTICLES, MESHES, FRAMES, OBSTACLE_FRAMES)
 DEFAULT_FPS = 30.0
+MAX_FPS = 10_000.0  # output.fps's limit, and a video's
+
+
+# parts of a run record that the commands read, and their kinds
+RECORD_TABLES = ("scene", "output", "totals", "particles", "versions")
+RECORD_TEXTS = ("run_id", "device", "ended")
+SCENE_TABLES = ("tank", "camera", "surface", "physics", "output")
+SCENE_LISTS = ("fluids", "obstacles", "emitters", "sinks")
 
 
 class RunError(ValueError):
@@ -46,8 +58,25 @@ def new_run_id() -> str:
     return uuid.uuid4().hex
 
 
+# a frame's file name: frame_ and its number, five digits or more (frame_00001.ply); other files
+# beside them (frame_00001 copy.ply, frame_1.ply) are not frames
+FRAME_NAME = re.compile(r"frame_(\d{5,})")
+
+
 def frame_index(path: Path) -> int:
     return int(path.stem.split("_")[-1])
+
+
+def is_frame(path: Path) -> bool:
+    """Whether ``path`` is named as a frame: ``frame_NNNNN`` and its suffix, nothing else."""
+    m = FRAME_NAME.fullmatch(Path(path).stem)
+    return m is not None and m.group(1) == f"{int(m.group(1)):05d}"
+
+
+def frame_files(folder: Path, ext: str) -> list[Path]:
+    """The frames ``frame_NNNNN.ext`` in ``folder``, in frame order."""
+    files = [p for p in Path(folder).glob(f"frame_*.{ext}") if is_frame(p) and p.suffix == f".{ext}" and p.is_file()]
+    return sorted(files, key=frame_index)
 
 
 class RunFolder:
@@ -83,7 +112,7 @@ class RunFolder:
             except RunError:  # an unreadable run.json: the files on disk say
                 fmt = None
             if fmt not in PARTICLE_FORMATS:
-                on_disk = [e for e in PARTICLE_FORMATS if any((self.path / PARTICLES).glob(f"frame_*.{e}"))]
+                on_disk = [e for e in PARTICLE_FORMATS if frame_files(self.path / PARTICLES, e)]
                 fmt = on_disk[0] if on_disk else PARTICLE_FORMATS[0]
             self._particle_format = fmt
         return self._particle_format
@@ -111,13 +140,13 @@ class RunFolder:
             except RunError:
                 fmt = None
         if fmt not in MESH_FORMATS:
-            on_disk = [e for e in MESH_FORMATS if any((self.path / MESHES).glob(f"frame_*.{e}"))]
+            on_disk = [e for e in MESH_FORMATS if frame_files(self.path / MESHES, e)]
             fmt = on_disk[0] if on_disk else MESH_FORMATS[0]
         return fmt
 
     def all_mesh_frames(self) -> list[Path]:
         """Every ``mesh/frame_*`` file of either mesh format (what an overwrite replaces)."""
-        return sorted(p for e in MESH_FORMATS for p in (self.path / MESHES).glob(f"frame_*.{e}"))
+        return [p for e in MESH_FORMATS for p in frame_files(self.path / MESHES, e)]
 
     @property
     def stats(self) -> Path:
@@ -135,6 +164,19 @@ class RunFolder:
     def checkpoint(self) -> Path:
         return self.path / CHECKPOINT
 
+    def temporary_files(self) -> list[Path]:
+        """Files a writer staged beside their place and never renamed in (a killed run's)."""
+        folders = (self.path, self.path / PARTICLES, self.path / MESHES, self.path / OBSTACLE_FRAMES)
+        return [p for d in folders for p in d.glob(".*.tmp*") if p.is_file()]
+
+    def holds_as_its_own(self, path) -> bool:
+        """Whether ``path`` is one of the run's own files (its record, step records, checkpoint,
+        obstacles) or lies in a folder of its frames: what a view's --out must never replace."""
+        root, target = Path(os.path.realpath(self.path)), Path(os.path.realpath(path))
+        if target.parent == root and target.name in (RECORD, STATS, CHECKPOINT, OBSTACLES):
+            return True
+        return any(root / d == target or root / d in target.parents for d in DATA_FOLDERS)
+
     def usd_files(self) -> list[Path]:
         """The run's USD stages: ``run.usdc``, ``run.usda``, ``run.usd``, those that exist."""
         return [self.path / name for name in USD_NAMES if (self.path / name).is_file()]
@@ -148,13 +190,13 @@ class RunFolder:
     def _frame_files(self, kind: str) -> list[Path]:
         if kind == MESHES:
             for ext in dict.fromkeys((self.mesh_format, *MESH_FORMATS)):
-                files = sorted((self.path / kind).glob(f"frame_*.{ext}"))
+                files = frame_files(self.path / kind, ext)
                 if files:
                     return files
             return []
         # the run's own format first; a folder of the other format (copied in, or an older run) is read too
         for ext in dict.fromkeys((self.particle_format, *PARTICLE_FORMATS)):
-            files = sorted((self.path / kind).glob(f"frame_*.{ext}"))
+            files = frame_files(self.path / kind, ext)
             if files:
                 return files
         return []
@@ -184,9 +226,49 @@ class RunFolder:
         if not self.record_path.is_file():
             return {}
         try:
-            return json.loads(self.record_path.read_text())
+            record = json.loads(self.record_path.read_text())
         except json.JSONDecodeError as e:
             raise RunError(f"{self.record_path}: not valid JSON ({e.msg}, line {e.lineno})") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise RunError(f"{self.record_path}: cannot be read ({e})") from None
+        if not isinstance(record, dict):
+            raise RunError(f"{self.record_path}: not a run record (a JSON object), but {type(record).__name__}")
+        self._check_record(record)
+        return record
+
+    def _check_record(self, record: dict) -> None:
+        """``RunError`` naming the key when a part of the record the commands read is of the
+        wrong kind (a record edited by hand, or not written by warp-iisph)."""
+        scene = record.get("scene", {})
+        parts = [(k, record.get(k), dict) for k in RECORD_TABLES] + [(k, record.get(k), str) for k in RECORD_TEXTS]
+        if isinstance(scene, dict):
+            parts += [(f"scene.{k}", scene.get(k), dict) for k in SCENE_TABLES]
+            parts += [(f"scene.{k}", scene.get(k), list) for k in SCENE_LISTS]
+        for key, value, kind in parts:
+            if value is not None and not isinstance(value, kind):
+                what = {dict: "a table (a JSON object)", str: "a string", list: "a list"}[kind]
+                raise RunError(f"{self.record_path}: {key} = {value!r:.80}: must be {what}")
+
+    def spacing(self, record: dict | None = None) -> float | None:
+        """The run's particle spacing (``None`` when the record has none)."""
+        record = self.record() if record is None else record
+        h = (record.get("scene") or {}).get("spacing")
+        if h is None:
+            return None
+        try:
+            return positive(h, "scene.spacing", "metres")
+        except ValueError as e:
+            raise RunError(f"{self.record_path}: {e}") from None
+
+    def is_run(self) -> bool:
+        """Whether the folder holds a run of warp-iisph: its ``run.json`` is one's record (a run id
+        and the versions it was made with). Only such a folder may be replaced by another run."""
+        try:
+            record = self.record()
+        except RunError:
+            return False
+        versions = record.get("versions")
+        return isinstance(record.get("run_id"), str) and isinstance(versions, dict) and "warp_iisph" in versions
 
     def write_record(self, record: dict) -> None:
         """Replace ``run.json`` atomically."""
@@ -196,18 +278,24 @@ class RunFolder:
         """What the files in ``folder`` (``mesh``, ``frames``) were made from, or ``None``."""
         path = self.path / folder / SOURCE
         try:
-            return json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError):
+            made = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             return None
+        return made if isinstance(made, dict) else None
 
     def write_provenance(self, folder: str, run_id: str | None, settings: dict) -> None:
         """Record that the files in ``folder`` come from run ``run_id`` made with ``settings``."""
         write_json(self.path / folder / SOURCE, {"run_id": run_id, "settings": settings})
 
     def fps(self, record: dict | None = None) -> float:
-        """Frames per simulated second the run was written at."""
+        """Frames per simulated second the run was written at (``RunError`` for a record whose
+        ``fps`` is not a number in (0, 10000])."""
         record = self.record() if record is None else record
-        return float(record.get("fps") or DEFAULT_FPS)
+        fps = record.get("fps")
+        fps = DEFAULT_FPS if fps is None else fps
+        if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0.0 < fps <= MAX_FPS:
+            raise RunError(f"{self.record_path}: fps = {fps!r}: must be a number in (0, {MAX_FPS:g}]")
+        return float(fps)
 
     def obstacle_frame(self, k: int) -> Path:
         """The obstacles at frame ``k`` (written when some of them move)."""
@@ -232,6 +320,15 @@ class RunFolder:
         return mesh if len(getattr(mesh, "faces", ())) else None
 
 
+def enclosing_run(path) -> Path | None:
+    """The run folder that ``path`` lies in (or is), if any."""
+    p = Path(os.path.realpath(path))
+    for folder in (p, *p.parents):
+        if (folder / RECORD).is_file() and RunFolder(folder).is_run():
+            return folder
+    return None
+
+
 def select_frames(files: list[Path], spec: str | None) -> list[Path]:
     """Frames whose number is in ``a:b`` (b excluded; either end may be left out, like a Python
     slice of frame numbers); all of them for ``None``."""
@@ -254,9 +351,14 @@ def select_frames(files: list[Path], spec: str | None) -> list[Path]:
     return chosen
 
 
-def tank_bounds(record: dict) -> tuple[np.ndarray, np.ndarray] | None:
-    """The box tank's corners from a run record; ``None`` for a mesh tank or no record."""
-    tank = record.get("scene", {}).get("tank", {})
+def tank_bounds(record: dict, source=RECORD) -> tuple[np.ndarray, np.ndarray] | None:
+    """The box tank's corners from a run record (``source``: its file, for messages); ``None``
+    for a mesh tank or no record."""
+    tank = (record.get("scene") or {}).get("tank") or {}
     if "lower" in tank and "upper" in tank:
-        return np.asarray(tank["lower"], float), np.asarray(tank["upper"], float)
+        try:
+            lo, hi = box_corners(tank["lower"], tank["upper"], "scene.tank")
+        except ValueError as e:
+            raise RunError(f"{source}: {e}") from None
+        return np.asarray(lo, float), np.asarray(hi, float)
     return None

@@ -4,15 +4,22 @@ run's (``mesh/frame_00000.obj`` ...), or any particle files."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
 from pathlib import Path
 
+from ..engine import signals
 from ..engine.timing import StageTimes
 from ..scene import SurfaceSettings
 from ..scene.checks import positive
+from ..scene.settings import MESH_FORMATS
 from ..surface import SurfaceMesh, SurfaceReconstructor
-from .folder import MESHES, PARTICLES, RECORD, RunError, RunFolder, frame_index
+from .atomic import write_json
+from .folder import MESHES, PARTICLES, RECORD, SOURCE, RunError, RunFolder, enclosing_run, frame_files, frame_index
 from .formats import read_particles, write_mesh
+from .lock import LOCK_NAME, FolderLock
 from .progress import frame_bar
+from .replace import Target, commit, discard, recover, stage
 
 MESH_STAGES = ("distance_field", "marching_cubes", "smoothing", "export")
 # what meshio reads as points, for a folder of another tool's particle files
@@ -56,35 +63,93 @@ def mesh_settings(params: SurfaceSettings, spacing: float) -> dict:
 
 
 def _settings(stored: dict, overrides: dict | None) -> SurfaceSettings:
+    """The surface settings: a run's, changed by the command's options (named as options)."""
     known = {f.name for f in dataclasses.fields(SurfaceSettings)}
-    params = SurfaceSettings(**{k: v for k, v in {**stored, **(overrides or {})}.items() if k in known})
-    return params.validate()
+    try:
+        params = SurfaceSettings(**{k: v for k, v in {**stored, **(overrides or {})}.items() if k in known})
+        return params.validate()
+    except ValueError as e:
+        text = str(e)
+        for key in overrides or {}:
+            text = text.replace(f"surface.{key} ", f"--{key} ")
+        raise RunError(text) from None
 
 
-def _jobs_of_run(run: RunFolder, overrides, spacing, overwrite: bool):
-    """A run folder's frames: (particle file, mesh file) pairs, the spacing and the settings, after
-    checking that the meshes already there were made from this run with these settings."""
+def _mesher(spacing, params: SurfaceSettings, device) -> FrameMesher:
+    """The mesher, after its spacing is checked (what it is made with is valid before any file changes)."""
+    spacing = positive(spacing, "--spacing", "metres")
+    try:
+        return FrameMesher(spacing, params, device)
+    except ValueError as e:
+        raise RunError(str(e)) from None
+
+
+def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progress: bool) -> dict:
+    """A run folder's frames meshed into ``mesh/``, after checking that the meshes already there
+    were made from this run with these settings. With ``overwrite`` the new meshes are written
+    beside the old ones and take their place (and the USD stage made of them goes) once every
+    frame is meshed: settings refused, or a frame that fails, leave the old ones as they were."""
     record = run.record()
     frames = run.frames(PARTICLES)
     scene = record.get("scene") or {}
     if spacing is None:
-        try:
-            spacing = float(scene["spacing"])
-        except (KeyError, TypeError, ValueError):
-            raise RunError(f"{run.record_path}: has no particle spacing; pass --spacing") from None
-    params = _settings(scene.get("surface") or {}, overrides)
-    settings = mesh_settings(params, spacing)
+        spacing = run.spacing(record)
+        if spacing is None:
+            raise RunError(f"{run.record_path}: has no particle spacing; pass --spacing")
+    stored = scene.get("surface") or {}
+    params = _settings(stored, overrides)
+    mesher = _mesher(spacing, params, device)
+    settings = mesh_settings(params, mesher.reconstructor.h)
     made = run.provenance(MESHES)
     mine = {"run_id": record.get("run_id"), "settings": settings}
+    folder = run.path / MESHES
+    recover(folder)  # a swap of meshes that a killed process began
     existing = run.has_frames(MESHES)
     if existing and not overwrite and made != mine:
         what = "another run" if made and made.get("run_id") != mine["run_id"] else "other settings"
-        raise RunError(f"{run.path / MESHES}: holds meshes made from {what}; pass --overwrite to replace them")
-    if overwrite:  # the old meshes go, and the USD stage made of them (`warp-iisph usd` writes it anew)
-        for old in [*run.all_mesh_frames(), *run.usd_files()]:
-            old.unlink()
-    run.write_provenance(MESHES, record.get("run_id"), settings)
-    return [(f, run.mesh_frame(frame_index(f))) for f in frames], spacing, params, run.path / MESHES
+        raise RunError(f"{folder}: holds meshes made from {what}; pass --overwrite to replace them")
+    if not (overwrite and folder.exists()):
+        run.write_provenance(MESHES, record.get("run_id"), settings)
+        jobs = [(f, run.mesh_frame(frame_index(f))) for f in frames]
+        result = _mesh_jobs(jobs, mesher, overwrite, progress, folder)
+        for old in run.usd_files() if overwrite else []:  # nothing made of other meshes outlives them
+            old.unlink(missing_ok=True)
+        return result
+    target = Target(folder, folder, True, None)
+    new, lock = stage(target, "mesh")
+    try:
+        write_json(new / SOURCE, {"run_id": record.get("run_id"), "settings": settings})
+        jobs = [(f, new / run.mesh_frame(frame_index(f)).name) for f in frames]
+        result = _mesh_jobs(jobs, mesher, True, progress, folder)
+        with signals.held():  # the meshes and what was made of them change together
+            _carry_foreign_files(folder, new)
+            stale = run.usd_files()  # a stage made of the old meshes
+            commit(target, new, lock)
+            for old in stale:
+                old.unlink(missing_ok=True)
+    except BaseException:
+        if new.exists():
+            discard(new, lock)
+        raise
+    lock.release()
+    return result
+
+
+def _carry_foreign_files(folder: Path, new: Path) -> None:
+    """Files in the meshes' folder that are not meshes (the user's) linked into the new one, so
+    the swap keeps them (a link, not a move: a swap rolled back leaves them where they were);
+    a folder there refuses the overwrite."""
+    ours = {p.name for p in new.iterdir()} | {SOURCE, LOCK_NAME}
+    meshes = {p.name for e in MESH_FORMATS for p in frame_files(folder, e)}
+    for p in folder.iterdir():
+        if p.name in ours or p.name in meshes or (p.name.startswith(".") and ".tmp" in p.name):
+            continue
+        if p.is_dir() and not p.is_symlink():
+            raise RunError(f"{folder}: holds {p.name}/, not a mesh, which --overwrite would delete; move it first")
+        try:
+            os.link(p, new / p.name, follow_symlinks=False)
+        except OSError:  # a file system without hard links
+            shutil.copy2(p, new / p.name, follow_symlinks=False)
 
 
 def _jobs_of_files(path: Path, overrides, spacing, out):
@@ -102,31 +167,14 @@ def _jobs_of_files(path: Path, overrides, spacing, out):
         target = Path(out) if out else path.parent
     if target.exists() and not target.is_dir():
         raise RunError(f"--out {target}: is a file, not a folder")
+    run = enclosing_run(target)
+    if run is not None:  # meshes of other files would mix with a run's own, unrecorded
+        raise RunError(f"{target}: lies in the run {run}; mesh the run itself (warp-iisph mesh {run}) or choose --out")
     return [(f, target / f"{f.stem}.obj") for f in files], spacing, _settings({}, overrides), target
 
 
-def mesh_path(
-    path,
-    overrides: dict | None = None,
-    device="cpu",
-    overwrite: bool = False,
-    progress: bool = True,
-    spacing: float | None = None,
-    out=None,
-) -> dict:
-    """Mesh a run folder's ``particles/frame_*.ply`` (or ``.vtu``) into ``mesh/frame_*.obj`` with the run's
-    ``surface`` settings changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``), or any
-    particle file (or folder of them) meshio reads, with ``spacing``. Meshes already there are kept
-    unless ``overwrite``; a run's meshes made from other settings are refused. Returns counts,
-    seconds per stage and where the meshes went."""
-    path = Path(path)
-    if not path.exists():
-        raise RunError(f"{path}: no such run folder or particle file")
-    if path.is_dir() and ((path / RECORD).is_file() or (path / PARTICLES).is_dir()):
-        jobs, spacing, params, target = _jobs_of_run(RunFolder(path), overrides, spacing, overwrite)
-    else:
-        jobs, spacing, params, target = _jobs_of_files(path, overrides, spacing, out)
-    mesher = FrameMesher(spacing, params, device)
+def _mesh_jobs(jobs, mesher: FrameMesher, overwrite: bool, progress: bool, out: Path) -> dict:
+    """Mesh each (particle file, mesh file) pair, skipping meshes already there unless ``overwrite``."""
     bar = frame_bar(len(jobs), progress)
     written = skipped = 0
     try:
@@ -150,6 +198,37 @@ def mesh_path(
         "written": written,
         "skipped": skipped,
         "stage_seconds": mesher.times.seconds,
-        "surface": dataclasses.asdict(params),
-        "out": target,
+        "surface": dataclasses.asdict(mesher.reconstructor.params),
+        "out": out,
     }
+
+
+def mesh_path(
+    path,
+    overrides: dict | None = None,
+    device="cpu",
+    overwrite: bool = False,
+    progress: bool = True,
+    spacing: float | None = None,
+    out=None,
+) -> dict:
+    """Mesh a run folder's ``particles/frame_*.ply`` (or ``.vtu``) into ``mesh/frame_*.obj`` with the run's
+    ``surface`` settings changed by ``overrides`` (e.g. ``{"smoothing": "taubin"}``), or any
+    particle file (or folder of them) meshio reads, with ``spacing``. Meshes already there are kept
+    unless ``overwrite``; a run's meshes made from other settings are refused. Every setting is
+    checked before a file changes, and the folder written into is locked (one writer). Returns
+    counts, seconds per stage and where the meshes went."""
+    path = Path(path)
+    if not path.exists():
+        raise RunError(f"{path}: no such run folder or particle file")
+    if path.is_dir() and ((path / RECORD).is_file() or (path / PARTICLES).is_dir()):
+        if out is not None:
+            raise RunError(f"--out {out}: a run's meshes go into {path / MESHES}; --out is for particle files")
+        run = RunFolder(path)
+        with FolderLock(run.path):
+            return _mesh_run(run, overrides, spacing, overwrite, device, progress)
+    jobs, spacing, params, target = _jobs_of_files(path, overrides, spacing, out)
+    mesher = _mesher(spacing, params, device)
+    target.mkdir(parents=True, exist_ok=True)
+    with FolderLock(target, "folder"):
+        return _mesh_jobs(jobs, mesher, overwrite, progress, target)

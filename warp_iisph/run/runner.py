@@ -1,13 +1,15 @@
 """Run a scene to an output folder: particle frames, per-step statistics and a run record.
 
 Nothing on disk changes until the run is built (scene validated, particles sampled, memory
-checked). A run that replaces an older one in the same folder is written into a fresh folder
-beside it, which takes the old one's place once its first frame is on disk; so a refused or
-failed start leaves the old run as it was, and nothing of the old run (frames, videos, scripts)
-outlives the replacement. ``run.json`` exists from the first frame on, says ``running`` while the
-run goes on (with totals updated every frame) and is rewritten atomically however the run ends:
-``completed``, ``diverged``, ``interrupted``, ``terminated`` or ``failed`` (a file could not be
-written).
+checked, the output folder checked and locked: :mod:`.replace`, :mod:`.lock`). A new run is
+written into a folder beside its place, which it takes (with the old run's place, when it
+replaces one) once its first frame is on disk; so a refused or failed start leaves the old run
+as it was, and nothing of the old run (frames, videos, scripts) outlives the replacement.
+``run.json`` exists from the first frame on, says ``running`` while the run goes on (with totals
+updated every frame) and is rewritten atomically however the run ends: ``completed``,
+``diverged``, ``interrupted``, ``terminated`` or ``failed`` (a file could not be written, or
+anything else went wrong at run time, which the message names). A resume continues from the
+run's own checkpoint only (:mod:`.checkpoint`).
 """
 
 from __future__ import annotations
@@ -16,33 +18,40 @@ import dataclasses
 import math
 import os
 import platform
-import shutil
 import sys
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
+from ..engine import signals
+from ..engine.signals import Terminated
 from ..engine.timing import StageTimes
-from ..scene import Scene, obstacles_mesh, scene_to_dict
+from ..scene import MeshShape, Scene, obstacles_mesh, scene_to_dict
 from ..scene.checks import in_range
+from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from ..setup.model import id_order
-from .atomic import staged_write
-from .folder import MESHES, OBSTACLE_FRAMES, OBSTACLES, PARTICLES, RunError, RunFolder, frame_index, new_run_id
+from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owner, stage_checkpoint
+from .folder import (
+    MESHES,
+    OBSTACLE_FRAMES,
+    OBSTACLES,
+    PARTICLES,
+    RunError,
+    RunFolder,
+    frame_files,
+    frame_index,
+    new_run_id,
+)
 from .formats import StatsWriter, read_stats, write_obj, write_particles
 from .frame_queue import FrameQueue
+from .lock import FolderLock
 from .meshing import FrameMesher, mesh_settings
 from .progress import frame_bar
+from .replace import OutputExistsError, commit, discard, prepare, recover, resolved, stage
 
-
-class OutputExistsError(ValueError):
-    pass
-
-
-class Terminated(KeyboardInterrupt):
-    """The process was asked to stop (SIGTERM); raised in the main thread like Ctrl-C."""
+__all__ = ["OutputExistsError", "Terminated", "load_checkpoint", "resumed_scene", "run_scene"]
 
 
 def versions() -> dict:
@@ -88,15 +97,51 @@ def plan_frames(scene: Scene, duration=None, fps=None) -> FramePlan:
     return FramePlan(fps, intervals + 1, intervals / fps, duration)
 
 
-def _check_target(out: Path, overwrite: bool) -> bool:
-    """Whether ``out`` holds something a new run would replace (``OutputExistsError`` when it may not)."""
-    if out.exists() and not out.is_dir():
-        raise OutputExistsError(f"--out {out}: is a file, not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not overwrite:
-            raise OutputExistsError(f"--out {out}: folder exists and is not empty; pass --overwrite to replace it")
-        return True
-    return False
+def scene_inputs(scene: Scene) -> list[Path]:
+    """The files a run of ``scene`` reads besides its scene file: its meshes."""
+    return [Path(s.base_dir) / s.path for s in [scene.tank, *scene.obstacles] if isinstance(s, MeshShape)]
+
+
+def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict, dict, FolderLock]:
+    """The run folder to resume, locked, with its record and its checkpoint, checked (nothing written)."""
+    path = resolved(out, "--resume")
+    recover(path)
+    run = RunFolder.existing(path)
+    lock = FolderLock(path).acquire()
+    try:
+        before = run.record()
+        if not run.is_run():
+            raise RunError(f"{run.record_path}: not the record of a warp-iisph run; there is nothing to resume")
+        checkpoint = load_checkpoint(run)
+        if abs(run.fps(before) - plan.fps) > 1e-9 * plan.fps:
+            raise ValueError(f"--fps = {plan.fps:g}: a resumed run keeps its {run.fps(before):g} frames/s")
+        if run.particle_format != scene.output.format:
+            raise ValueError(f"--set output.format: a resumed run keeps its {run.particle_format} frames")
+        check_checkpoint(checkpoint, run, before, scene, plan.fps)
+        frame = int(checkpoint["frame"])
+        if plan.frames - 1 < frame:
+            raise ValueError(
+                f"--duration = {plan.requested:g}: the run has already reached frame {frame} "
+                f"(t = {frame / plan.fps:g} s) and a resumed run goes on from there; give a longer one"
+            )
+        inputs = {Path(os.path.realpath(p)) for p in scene_inputs(scene)}
+        doomed = [f for f in _frames_after(run, frame) if Path(os.path.realpath(f)) in inputs]
+        if doomed:
+            raise RunError(
+                f"{doomed[0]}: a mesh of this run's scene, which resuming would delete (frames after the checkpoint go)"
+            )
+    except BaseException:
+        lock.release()
+        raise
+    return run, before, checkpoint, lock
+
+
+def _failure(e: BaseException) -> str:
+    """A run-time error in one line: our own messages as they are, anything else with its kind."""
+    text = " ".join(str(e).split())
+    if isinstance(e, ValueError):
+        return text or type(e).__name__
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
 def run_scene(
@@ -110,6 +155,7 @@ def run_scene(
     graph: bool = False,
     background_output: bool = True,
     resume: bool = False,
+    inputs=(),
 ) -> dict:
     """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
     says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene
@@ -118,34 +164,61 @@ def run_scene(
     thread while the next frame simulates (``background_output=False``: inline). With ``resume``,
     ``out`` is a run stopped (or diverged, then fixed) after a checkpoint: it continues from there,
     bitwise as it would have, to the frames ``duration`` asks for (``scene``: the run's own, see
-    :func:`resumed_scene`)."""
-    from ..stepping import DivergenceError, Simulation
+    :func:`resumed_scene`). ``inputs``: files the run is made from besides the scene's meshes (its
+    scene file), which ``overwrite`` never deletes. The run folder is locked while the run goes on
+    (:mod:`.lock`); a new run is written beside its place and moved there with its first frame
+    (:mod:`.replace`)."""
+    from ..stepping import Simulation
 
     plan = plan_frames(scene, duration, fps)
-    out = Path(out)
-    if resume:
-        run = RunFolder.existing(out)
-        before = run.record()
-        checkpoint = load_checkpoint(run)
-        if abs(run.fps(before) - plan.fps) > 1e-9 * plan.fps:
-            raise ValueError(f"--fps = {plan.fps:g}: a resumed run keeps its {run.fps(before):g} frames/s")
-        if run.particle_format != scene.output.format:
-            raise ValueError(f"--set output.format: a resumed run keeps its {run.particle_format} frames")
-        replacing = False
-    else:
-        replacing = _check_target(out, overwrite)
-    t_start = time.perf_counter()
-    # everything is built before the disk changes; step records go to stats.jsonl, not memory
-    sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration)
-    first = 0
-    if resume:
-        sim.restore(checkpoint)
-        first = int(checkpoint["frame"]) + 1
+    held = []  # the locks (and the target) released when the run ends, however it ends
+    staging = None  # a new run's folder and lock, until it takes its place
+    before = None  # a resumed run's record
+    try:
+        if resume:
+            run, before, checkpoint, lock = _open_to_resume(out, scene, plan)
+            held.append(lock)
+            out = run.path
+        else:
+            target = prepare(out, overwrite, [*inputs, *scene_inputs(scene)])
+            held.append(target)
+            out = target.path
+        t_start = time.perf_counter()
+        # everything is built before the disk changes; step records go to stats.jsonl, not memory
+        sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration)
+        scene = sim.scene  # its own validated copy, which the caller cannot change while it runs
+        first = 0
+        if resume:
+            check_positions(checkpoint, run, (sim.model.domain_lower, sim.model.domain_upper))
+            sim.restore(checkpoint)
+            first = int(checkpoint["frame"]) + 1
+            run = RunFolder(out, scene.output.format)
+        else:
+            staging = stage(target)
+            run = RunFolder(staging[0], scene.output.format)
+        place = None if resume else (lambda: commit(target, *staging))
+        record = _simulate(scene, sim, run, plan, first, t_start, background_output, progress, graph, before, place)
+        if staging is not None and run.path == staging[0]:  # the new run never got its first frame in place
+            discard(*staging, target)
+        return record
+    except BaseException:
+        if staging is not None and staging[0].exists():
+            discard(*staging, target)
+        raise
+    finally:
+        for h in held:
+            h.release()
+
+
+def _simulate(scene, sim, run, plan, first, t_start, background_output, progress, graph, before, place) -> dict:
+    """The run itself, from frame ``first`` (0, or the one after a resumed run's checkpoint, whose
+    record is ``before``); ``place`` moves a new run's folder into its place once its first frame
+    is on disk. Returns the record, whose ``ended`` says how it ended; every ending is written to
+    ``run.json`` (except where the run never got in place, and the old folder stays as it was)."""
+    from ..stepping import DivergenceError
+
+    resume = before is not None
     totals = StepTotals(sim.physics)
-    if resume:
-        run = RunFolder(out, scene.output.format)
-    else:
-        run = RunFolder(out.parent / f".{out.name}.new-{os.getpid()}" if replacing else out, scene.output.format)
     record = {
         "run_id": before["run_id"] if resume else new_run_id(),
         "ended": "running",
@@ -173,10 +246,11 @@ def run_scene(
     # seconds per stage on the main thread; ``export`` is what output cost it: the host copies
     # plus the waits for the writer thread (whose own work overlaps the simulation)
     times = StageTimes()
-    mesher = FrameMesher(scene.spacing, scene.surface, sim.device) if scene.output.mesh else None
-    queue = FrameQueue(background=background_output)
+    owner_keys = owner(record["run_id"], scene)
     written = [0]  # frames whose files are all on disk
     moving_obstacles = any(o.motion is not None for o in scene.obstacles)
+    mesher = queue = stats = None
+    placed = resume  # whether the run folder is in its place (a new one moves there with frame 0)
 
     def write_frame(k: int) -> None:
         files, then, staged = [], [], []  # written side by side; then what must appear after them
@@ -200,7 +274,7 @@ def run_scene(
             files.append(lambda: write_obj(path, np.asarray(solid.vertices), np.asarray(solid.faces)))
         every = scene.output.checkpoint_every
         if every and (k % every == 0 or k == plan.frames - 1):
-            state = {**sim.checkpoint(), "frame": np.int64(k)}
+            state = {**sim.checkpoint(), "frame": np.int64(k), **owner_keys}
             files.append(lambda: staged.append(stage_checkpoint(run, state)))
             then.append(lambda: staged[0].commit())  # renamed in after the frame's files: never ahead of them
 
@@ -227,10 +301,11 @@ def run_scene(
         record["output"].update(writer_seconds=queue.busy, waited_seconds=queue.blocked)
         run.write_record(record)
 
-    stats = None
     bar = frame_bar(plan.frames, progress)
     ended, message = "completed", ""
     try:
+        mesher = FrameMesher(scene.spacing, scene.surface, sim.device) if scene.output.mesh else None
+        queue = FrameQueue(background=background_output)
 
         def on_step(rec: dict) -> None:
             stats.write(rec)
@@ -238,9 +313,7 @@ def run_scene(
             times.merge({k: v / 1e3 for k, v in rec["ms"].items()})
 
         if resume:  # what the stopped run wrote after its checkpoint goes; the rest is this run's start
-            for old in _frames_after(run, first - 1):
-                old.unlink()
-            for old in run.path.glob(f".{run.checkpoint.name}.*.tmp*"):  # staged by a run killed mid-frame
+            for old in _frames_after(run, first - 1) + run.temporary_files():  # and what a killed run staged
                 old.unlink()
             kept = [r for r in read_stats(run.stats) if r["step"] <= sim.step_count] if run.stats.exists() else []
             for r in kept:
@@ -249,7 +322,6 @@ def run_scene(
             written[0] = first
             update_record()
         else:
-            run.path.mkdir(parents=True, exist_ok=True)
             stats = StatsWriter(run.stats)
             if scene.obstacles:  # one file for the viewers and Blender (at t = 0; per frame as well when some move)
                 mesh = obstacles_mesh(scene.obstacles)
@@ -260,8 +332,9 @@ def run_scene(
             write_frame(0)
             queue.wait()
             update_record()
-            if replacing:  # the new run is on disk: it takes the old one's place
-                _swap_in(run, out)
+            with signals.held():  # a Ctrl-C now is raised once the run is in place and knows it
+                run.path = place()  # the new run is on disk: it takes its place (and the old one's)
+                placed = True
             first = 1
         bar.update(first)
         for k in range(first, plan.frames):
@@ -282,24 +355,23 @@ def run_scene(
     except KeyboardInterrupt:
         ended, message = "interrupted", f"interrupted at step {sim.step_count}, t = {sim.time:.5f} s"
     except OSError as e:
-        ended, message = "failed", f"writing the run to {out}: {e}"
+        ended, message = "failed", f"writing the run to {run.path}: {e}"
     except MemoryError as e:  # storage that would outgrow the device or its indices: frames so far stay
         ended, message = "failed", str(e) or "out of memory"
+    except Exception as e:  # anything else at run time (a surface grid outgrowing its limit, a thread
+        # that cannot start): the run stops, and its record says why
+        ended, message = "failed", f"at step {sim.step_count}, t = {sim.time:.5f} s: {_failure(e)}"
     finally:
-        bar.close()
-        try:
-            queue.close()  # every frame handed over is on disk (or failed) before the record says so
-        except OSError as e:
-            if ended == "completed":
-                ended, message = "failed", f"writing the run to {out}: {e}"
-        if stats is not None:
+        _close_quietly(bar.close)
+        if queue is not None:
             try:
-                stats.close()
-            except OSError:
-                pass
-    if not run.path.exists() or (replacing and run.path != out):
-        # the new run never got its first frame onto the disk: the old run stays as it was
-        shutil.rmtree(run.path, ignore_errors=True)
+                queue.close()  # every frame handed over is on disk (or failed) before the record says so
+            except Exception as e:
+                if ended == "completed":
+                    ended, message = "failed", f"writing the run to {run.path}: {_failure(e)}"
+        if stats is not None:
+            _close_quietly(stats.close)
+    if not placed:  # the new run never got its first frame in place: the old folder stays as it was
         record.update(ended=ended if ended != "completed" else "failed", message=message or "no frame was written")
         record["totals"] = totals.record(sim, 0, time.perf_counter() - t_start)
         return record
@@ -315,6 +387,13 @@ def run_scene(
     return record
 
 
+def _close_quietly(close) -> None:
+    try:
+        close()
+    except Exception:  # a progress bar on a closed terminal, a stats file on a full disk: the record says the rest
+        pass
+
+
 def resumed_scene(run_dir, overrides=()) -> Scene:
     """The scene of the run in ``run_dir`` (as its ``run.json`` records it), changed by ``--set``
     overrides of its physics, output, surface or camera: a resumed run keeps its particles, so its
@@ -322,10 +401,12 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
     from ..scene import scene_from_dict
     from ..scene.file import apply_override
 
-    run = RunFolder.existing(run_dir)
+    path = resolved(run_dir, "--resume")
+    recover(path)
+    run = RunFolder.existing(path)
     record = run.record()
     data = record.get("scene")
-    if not data or "tank" not in data:
+    if not data or "tank" not in data:  # the record's parts are of their kinds (RunFolder.record)
         raise RunError(f"{run.record_path}: records no scene to resume")
     # the run's own length and frame rate (asked on its command line, not in its scene file)
     data.setdefault("output", {}).update(
@@ -345,45 +426,12 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
         raise ValueError(f"{run.record_path}: {e}") from None
 
 
-def load_checkpoint(run: RunFolder) -> dict:
-    """The state ``run`` kept at its last checkpoint, with the frame it was taken at."""
-    if not run.checkpoint.is_file():
-        raise RunError(
-            f"{run.checkpoint}: no checkpoint to resume from (output.checkpoint_every = 0, or no frame was written)"
-        )
-    try:
-        with np.load(run.checkpoint) as f:
-            return {k: f[k] for k in f.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as e:
-        raise RunError(f"{run.checkpoint}: not a readable checkpoint ({e})") from None
-
-
-def stage_checkpoint(run: RunFolder, state: dict):
-    """Write the checkpoint beside its place; the returned file's ``commit`` renames it in."""
-
-    def write(tmp):
-        with open(tmp, "wb") as f:
-            np.savez(f, **state)
-
-    return staged_write(run.checkpoint, write)
-
-
 def _frames_after(run: RunFolder, k: int) -> list[Path]:
-    """The particle and mesh frames after frame ``k``."""
-    files = []
-    for kind in (PARTICLES, MESHES, OBSTACLE_FRAMES):
-        files += [f for f in (run.path / kind).glob("frame_*") if f.suffix != ".json" and frame_index(f) > k]
-    return files
-
-
-def _swap_in(run: RunFolder, out: Path) -> None:
-    """Put the new run folder in place of the old one at ``out`` (two renames; the old folder is
-    then deleted)."""
-    old = out.parent / f".{out.name}.old-{os.getpid()}"
-    os.replace(out, old)
-    os.replace(run.path, out)
-    run.path = out
-    shutil.rmtree(old, ignore_errors=True)
+    """The particle, mesh and obstacle frames after frame ``k``."""
+    exts = {PARTICLES: PARTICLE_FORMATS, MESHES: MESH_FORMATS, OBSTACLE_FRAMES: ("obj",)}
+    return [
+        f for kind, kinds in exts.items() for e in kinds for f in frame_files(run.path / kind, e) if frame_index(f) > k
+    ]
 
 
 class StepTotals:

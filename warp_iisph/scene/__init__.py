@@ -3,7 +3,7 @@
 from . import cases
 from .checks import SceneFileError
 from .description import Scene
-from .file import load_scene, scene_from_dict, scene_to_dict
+from .file import load_scene, scene_fingerprint, scene_from_dict, scene_to_dict
 from .flows import Emitter, Sink
 from .library import bundled_scenes, resolve_scene
 from .settings import Camera, Output, Physics, SurfaceSettings
@@ -24,6 +24,7 @@ __all__ = [
     "bundled_scenes",
     "cases",
     "load_scene",
+    "scene_fingerprint",
     "scene_from_dict",
     "scene_to_dict",
     "obstacles_mesh",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import unicodedata
 
 import numpy as np
 
@@ -10,10 +11,50 @@ import numpy as np
 MAX_COORDINATE = 1.0e3
 # Most particles a scene may hold: Warp indexes arrays with 32-bit integers.
 MAX_PARTICLES = 2**31 - 1
+# Most fluid blocks, obstacles, emitters or sinks a scene may list (fluid blocks are checked for
+# overlap pair by pair).
+MAX_ITEMS = 1000
+# Longest scene name (characters): it names the output folder runs/NAME, and the folders a run is
+# staged in beside it (.NAME.new-PID) must stay within the file system's 255 bytes.
+MAX_NAME = 100
 
 
 class SceneFileError(ValueError):
     """A scene file that cannot be used; the message is one line naming the file and the key."""
+
+
+class Record:
+    """A scene's data class that can be frozen (:func:`freeze`): the copy a ``Simulation`` keeps
+    refuses changes, since it was validated once and a change would reach the run unchecked
+    (setting a field to the value it has, as validating it again does, is no change)."""
+
+    def __setattr__(self, name, value):
+        if self.__dict__.get("_frozen") and not name.startswith("_") and not _same(self.__dict__.get(name), value):
+            raise AttributeError(
+                f"{type(self).__name__}.{name}: read-only, a Simulation's own validated copy of the scene; "
+                "change the Scene and build a new Simulation"
+            )
+        object.__setattr__(self, name, value)
+
+
+def _same(a, b) -> bool:
+    if type(a) is not type(b):
+        return False
+    try:
+        return bool(np.all(a == b))
+    except (TypeError, ValueError):
+        return a is b
+
+
+def freeze(value) -> None:
+    """Freeze a :class:`Record` and every record it holds (in fields, lists and tuples)."""
+    if isinstance(value, (list, tuple)):
+        for item in value:
+            freeze(item)
+    elif isinstance(value, Record):
+        for item in list(vars(value).values()):
+            freeze(item)
+        object.__setattr__(value, "_frozen", True)
 
 
 def _number(value) -> float:
@@ -29,10 +70,12 @@ def floats(values) -> tuple:
 
 
 def vec3(value, name: str) -> np.ndarray:
+    """Three finite numbers ``[x, y, z]``: exactly that shape (a nested ``[[x, y, z]]`` is refused,
+    not flattened)."""
     try:
         if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, np.bool_, str)) for c in value):
             raise TypeError
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+        arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name} = {value!r}: must be three numbers [x, y, z]") from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
@@ -85,3 +128,26 @@ def flag(value, name: str) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise ValueError(f"{name} = {value!r}: must be true or false")
     return bool(value)
+
+
+def folder_name(value, name: str) -> str:
+    """A plain folder name (what a scene's ``name`` becomes: ``runs/NAME``): a string of at most
+    :data:`MAX_NAME` characters, not empty, no path separator, not ``.`` or ``..`` nor starting
+    with ``.`` (hidden, and the run's staging folders beside it are ``.NAME.new-PID``), no control
+    characters."""
+    if not isinstance(value, str):
+        raise ValueError(f"{name} = {value!r}: must be a string (a folder name)")
+    why = None
+    if not value.strip():
+        why = "must not be empty"
+    elif "/" in value or "\\" in value:
+        why = "must not contain a path separator (/ or \\)"
+    elif value.startswith("."):
+        why = "must not start with '.' (no '.', '..' or hidden folders)"
+    elif any(unicodedata.category(c) in ("Cc", "Cs", "Zl", "Zp") for c in value):
+        why = "must not contain control characters or line breaks"
+    elif len(value) > MAX_NAME or len(value.encode("utf-8", "surrogatepass")) > 2 * MAX_NAME:
+        why = f"must be at most {MAX_NAME} characters"
+    if why:
+        raise ValueError(f"{name} = {value[: 2 * MAX_NAME]!r}: {why}; it names the output folder runs/NAME")
+    return value

@@ -9,20 +9,21 @@ the field and its allowed range. No Warp here.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_PARTICLES, floats, positive
+from .checks import MAX_ITEMS, MAX_PARTICLES, Record, floats, folder_name, freeze, positive
 from .flows import Emitter, Sink
 from .settings import Camera, Output, Physics, SurfaceSettings
-from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere
+from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere, contains
 
 
 @dataclass
-class Scene:
+class Scene(Record):
     """A tank holding fluid blocks, with optional obstacles.
 
     Example::
@@ -72,6 +73,7 @@ class Scene:
         scene validated before and not changed since is trusted as it is."""
         if getattr(self, "_validated", None) == self._fingerprint():
             return self
+        self.name = folder_name(self.name, "name")
         self.spacing = positive(self.spacing, "spacing", "metres, the particle diameter")
         if not isinstance(self.tank, (Box, MeshShape)):
             raise ValueError(f"tank = {self.tank!r}: must be a box or a mesh")
@@ -83,6 +85,10 @@ class Scene:
         tlo, thi = self.tank.bounds
         if np.any((thi - tlo) < self.spacing):
             raise ValueError(f"tank: every side must be at least spacing = {self.spacing} m long")
+        for key in ("fluids", "obstacles", "emitters", "sinks"):
+            items = getattr(self, key)
+            if not isinstance(items, (list, tuple)) or len(items) > MAX_ITEMS:
+                raise ValueError(f"{key}: must be a list of at most {MAX_ITEMS} items")
         if not self.fluids and not self.emitters:
             raise ValueError("fluids: the scene needs at least one fluid block or an emitter")
         for k, f in enumerate(self.fluids):
@@ -123,26 +129,67 @@ class Scene:
             if not isinstance(e, Emitter):
                 raise ValueError(f"{name} = {e!r}: must be an emitter")
             e.validate(name)
-            c = np.asarray(e.center)
-            if np.any(c < tlo) or np.any(c > thi):
-                raise ValueError(
-                    f"{name}.center = {list(e.center)}: must lie inside the tank {floats(tlo)}..{floats(thi)}"
-                )
+            self._check_nozzle(e, name, tlo, thi)
         for k, s in enumerate(self.sinks):
+            name = f"sinks[{k}]"
             if not isinstance(s, Sink):
-                raise ValueError(f"sinks[{k}] = {s!r}: must be a box")
-            s.validate(f"sinks[{k}]")
+                raise ValueError(f"{name} = {s!r}: must be a box")
+            s.validate(name)
+            lo, hi = s.bounds
+            if np.any(hi <= tlo) or np.any(lo >= thi):
+                raise ValueError(f"{name}: lies entirely outside the tank {floats(tlo)}..{floats(thi)}")
+            # particles are checked against sinks whenever the fastest could have crossed half the
+            # thinnest: a sink much thinner than a spacing would need a check every few nanoseconds
+            if float(np.min(hi - lo)) < 0.5 * self.spacing:
+                raise ValueError(
+                    f"{name}: {float(np.min(hi - lo)):g} m thin; every side must be at least half the "
+                    f"spacing ({0.5 * self.spacing:g} m)"
+                )
         if self.max_particles is not None:
             m = self.max_particles
             if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= MAX_PARTICLES:
                 raise ValueError(f"max_particles = {m!r}: must be a whole number in [1, {MAX_PARTICLES}]")
+        for key, kind in (("physics", Physics), ("output", Output), ("surface", SurfaceSettings), ("camera", Camera)):
+            if not isinstance(getattr(self, key), kind):
+                raise ValueError(f"{key} = {getattr(self, key)!r:.60}: must be a {kind.__name__}")
+        self.output.validate()  # before the counts: the emitters' particles follow output.duration
         self._check_particle_counts()
         self.physics.validate()
-        self.output.validate()
         self.surface.validate()
         self.camera.validate()
         self._validated = self._fingerprint()
         return self
+
+    def _check_nozzle(self, e: Emitter, name: str, tlo: np.ndarray, thi: np.ndarray) -> None:
+        """An emitter's nozzle lies inside the tank, and not inside an obstacle (where it stands at
+        the start)."""
+        c, half = np.asarray(e.center), e.half_extent()
+        eps = 1e-9 * max(1.0, float(np.max(np.abs(thi))))
+        if np.any(c < tlo) or np.any(c > thi):
+            raise ValueError(f"{name}.center = {list(e.center)}: must lie inside the tank {floats(tlo)}..{floats(thi)}")
+        if np.any(c - half < tlo - eps) or np.any(c + half > thi + eps):
+            raise ValueError(
+                f"{name}: the nozzle {floats(c - half)}..{floats(c + half)} (centre and "
+                f"{'radius' if e.shape == 'disc' else 'size'}) must lie inside the tank {floats(tlo)}..{floats(thi)}"
+            )
+        rim = e.rim()
+        for k, o in enumerate(self.obstacles):
+            if np.any(contains(o, rim)):
+                raise ValueError(f"{name}: the nozzle at {list(e.center)} lies inside obstacles[{k}]; move it out")
+
+    def frozen_copy(self) -> "Scene":
+        """A validated deep copy of this scene that refuses changes (``AttributeError``): what a
+        ``Simulation`` keeps, so that later changes to this scene, or to its copy, never reach a
+        run unvalidated. Meshes already read are shared, not copied."""
+        self.validate()
+        memo = {}
+        for shape in [self.tank, *self.obstacles]:
+            loaded = getattr(shape, "_loaded", None)
+            if loaded is not None:
+                memo[id(loaded[1])] = loaded[1]
+        scene = copy.deepcopy(self, memo)
+        freeze(scene)
+        return scene
 
     def particle_estimate(self) -> tuple[float, float]:
         """About how many fluid and boundary particles the scene makes (from volumes and areas,

@@ -8,10 +8,12 @@ documented in ``docs/scenes.md``.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import sys
 from pathlib import Path
 
-from .checks import SceneFileError
+from .checks import SceneFileError, folder_name
 from .description import Scene
 from .flows import Emitter, Sink
 from .library import resolve_scene
@@ -59,19 +61,21 @@ def apply_override(data: dict, assignment: str) -> None:
     key, _, text = assignment.partition("=")
     parts = key.strip().split(".")
     node = data
+    if not all(parts):
+        raise SceneFileError(f"--set {key.strip()!r}: must be a dotted key, e.g. physics.eta or fluids.0.radius")
     for depth, part in enumerate(parts[:-1]):
         where = ".".join(parts[: depth + 1])
         if isinstance(node, list):
             if not part.isdigit() or int(part) >= len(node):
                 raise SceneFileError(f"--set {key}: {where} must index one of the {len(node)} items")
             node = node[int(part)]
-        elif isinstance(node, dict):
-            node = node.setdefault(part, {})
         else:
-            raise SceneFileError(f"--set {key}: {where} is not a table")
+            node = node.setdefault(part, {})
+        if not isinstance(node, (dict, list)):  # e.g. spacing.x: spacing is a number
+            raise SceneFileError(f"--set {key.strip()}: {where} is a value ({node!r}), not a table")
     last = parts[-1]
     if isinstance(node, list):
-        raise SceneFileError(f"--set {key}: cannot replace a whole list item")
+        raise SceneFileError(f"--set {key.strip()}: cannot replace a whole list item")
     node[last] = _parse_value(text.strip())
 
 
@@ -141,9 +145,9 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
     output = _check_keys(data.get("output", {}), _fields(Output), "output")
     surface = _check_keys(data.get("surface", {}), _fields(SurfaceSettings), "surface")
     camera = _check_keys(data.get("camera", {}), _fields(Camera), "camera")
-    name = data.get("name", default_name)
-    if not isinstance(name, str):
-        raise ValueError(f"name = {name!r}: must be a string")
+    name = folder_name(
+        data.get("name", default_name), "name" if "name" in data else "name (the file's, as it gives none)"
+    )
     scene = Scene(
         spacing=data["spacing"],
         tank=_shape(data["tank"], "tank", ("box", "mesh"), base_dir),
@@ -208,6 +212,27 @@ def scene_to_dict(scene: Scene) -> dict:
         "sinks": [_settings_table(s) for s in scene.sinks],
         **({"max_particles": scene.max_particles} if scene.max_particles is not None else {}),
     }
+
+
+# what a resumed run keeps: its particles (--set may change physics, output, surface and camera)
+GEOMETRY_KEYS = ("spacing", "tank", "fluids", "obstacles", "emitters", "sinks", "max_particles")
+
+
+def scene_fingerprint(scene: Scene) -> dict:
+    """What a checkpoint was taken of: a hash of the scene's geometry (its table, mesh paths
+    included) and of each mesh file's contents, by key (``tank``, ``obstacles[0]``), so that a
+    resume can say what changed."""
+    table = scene_to_dict(scene)
+    geometry = json.dumps({k: table.get(k) for k in GEOMETRY_KEYS}, sort_keys=True, separators=(",", ":"))
+    meshes = {}
+    for key, shape in [("tank", scene.tank), *((f"obstacles[{k}]", o) for k, o in enumerate(scene.obstacles))]:
+        if isinstance(shape, MeshShape):
+            path = Path(shape.base_dir) / shape.path
+            try:
+                meshes[key] = hashlib.sha256(path.read_bytes()).hexdigest()
+            except OSError as e:
+                raise ValueError(f"{key}.path = {shape.path!r}: cannot be read ({e.strerror})") from None
+    return {"geometry": hashlib.sha256(geometry.encode()).hexdigest(), "meshes": meshes}
 
 
 def load_scene(path, overrides=()) -> Scene:

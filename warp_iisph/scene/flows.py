@@ -9,13 +9,13 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, box_corners, floats, in_range, position, vec3
+from .checks import MAX_COORDINATE, Record, box_corners, floats, in_range, position, vec3
 
 NOZZLES = ("disc", "rectangle")
 
 
 @dataclass
-class Emitter:
+class Emitter(Record):
     """A nozzle at ``center`` facing ``direction`` that injects liquid at ``speed`` (m/s) from
     ``start`` to ``end`` (s): a disc of ``radius``, or a rectangle of ``size`` [width, height]
     (width along ``direction x up``, ``up`` the world's y, or x for a vertical nozzle). It emits
@@ -87,14 +87,53 @@ class Emitter:
             keep = np.ones(len(a), dtype=bool)
         return np.outer(a[keep], u) + np.outer(b[keep], v)
 
+    def layer_size(self, h: float) -> int:
+        """How many points :meth:`layer` has, counted row by row with its own comparisons, so
+        that a nozzle far wider than the spacing costs no memory to count."""
+        if self.shape != "disc":
+            w, ht = self.size
+            return max(1, int(np.floor(w / h + 1e-9))) * max(1, int(np.floor(ht / h + 1e-9)))
+        n = int(np.ceil(self.radius / h)) + 1
+        a = np.arange(-n, n + 1) * h
+        bound = max(self.radius, 0.5 * h) ** 2 + 1e-12
+        # the largest j with a^2 + (j h)^2 <= bound, row by row: near the analytic one, then the
+        # very comparison layer() makes decides (the rows' sets are symmetric and contiguous in j)
+        guess = np.floor(np.sqrt(np.maximum(bound - a**2, 0.0)) / h).astype(np.int64)
+        j_max = np.full(len(a), -1, dtype=np.int64)
+        for shift in (-2, -1, 0, 1, 2):
+            j = np.clip(guess + shift, 0, n)
+            ok = a**2 + (j * h) ** 2 <= bound
+            j_max = np.where(ok, np.maximum(j_max, j), j_max)
+        return int(np.sum(np.where(j_max >= 0, 2 * j_max + 1, 0)))
+
+    def half_extent(self) -> np.ndarray:
+        """Half the nozzle's size along x, y and z (its layers reach this far from the centre)."""
+        u, v = (np.abs(a) for a in self.axes())
+        if self.shape == "disc":
+            return self.radius * np.sqrt(u**2 + v**2)
+        w, ht = self.size
+        return 0.5 * (w * u + ht * v)
+
+    def rim(self) -> np.ndarray:
+        """The centre and points around the nozzle's edge (absolute, metres): what a check of
+        where it stands looks at."""
+        u, v = self.axes()
+        if self.shape == "disc":
+            angles = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+            edge = self.radius * (np.outer(np.cos(angles), u) + np.outer(np.sin(angles), v))
+        else:
+            w, ht = self.size
+            edge = np.array([0.5 * (i * w * u + j * ht * v) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j])
+        return np.asarray(self.center) + np.vstack([np.zeros(3), edge])
+
     def particles(self, h: float, until: float) -> int:
         """How many particles it emits from ``start`` to ``until`` (s)."""
         t = max(0.0, min(math.inf if self.end is None else self.end, until) - self.start)
-        return len(self.layer(h)) * (int(np.floor(t * self.speed / h)) + 1) if until >= self.start else 0
+        return self.layer_size(h) * (int(np.floor(t * self.speed / h)) + 1) if until >= self.start else 0
 
 
 @dataclass
-class Sink:
+class Sink(Record):
     """A box from ``lower`` to ``upper`` (metres): particles that enter it leave the scene."""
 
     lower: tuple

@@ -16,14 +16,14 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, position, vec3
+from .checks import MAX_COORDINATE, Record, position, vec3
 
 INTERPOLATIONS = ("linear", "smooth")
 MAX_KEYS = 256
 
 
 @dataclass
-class Motion:
+class Motion(Record):
     times: list
     translate: list = field(default_factory=list)
     rotate: list = field(default_factory=list)
@@ -38,19 +38,21 @@ class Motion:
             if any(isinstance(v, (bool, str)) for v in t):
                 raise TypeError
             times = np.asarray(t, dtype=np.float64)
+            if times.ndim != 1:  # [[0, 1]]: a nested list is not a list of times
+                raise TypeError
         except (TypeError, ValueError):
-            raise ValueError(f"{name}.times = {t!r}: must be numbers (seconds)") from None
+            raise ValueError(f"{name}.times = {t!r}: must be a list of numbers (seconds)") from None
         if not np.all(np.isfinite(times)) or np.any(times < 0) or np.any(np.diff(times) <= 0):
             raise ValueError(f"{name}.times = {t!r}: must be finite, >= 0 and increasing")
         k = len(times)
         keys = {}
         for key in ("translate", "rotate"):
             v = getattr(self, key)
-            if v is None or len(v) == 0:
+            if v is None or (isinstance(v, (list, tuple)) and len(v) == 0):
                 keys[key] = np.zeros((k, 3))
                 continue
             if not isinstance(v, (list, tuple)) or len(v) != k:
-                raise ValueError(f"{name}.{key}: must give one [x, y, z] per key time ({k})")
+                raise ValueError(f"{name}.{key}: must give one [x, y, z] per key time ({k}), not {v!r}")
             keys[key] = np.array([vec3(row, f"{name}.{key}[{j}]") for j, row in enumerate(v)])
         if np.any(np.abs(keys["translate"]) > MAX_COORDINATE):
             raise ValueError(f"{name}.translate: must stay within {MAX_COORDINATE:g} m")

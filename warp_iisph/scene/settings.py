@@ -7,7 +7,7 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import flag, floats, in_range, position, positive, vec3
+from .checks import Record, flag, floats, in_range, position, positive, vec3
 
 METHODS = ("iisph", "wcsph", "dfsph")
 
@@ -18,9 +18,14 @@ MESH_FORMATS = ("obj", "ply")
 
 PARTICLE_FORMATS = ("ply", "vtu")  # output.format: binary PLY (splashsurf reads it) or VTU (ParaView)
 
+# The shortest time step (s) a scene (physics.dt, dt_min, dt_max) or Simulation.step may ask for:
+# a step of 1e-300 s would need 1e300 steps to reach a frame, and below about 1e-10 s a step no
+# longer moves a float64 clock at long times.
+MIN_STEP = 1.0e-7
+
 
 @dataclass
-class SurfaceSettings:
+class SurfaceSettings(Record):
     """Surface reconstruction settings, in particle spacings ``h``: ``cell`` the distance-field
     grid's cell (h/2), ``r0`` the particle radius of Zhu & Bridson's distance (h/2), ``radius``
     their kernel radius R (2h); ``smoothing`` ``laplacian`` (the report's), ``taubin`` (keeps
@@ -63,7 +68,7 @@ class SurfaceSettings:
 
 
 @dataclass
-class Output:
+class Output(Record):
     """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
     particle files (``particles``, in ``format``: ``ply`` or ``vtu``), surface meshes (``mesh``),
     and the full state every ``checkpoint_every`` frames (0: never) for ``warp-iisph run --resume``."""
@@ -90,7 +95,7 @@ class Output:
 
 
 @dataclass
-class Camera:
+class Camera(Record):
     """Where `warp-iisph render` looks from: ``position`` and ``target`` (m) and a horizontal
     field of view ``fov`` (degrees). Without a position the camera frames the liquid itself."""
 
@@ -111,7 +116,7 @@ class Camera:
 
 
 @dataclass
-class Physics:
+class Physics(Record):
     """Physical and numerical parameters.
 
     - ``method``: ``"iisph"``, ``"wcsph"`` or ``"dfsph"`` (divergence-free SPH, Bender & Koschier
@@ -210,10 +215,10 @@ class Physics:
         self.omega = in_range(self.omega, "physics.omega", 0.0, 1.0, "Jacobi relaxation", lo_open=True)
         self.stiffness = positive(self.stiffness, "physics.stiffness", "Pa")
         if self.dt is not None:
-            self.dt = in_range(self.dt, "physics.dt", 0.0, 1.0, "seconds", lo_open=True)
+            self.dt = in_range(self.dt, "physics.dt", MIN_STEP, 1.0, "seconds")
         self.substeps = flag(self.substeps, "physics.substeps")
         self.cfl = in_range(self.cfl, "physics.cfl", 0.0, 2.0, "Courant number", lo_open=True)
-        self.dt_min = in_range(self.dt_min, "physics.dt_min", 0.0, 1.0, "seconds", lo_open=True)
+        self.dt_min = in_range(self.dt_min, "physics.dt_min", MIN_STEP, 1.0, "seconds")
         self.dt_max = in_range(self.dt_max, "physics.dt_max", self.dt_min, 1.0, "seconds, >= dt_min")
         if self.max_velocity is not None:
             self.max_velocity = positive(self.max_velocity, "physics.max_velocity", "m/s")

@@ -7,7 +7,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, box_corners, flag, floats, in_range, position, positive, vec3
+from .checks import MAX_COORDINATE, Record, box_corners, flag, floats, in_range, position, positive, vec3
 from .motion import Motion
 
 
@@ -29,7 +29,7 @@ def _check_motion(shape, name: str) -> None:
 
 
 @dataclass
-class Box:
+class Box(Record):
     """Axis-aligned box from ``lower`` to ``upper`` (metres); an obstacle may move (``motion``)."""
 
     lower: tuple
@@ -46,7 +46,7 @@ class Box:
 
 
 @dataclass
-class Sphere:
+class Sphere(Record):
     """Ball of ``radius`` around ``center`` (metres); an obstacle may move (``motion``)."""
 
     center: tuple
@@ -65,7 +65,7 @@ class Sphere:
 
 
 @dataclass
-class MeshShape:
+class MeshShape(Record):
     """A triangle mesh file (OBJ, STL, PLY, ... anything trimesh reads), transformed by ``scale``
     (a number or three), then ``rotate`` (degrees about x, then y, then z), then ``translate``
     (metres). A relative ``path`` is relative to ``base_dir`` (the scene file's folder). An obstacle
@@ -144,6 +144,36 @@ def shape_mesh(shape) -> "object":
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=shape.radius)
     mesh.apply_translation(shape.center)
     return mesh
+
+
+def contains(shape, points, time: float = 0.0) -> np.ndarray:
+    """Which ``points`` ((P, 3), metres) lie inside ``shape`` where its motion has it at ``time``:
+    boxes and spheres exactly, closed meshes by their winding number (an open ``shell`` mesh
+    encloses nothing). NumPy only, for checks while a scene is validated."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if shape.motion is not None:  # into the shape's own placement: the inverse of its rigid motion
+        lo, hi = shape.bounds
+        pivot = shape.motion.pivot if shape.motion.pivot is not None else 0.5 * (lo + hi)
+        m = shape.motion.matrix(time, np.asarray(pivot, dtype=np.float64))
+        p = (p - m[:3, 3]) @ m[:3, :3]
+    if isinstance(shape, Box):
+        lo, hi = shape.bounds
+        return np.all((p > lo) & (p < hi), axis=1)
+    if isinstance(shape, Sphere):
+        return np.linalg.norm(p - np.asarray(shape.center), axis=1) < shape.radius
+    if shape.shell:
+        return np.zeros(len(p), dtype=bool)
+    mesh = shape.load()
+    tri = np.asarray(mesh.triangles, dtype=np.float64)
+    inside = np.zeros(len(p), dtype=bool)
+    for k, q in enumerate(p):  # the solid angle of every triangle seen from q (van Oosterom & Strackee)
+        a, b, c = (tri[:, j] - q for j in range(3))
+        la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+        det = np.einsum("ij,ij->i", a, np.cross(b, c))
+        div = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
+        div += np.einsum("ij,ij->i", b, c) * la
+        inside[k] = abs(np.arctan2(det, div).sum() / (2.0 * np.pi)) > 0.5
+    return inside
 
 
 def obstacles_mesh(shapes, time: float = 0.0) -> "object":

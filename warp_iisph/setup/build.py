@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import warp as wp
 
+from ..engine.memory import host_memory_room
 from ..scene import Box, Scene, shape_mesh
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
@@ -177,21 +176,15 @@ BYTES_PER_BOUNDARY_PARTICLE = 40
 
 
 def _check_memory(n_fluid: int, n_boundary: int, device) -> None:
-    """Refuse (``ValueError``) a liquid the device's free memory cannot hold, or whose fluid
+    """Refuse (``ValueError``) a liquid the memory this process may still take on the device cannot
+    hold (on the host: free memory, the control group's limit and ulimit, see engine.memory), or whose fluid
     lists at their first stride would need more entries than 32-bit indices address."""
     need = n_fluid * BYTES_PER_FLUID_PARTICLE + n_boundary * BYTES_PER_BOUNDARY_PARTICLE
-    free = None
-    if device.is_cuda:
-        free = device.free_memory
-    else:
-        try:
-            free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-        except (ValueError, OSError, AttributeError):
-            pass
-    if free is not None and need > free:
+    room = (device.free_memory, "free") if device.is_cuda else host_memory_room()
+    if room is not None and need > room[0]:
         raise ValueError(
             f"spacing: {n_fluid} fluid and {n_boundary} boundary particles need about "
-            f"{need / 2**30:.1f} GiB but {free / 2**30:.1f} GiB is free on {device}; increase spacing"
+            f"{need / 2**30:.2f} GiB but {room[0] / 2**30:.2f} GiB is {room[1]} on {device}; increase spacing"
         )
     if n_fluid * FIRST_STRIDE > LIST_ENTRIES_LIMIT:
         raise ValueError(

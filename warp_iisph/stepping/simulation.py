@@ -10,6 +10,7 @@ import numpy as np
 
 from ..engine.devices import init_warp
 from ..scene import Scene
+from ..scene.settings import MIN_STEP
 from ..setup import build_model
 from ..sph.solvers import make_solver
 from .flows import Flows
@@ -51,8 +52,10 @@ class Simulation:
         writes them to disk keeps the last few, so memory stays flat). ``until``: how long it will
         run (s), for the room emitters need (default: the scene's ``output.duration``)."""
         init_warp()
-        self.scene = scene.validate()
-        self.physics = scene.physics
+        # its own validated copy, read-only: a change to the scene (or to sim.physics) after this
+        # point would otherwise reach the run without validation
+        self.scene = scene.frozen_copy()
+        self.physics = self.scene.physics
         self.model, self.state = build_model(self.scene, device, until)
         self.device = self.model.device
         self.solver = make_solver(self.model)
@@ -92,9 +95,9 @@ class Simulation:
         statistics record (also appended to ``stats``)."""
         if dt is not None and (
             isinstance(dt, bool)
-            or not (isinstance(dt, (int, float, np.floating, np.integer)) and 0.0 < float(dt) <= 1.0)
+            or not (isinstance(dt, (int, float, np.floating, np.integer)) and MIN_STEP <= float(dt) <= 1.0)
         ):
-            raise ValueError(f"dt = {dt!r}: must be a number in (0, 1] seconds")
+            raise ValueError(f"dt = {dt!r}: must be a number in [{MIN_STEP:g}, 1] seconds")
         (record,) = self._steps(math.inf, None if dt is None else float(dt), 1)
         return record
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..run.atomic import atomic_write
 from ..run.folder import MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.lock import writing_into
 from .camera import framing_box, run_camera
 from .materials import THICKNESS, material_color
 
@@ -211,14 +212,16 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
     out = Path(out) if out else run.path / "blender_scene.py"
     if out.is_dir():
         raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / 'blender_scene.py'}")
+    if out.suffix != ".py" or run.holds_as_its_own(out):
+        raise RunError(f"--out {out}: must be a .py file outside the run's own files and frame folders")
     # Blender's volume absorption: transmittance exp(-density * (1 - colour) * d); pick the density
     # that gives the preset's colour through THICKNESS for the most absorbed channel.
     k = max(range(3), key=lambda c: -math.log(color[c]))
     density = -math.log(color[k]) / (THICKNESS * max(1.0 - color[k], 1e-3))
     obstacles = run.obstacle_mesh()
     box = framing_box(run, record, files, obstacles)
-    eye, target, fov = run_camera(record, box, ASPECT)
-    tank = tank_bounds(record)
+    eye, target, fov = run_camera(record, box, ASPECT, run.record_path)
+    tank = tank_bounds(record, run.record_path)
     centre = 0.5 * (np.asarray(box[0]) + np.asarray(box[1]))
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     floor_size = round(20.0 * float(np.max(np.asarray(box[1]) - np.asarray(box[0]))) + 1.0, 6)
@@ -244,5 +247,6 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
         floor=json.dumps([[cx, cy, round(floor_y, 6)], floor_size]),
         handler=HANDLER,
     )
-    atomic_write(out, lambda tmp: Path(tmp).write_text(text))
+    with writing_into(run.path, out):  # one writer in the run folder
+        atomic_write(out, lambda tmp: Path(tmp).write_text(text))
     return out

@@ -11,8 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..run.folder import MESHES, PARTICLES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.folder import MAX_FPS, MESHES, PARTICLES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..run.lock import writing_into
 from ..run.progress import frame_bar
+from ..scene.checks import in_range
 from .video import parse_resolution, write_video
 
 # Speed colour ramp (slow -> fast): deep blue, blue, cyan, pale yellow, orange.
@@ -31,11 +33,13 @@ def ramp(t: np.ndarray) -> np.ndarray:
 
 
 def camera_basis(yaw: float, pitch: float) -> np.ndarray:
-    """Rows: screen right, screen up, towards the viewer (y is up in the scene)."""
+    """Rows: screen right, screen up, towards the viewer (y is up in the scene; looking straight
+    down or up, screen right is where the yaw turns it)."""
     a, b = math.radians(yaw), math.radians(pitch)
     toward = np.array([math.sin(a) * math.cos(b), math.sin(b), math.cos(a) * math.cos(b)])
     right = np.cross([0.0, 1.0, 0.0], toward)
-    right /= np.linalg.norm(right)
+    norm = np.linalg.norm(right)
+    right = right / norm if norm > 1e-9 else np.array([math.cos(a), 0.0, -math.sin(a)])
     return np.stack([right, np.cross(toward, right), toward])
 
 
@@ -160,12 +164,6 @@ def preview_run(
 ) -> dict:
     """Write ``preview.mp4`` (or ``.gif``) of a run, or with ``out`` a ``.png`` file one frame's
     still; returns the path, frame count and seconds per frame."""
-    import time
-
-    from PIL import Image, ImageDraw
-
-    from ..run.formats import read_particles
-
     run = RunFolder.existing(run_dir)
     record = run.record()
     width, height = parse_resolution(resolution)
@@ -174,17 +172,43 @@ def preview_run(
     if source not in (PARTICLES, MESHES):
         raise RunError(f"--source {source!r}: must be particles or mesh")
     files = select_frames(run.frames(source), frames)
-    fps = float(fps or run.fps(record))
-    if not fps > 0:
-        raise RunError(f"--fps {fps}: must be > 0")
-    h = float(record.get("scene", {}).get("spacing") or 0.0)
+    fps = run.fps(record) if fps is None else _option(fps, "--fps", 0.0, MAX_FPS, "frames per second", lo_open=True)
+    yaw = _option(yaw, "--yaw", -1e6, 1e6, "degrees")
+    pitch = _option(pitch, "--pitch", -90.0, 90.0, "degrees")
+    out = Path(out) if out else run.path / ("preview.gif" if gif else "preview.mp4")
+    if out.is_dir():
+        raise RunError(f"--out {out}: is a folder; give a video file name (.{'gif' if gif else 'mp4'}) or a .png")
+    if out.suffix.lower() not in (".mp4", ".gif", ".png") or (gif and out.suffix.lower() == ".mp4"):
+        raise RunError(f"--out {out}: must end in .mp4, .gif (with --gif) or .png (one frame's still)")
+    if run.holds_as_its_own(out):
+        raise RunError(f"--out {out}: one of the run's own files or frame folders; put the preview elsewhere")
+    gif = gif or out.suffix.lower() == ".gif"
+    with writing_into(run.path, out):  # one writer in the run folder (a preview put elsewhere reads it as it is)
+        return _preview(run, record, files, source, out, width, height, fps, gif, yaw, pitch, progress)
+
+
+def _option(value, name: str, lo: float, hi: float, unit: str, lo_open: bool = False) -> float:
+    try:
+        return in_range(value, name, lo, hi, unit, lo_open=lo_open)
+    except ValueError as e:
+        raise RunError(str(e)) from None
+
+
+def _preview(run, record, files, source, out, width, height, fps, gif, yaw, pitch, progress) -> dict:
+    import time
+
+    from PIL import Image, ImageDraw
+
+    from ..run.formats import read_particles
+
+    h = run.spacing(record) or 0.0
     load = read_particles if source == PARTICLES else _read_mesh_points
     first = load(files[0])
     if h <= 0:  # no record: estimate the spacing from the particle volume
         ext = np.ptp(first["x"], axis=0)
         h = float(np.cbrt(np.prod(np.maximum(ext, 1e-6)) / max(len(first["x"]), 1)))
     obstacles = run.obstacle_mesh()
-    bounds = tank_bounds(record)
+    bounds = tank_bounds(record, run.record_path)
     if bounds is None:
         lo, hi = first["x"].min(0) - h, first["x"].max(0) + h
         last = load(files[-1])["x"]
@@ -200,7 +224,6 @@ def preview_run(
     still_obstacles = ObstacleLayer(view, obstacles) if obstacles is not None and not moving else None
     g = 9.81
     v_ref = math.sqrt(2 * g * max(float(bounds[1][1] - bounds[0][1]), h))
-    out = Path(out) if out else run.path / ("preview.gif" if gif else "preview.mp4")
     timing = []
 
     def images():

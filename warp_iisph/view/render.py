@@ -12,14 +12,19 @@ import math
 import os
 import re
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
-from ..run.folder import FRAMES, MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
+from ..engine.devices import native_stderr
+from ..engine.signals import deferred
+from ..run.atomic import atomic_write
+from ..run.folder import FRAMES, MESHES, RunError, RunFolder, frame_files, frame_index, select_frames, tank_bounds
 from ..run.formats import read_mesh
+from ..run.lock import FolderLock
 from ..run.progress import frame_bar
-from .camera import framing_box, run_camera
+from .camera import camera_up, framing_box, run_camera
 from .materials import IOR, THICKNESS, material_color
 from .video import parse_resolution, write_video
 
@@ -59,18 +64,28 @@ def llvm_libraries() -> list[tuple[int, str]]:
 def choose_variant(device_hint: str | None = None, forced: str | None = None) -> tuple[str, str]:
     """The fastest Mitsuba variant that works here, and a line saying why."""
     try:
-        import mitsuba as mi
+        with deferred():  # Ctrl-C while it loads: raised once it has
+            import mitsuba as mi
     except ImportError:
         raise RenderUnavailable(f"the render extra is not installed: {EXTRA}") from None
     if forced:
         if forced not in mi.variants():
             raise RunError(f"--variant {forced!r}: must be one of {', '.join(mi.variants())}")
-        mi.set_variant(forced)
+        why = _cannot_run(forced)
+        if why is None:
+            try:
+                with deferred(), native_stderr():
+                    mi.set_variant(forced)
+            except Exception as e:  # noqa: BLE001 - Dr.Jit raises many kinds for a backend it cannot start
+                why = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        if why is not None:
+            raise RunError(f"--variant {forced}: cannot run on this machine: {why}")
         return forced, f"{forced} (asked for)"
     notes = []
     if device_hint != "cpu" and "cuda_ad_rgb" in mi.variants() and _cuda_present():
         try:
-            mi.set_variant("cuda_ad_rgb")
+            with deferred(), native_stderr():
+                mi.set_variant("cuda_ad_rgb")
             return "cuda_ad_rgb", "cuda_ad_rgb (GPU)"
         except Exception as e:  # noqa: BLE001 - any failure falls back to the CPU
             notes.append(f"cuda_ad_rgb failed ({str(e).splitlines()[0]})")
@@ -79,7 +94,8 @@ def choose_variant(device_hint: str | None = None, forced: str | None = None) ->
     if "llvm_ad_rgb" in mi.variants() and good:
         os.environ.setdefault("DRJIT_LIBLLVM_PATH", good[-1][1])
         try:
-            mi.set_variant("llvm_ad_rgb")
+            with deferred(), native_stderr():
+                mi.set_variant("llvm_ad_rgb")
             return "llvm_ad_rgb", f"llvm_ad_rgb (libLLVM {good[-1][0]}, vectorised on the CPU)"
         except Exception as e:  # noqa: BLE001
             notes.append(f"llvm_ad_rgb failed ({str(e).splitlines()[0]})")
@@ -91,8 +107,27 @@ def choose_variant(device_hint: str | None = None, forced: str | None = None) ->
         )
     else:
         notes.append("llvm_ad_rgb needs libLLVM >= 16, none found (e.g. apt install libllvm17)")
-    mi.set_variant("scalar_rgb")
+    with deferred():
+        mi.set_variant("scalar_rgb")
     return "scalar_rgb", "scalar_rgb (slowest)" + ("; " + "; ".join(notes) if notes else "")
+
+
+def _cannot_run(variant: str) -> str | None:
+    """Why a Mitsuba variant cannot run here (``None``: it may): its backend's driver or library
+    is missing (a libLLVM older than 16 crashes the process, so it is not tried)."""
+    if variant.startswith("cuda") and not _cuda_present():
+        return "it needs an NVIDIA driver (libcuda), and none is installed"
+    if variant.startswith("llvm"):
+        libs = llvm_libraries()
+        good = [(v, p) for v, p in libs if v >= 16]
+        if not good:
+            have = f"only libLLVM {', '.join(str(v) for v, _ in libs)}" if libs else "no libLLVM"
+            return (
+                f"it needs libLLVM >= 16 and this machine has {have} (Debian's libllvm15 crashes it); "
+                "install libllvm16 or newer, or point DRJIT_LIBLLVM_PATH at one"
+            )
+        os.environ.setdefault("DRJIT_LIBLLVM_PATH", good[-1][1])
+    return None
 
 
 def _cuda_present() -> bool:
@@ -161,7 +196,7 @@ def scene_dict(
             "fov": float(fov),
             "fov_axis": "x",
             "to_world": T().look_at(
-                origin=[float(c) for c in origin], target=[float(c) for c in target], up=[0.0, 1.0, 0.0]
+                origin=[float(c) for c in origin], target=[float(c) for c in target], up=camera_up(origin, target)
             ),
             "sampler": {"type": "independent", "sample_count": int(spp)},
             "film": {
@@ -256,7 +291,8 @@ def far_walls(lower, upper, eye) -> list:
 
 def denoise(color: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> np.ndarray:
     try:
-        import pyoidn
+        with deferred():
+            import pyoidn
     except ImportError:
         raise RenderUnavailable(f"OpenImageDenoise (pyoidn) is not installed: {EXTRA}; or pass --no-denoise") from None
     return pyoidn.denoise(
@@ -338,8 +374,6 @@ def use_variant(variant: str) -> None:
 def render_frame(settings: dict, mesh: str, obstacles: str | None, png: str) -> float:
     """Render one mesh frame into ``png`` (written beside it, then renamed in) with the process's
     :class:`FrameRenderer` for ``settings``; the seconds it took."""
-    import time
-
     import imageio.v2 as imageio
 
     from ..run.cluster import warm
@@ -349,9 +383,7 @@ def render_frame(settings: dict, mesh: str, obstacles: str | None, png: str) -> 
     mesh, png = Path(mesh), Path(png)
     empty = len(read_mesh(mesh).faces) == 0  # also: a file cut off mid-write is refused here
     image = renderer.render(None if empty else mesh, None if obstacles is None else Path(obstacles), frame_index(mesh))
-    tmp = png.with_name(png.stem + ".part.png")
-    imageio.imwrite(tmp, image)
-    tmp.replace(png)
+    atomic_write(png, lambda tmp: imageio.imwrite(tmp, image, format="png"))
     return time.perf_counter() - t0
 
 
@@ -374,8 +406,6 @@ def render_run(
     already rendered are kept unless ``overwrite``. With ``workers`` (a LocalCluster of that
     many processes) or ``scheduler`` (a Dask cluster's address) the frames render in parallel,
     each worker keeping its renderer warm; the video is made here at the end."""
-    import imageio.v2 as imageio
-
     from ..run.cluster import check_options, open_workers
 
     check_options(scheduler, workers)
@@ -386,11 +416,11 @@ def render_run(
         raise RunError(f"--spp {spp}: must be in [1, 65536]")
     color = material_color(material)
     files = select_frames(run.frames(MESHES), frames)
-    chosen_variant, why = choose_variant(record.get("device", "cpu").split(":")[0], variant)
-    tank = tank_bounds(record)
+    chosen_variant, why = choose_variant(str(record.get("device") or "cpu").split(":")[0], variant)
+    tank = tank_bounds(record, run.record_path)
     solid = run.obstacle_mesh()
     box = framing_box(run, record, files, solid)  # the obstacles are framed with the liquid
-    eye, target, fov = run_camera(record, box, width / height)
+    eye, target, fov = run_camera(record, box, width / height, run.record_path)
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
     wall_list = far_walls(*tank, eye) if walls and tank is not None else []
@@ -408,8 +438,12 @@ def render_run(
         "walls": [[np.asarray(c).tolist(), np.asarray(n).tolist(), [float(v) for v in z]] for c, n, z in wall_list],
         "denoise": use_denoiser,
     }
-    out = run.path / FRAMES
-    with open_workers(scheduler, workers) as pool:
+    lock = FolderLock(run.path).acquire()  # one writer: frames/ and video.mp4 are the run folder's
+    try:
+        with deferred():
+            import imageio.v2 as imageio
+
+        out = run.path / FRAMES
         out.mkdir(exist_ok=True)
         # rendered frames are a cache of this run's meshes seen with these settings: any made from
         # another run, other meshes or other settings go
@@ -427,7 +461,7 @@ def render_run(
             },
         }
         if run.provenance(FRAMES) != made:
-            for old in out.glob("frame_*.png"):
+            for old in frame_files(out, "png"):
                 old.unlink()
             run.write_provenance(FRAMES, made["run_id"], made["settings"])
         if progress:
@@ -452,21 +486,24 @@ def render_run(
             seconds.append(result)
             bar.update(1)
 
-        bar = frame_bar(len(files), progress, "render")
-        bar.update(len(files) - len(calls))
-        try:
-            pool.run(calls, on_done, name="frame", warp=False)
-        finally:
-            bar.close()
-    fps = run.fps(record)
-    video = run.path / ("video.gif" if gif else "video.mp4")
-    write_video((imageio.imread(p) for p in pngs), video, fps, gif=gif)
-    return {
-        "variant": chosen_variant,
-        "why": why,
-        "rendered": len(seconds),
-        "skipped": len(files) - len(calls),
-        "frames": len(pngs),
-        "video": video,
-        "seconds_per_frame": float(np.median(seconds)) if seconds else 0.0,
-    }
+        with open_workers(scheduler, workers) as pool:
+            bar = frame_bar(len(files), progress, "render")
+            bar.update(len(files) - len(calls))
+            try:
+                pool.run(calls, on_done, name="frame", warp=False)
+            finally:
+                bar.close()
+        fps = run.fps(record)
+        video = run.path / ("video.gif" if gif else "video.mp4")
+        write_video((imageio.imread(p) for p in pngs), video, fps, gif=gif)
+        return {
+            "variant": chosen_variant,
+            "why": why,
+            "rendered": len(seconds),
+            "skipped": len(files) - len(calls),
+            "frames": len(pngs),
+            "video": video,
+            "seconds_per_frame": float(np.median(seconds)) if seconds else 0.0,
+        }
+    finally:
+        lock.release()

@@ -11,11 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..engine.signals import deferred
 from ..run.atomic import atomic_write
 from ..run.folder import MESHES, PARTICLES, USD, RunError, RunFolder, frame_index, select_frames
 from ..run.formats import read_mesh, read_particles
+from ..run.lock import writing_into
 from ..run.progress import frame_bar
-from .camera import framing_box, run_camera
+from .camera import camera_up, framing_box, run_camera
 from .materials import IOR, material_color
 
 EXTRA = "pip install 'warp_iisph[usd]'  (usd-core)"
@@ -32,7 +34,8 @@ class UsdUnavailable(RuntimeError):
 def require_pxr() -> None:
     """``UsdUnavailable`` unless usd-core's ``pxr`` imports."""
     try:
-        import pxr.Usd  # noqa: F401
+        with deferred():  # Ctrl-C while it loads: raised once it has
+            import pxr.Usd  # noqa: F401
     except ImportError:
         raise UsdUnavailable(f"usd-core is not installed: {EXTRA}") from None
 
@@ -140,9 +143,8 @@ def add_camera(stage, eye, target, fov: float, aspect: float = ASPECT, path: str
     from pxr import Gf, UsdGeom
 
     eye, target = np.asarray(eye, float), np.asarray(target, float)
-    view = target - eye
-    distance = float(np.linalg.norm(view))
-    up = (0.0, 1.0, 0.0) if abs(view[1]) < 0.999 * distance else (0.0, 0.0, -1.0)  # looking straight down: -z is up
+    distance = float(np.linalg.norm(target - eye))
+    up = camera_up(eye, target)
     camera = Gf.Camera()
     camera.SetPerspectiveFromAspectRatioAndFieldOfView(aspect, fov, Gf.Camera.FOVHorizontal, FILM_WIDTH)
     camera.transform = Gf.Matrix4d().SetLookAt(Gf.Vec3d(*eye), Gf.Vec3d(*target), Gf.Vec3d(*up)).GetInverse()
@@ -188,6 +190,8 @@ def usd_path(run: RunFolder, out=None) -> Path:
         raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / USD}")
     if out.suffix.lower() not in SUFFIXES:
         raise RunError(f"--out {out}: must end in {', '.join(SUFFIXES)}")
+    if run.holds_as_its_own(out):
+        raise RunError(f"--out {out}: inside one of the run's frame folders; put the stage elsewhere")
     return out
 
 
@@ -202,13 +206,18 @@ def export_usd(
     """Write the run as one USD stage (default ``RUN_DIR/run.usdc``); needs its meshes. Returns the
     path, the frames written and the prims."""
     require_pxr()
-    from pxr import Usd, UsdGeom
-
     run = RunFolder.existing(run_dir)
     record = run.record()
     files = select_frames(run.frames(MESHES), frames)
     color = material_color(material)
     out = usd_path(run, out)
+    with writing_into(run.path, out):  # one writer in the run folder (a stage put elsewhere reads it as it is)
+        return _write_stage(run, record, files, color, out, particles, progress)
+
+
+def _write_stage(run: RunFolder, record: dict, files: list, color, out: Path, particles: bool, progress: bool) -> dict:
+    from pxr import Usd, UsdGeom
+
     particle_files = {}
     numbers = [frame_index(f) for f in files]
     if particles:
@@ -220,7 +229,7 @@ def export_usd(
                 f"(frames {numbers[0]}..{numbers[-1]})"
             )
     fps = run.fps(record)
-    h = float((record.get("scene") or {}).get("spacing") or 0.0)
+    h = run.spacing(record) or 0.0
     if particles and not h > 0:
         raise RunError(f"{run.record_path}: has no particle spacing, which --particles needs for the points' widths")
 
@@ -260,7 +269,7 @@ def export_usd(
     if obstacles is not None:
         moving = {k: run.obstacle_mesh(k) for k in numbers if run.obstacle_frame(k).is_file()}
         add_obstacles(stage, obstacles, meshes=moving)
-    eye, target, fov = run_camera(record, framing_box(run, record, files, obstacles), ASPECT)
+    eye, target, fov = run_camera(record, framing_box(run, record, files, obstacles), ASPECT, run.record_path)
     add_camera(stage, eye, target, fov)
     if particles:
         _add_particles(stage, particle_files, numbers, h, progress)

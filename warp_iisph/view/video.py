@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from ..run.atomic import FILE_MODE
 from ..run.folder import RunError
 
 
@@ -26,7 +29,12 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
     path = Path(path)
     if path.is_dir():
         raise RunError(f"--out {path}: is a folder; give a video file name (.{'gif' if gif else 'mp4'})")
-    tmp = path.with_name(path.stem + ".part" + path.suffix)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # a name of its own beside the video (two previews at once never share one), ending in the
+    # video's suffix, which says the format
+    fd, name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
     try:
         if gif:
             writer = imageio.get_writer(tmp, mode="I", duration=1000.0 / fps, loop=0)
@@ -39,6 +47,7 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
                 writer.append_data(np.asarray(im))
         finally:
             writer.close()
+        os.chmod(tmp, FILE_MODE)  # readable as any file the user makes (mkstemp's are private)
         tmp.replace(path)  # a video that is there is complete
     except (OSError, RuntimeError) as e:  # a full disk reaches us as a broken pipe to ffmpeg
         tmp.unlink(missing_ok=True)

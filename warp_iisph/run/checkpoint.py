@@ -1,0 +1,186 @@
+"""A run's checkpoint (``checkpoint.npz``): the state to resume from, whose it is, and whether it
+makes sense, checked before a resume trusts it.
+
+Besides the simulation's arrays (``Simulation.checkpoint``) and the frame it was taken at, a
+checkpoint holds its run's ``run_id``, the fingerprint of the scene it was taken of (a hash of the
+geometry and of each mesh file's contents, ``scene_fingerprint``), its format and the version of
+warp-iisph that wrote it. A resume refuses, in one line naming the file, a checkpoint of another
+run, of a scene whose geometry or meshes changed, of another format or version, one with keys
+missing or of the wrong shape, and values that make no sense (a time that is not its frame's,
+more frames than the run was asked for, fewer steps than frames, non-finite particles, ids
+repeated or beyond the next one).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+
+import numpy as np
+
+from .. import __version__
+from ..scene import scene_fingerprint
+from ..scene.checks import MAX_PARTICLES
+from ..scene.settings import METHODS, MIN_STEP
+from .atomic import staged_write
+from .folder import RunError, RunFolder
+
+FORMAT = 2  # what a checkpoint holds (1: before it said whose it is)
+OWNER_KEYS = ("run_id", "fingerprint", "format", "warp_iisph")
+STATE_KEYS = ("x", "v", "rho", "p", "id", "max_speed2", "sub_left", "sub_done", "time", "step_count", "method")
+KEYS = (*STATE_KEYS, "next_id", "frame", *OWNER_KEYS)
+
+
+def owner(run_id: str, scene) -> dict:
+    """What a checkpoint of run ``run_id`` of ``scene`` records of itself."""
+    return {
+        "run_id": np.array(run_id),
+        "fingerprint": np.array(json.dumps(scene_fingerprint(scene), sort_keys=True)),
+        "format": np.int64(FORMAT),
+        "warp_iisph": np.array(__version__),
+    }
+
+
+def stage_checkpoint(run: RunFolder, state: dict):
+    """Write the checkpoint beside its place; the returned file's ``commit`` renames it in."""
+
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, **state)
+
+    return staged_write(run.checkpoint, write)
+
+
+def load_checkpoint(run: RunFolder) -> dict:
+    """The state ``run`` kept at its last checkpoint, with the frame it was taken at (read only:
+    :func:`check_checkpoint` says whether it may be used)."""
+    if not run.checkpoint.is_file():
+        raise RunError(
+            f"{run.checkpoint}: no checkpoint to resume from (output.checkpoint_every = 0, or no frame was written)"
+        )
+    try:
+        with np.load(run.checkpoint, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise RunError(f"{run.checkpoint}: not a readable checkpoint ({' '.join(str(e).split())})") from None
+
+
+def _scalar(state: dict, key: str, kind: str):
+    a = state[key]
+    if a.shape != () or not (np.issubdtype(a.dtype, np.integer) if kind == "int" else a.dtype.kind in kind):
+        raise ValueError(f"{key} is {a.dtype}{list(a.shape)}, not one {'integer' if kind == 'int' else 'value'}")
+    return a.item()
+
+
+def _array(state: dict, key: str, shape: tuple, integer: bool = False) -> np.ndarray:
+    a = state[key]
+    ok = np.issubdtype(a.dtype, np.integer) if integer else np.issubdtype(a.dtype, np.floating)
+    if a.shape != shape or not ok:
+        raise ValueError(f"{key} is {a.dtype}{list(a.shape)}, not {'integers' if integer else 'floats'}{list(shape)}")
+    if not integer and not np.all(np.isfinite(a)):
+        raise ValueError(f"{key} holds non-finite values")
+    return a
+
+
+def _check_values(state: dict, fps: float, duration: float, scene) -> None:
+    """``ValueError`` saying what makes no sense (the caller names the file)."""
+    for key in ("time", "step_count", "next_id", "frame"):
+        if key not in state:
+            raise ValueError(f"has no {key}")
+    time = _scalar(state, "time", "f")
+    frame, steps, next_id = (_scalar(state, k, "int") for k in ("frame", "step_count", "next_id"))
+    method = _scalar(state, "method", "U")
+    if method not in METHODS:
+        raise ValueError(f"method = {method!r}: not one of {', '.join(METHODS)}")
+    if not (math.isfinite(time) and time >= 0.0):
+        raise ValueError(f"time = {time!r}: must be finite and >= 0")
+    if frame < 0 or abs(time - frame / fps) > 1e-6 * max(1.0, time):
+        raise ValueError(f"frame = {frame} at time = {time:g} s: not that frame's time at {fps:g} frames/s")
+    if time > duration * (1 + 1e-9) + 1e-9:
+        raise ValueError(f"time = {time:g} s: beyond the {duration:g} s the run was asked for")
+    if not frame <= steps <= 2.0 * time / MIN_STEP + 10 * (frame + 1):
+        raise ValueError(f"step_count = {steps}: must be at least the frame ({frame}) and within the time")
+    n = len(state["x"]) if state["x"].ndim >= 1 else -1
+    if not 0 <= n <= next_id <= MAX_PARTICLES:
+        raise ValueError(f"next_id = {next_id}: must be at least the particle count ({n}) and at most {MAX_PARTICLES}")
+    _array(state, "x", (n, 3))
+    _array(state, "v", (n, 3))
+    if np.any(_array(state, "rho", (n,)) < 0.0):
+        raise ValueError("rho holds negative densities")
+    _array(state, "p", (n,))
+    ids = _array(state, "id", (n,), integer=True)
+    if n and (ids.min() < 0 or ids.max() >= next_id or len(np.unique(ids)) != n):
+        raise ValueError(f"id: {n} particle ids must be distinct and in [0, next_id = {next_id})")
+    for key in [k for k in state if k.startswith("carried_")]:
+        _array(state, key, (n,))
+    if np.any(_array(state, "max_speed2", (1,)) < 0.0) or np.any(_array(state, "sub_left", (1,)) < 0.0):
+        raise ValueError("max_speed2 and sub_left must be >= 0")
+    if np.any(_array(state, "sub_done", (1,), integer=True) < 0):
+        raise ValueError("sub_done must be >= 0")
+    if scene.emitters or scene.sinks:
+        for key in ("flows_next_time", "flows_next_check", "flows_counts"):
+            if key not in state:
+                raise ValueError(f"has no {key} (the emitters' and sinks' clocks)")
+        if np.any(_array(state, "flows_next_time", (len(scene.emitters),)) < 0.0):
+            raise ValueError("flows_next_time must be >= 0")
+        if not _scalar(state, "flows_next_check", "f") >= 0.0:
+            raise ValueError("flows_next_check must be >= 0")
+        if np.any(_array(state, "flows_counts", (4,), integer=True) < 0):
+            raise ValueError("flows_counts must be >= 0")
+
+
+def check_checkpoint(state: dict, run: RunFolder, record: dict, scene, fps: float) -> None:
+    """``RunError`` (one line naming the checkpoint) unless ``state`` is a checkpoint of this run
+    (``record``, its run.json) taken of ``scene`` with this format and version, whose values make
+    sense at ``fps``."""
+    where = run.checkpoint
+    missing = [k for k in KEYS if k not in state]
+    if missing:
+        older = " (written by an older warp-iisph)" if set(missing) & set(OWNER_KEYS) else ""
+        raise RunError(f"{where}: has no {', '.join(missing)}{older}; this run cannot be resumed from it")
+    try:
+        fmt, version, run_id = _scalar(state, "format", "int"), str(state["warp_iisph"]), str(state["run_id"])
+    except ValueError as e:
+        raise RunError(f"{where}: {e}") from None
+    if fmt != FORMAT or version != __version__:
+        raise RunError(
+            f"{where}: written by warp-iisph {version} (checkpoint format {fmt}); this is {__version__} "
+            f"(format {FORMAT}), which resumes only its own"
+        )
+    if run_id != record.get("run_id"):
+        raise RunError(
+            f"{where}: belongs to run {run_id}, not to this folder's run {record.get('run_id')} ({run.record_path}); "
+            "a checkpoint resumes only its own run"
+        )
+    try:
+        taken = json.loads(str(state["fingerprint"]))
+        now = scene_fingerprint(scene)
+    except ValueError as e:
+        raise RunError(f"{where}: {e}") from None
+    if not isinstance(taken, dict):
+        raise RunError(f"{where}: its scene fingerprint is not readable")
+    changed = [
+        k
+        for k in sorted(set(now["meshes"]) | set(taken.get("meshes") or {}))
+        if now["meshes"].get(k) != (taken.get("meshes") or {}).get(k)
+    ]
+    if changed:
+        raise RunError(
+            f"{where}: the mesh file of {changed[0]} changed since the checkpoint was taken; "
+            "resuming would mix two scenes"
+        )
+    if taken.get("geometry") != now["geometry"]:
+        raise RunError(f"{where}: was taken of another scene geometry than {run.record_path} records")
+    try:
+        _check_values(state, fps, float(record.get("duration") or 0.0), scene)
+    except ValueError as e:
+        raise RunError(f"{where}: {e}; not a checkpoint this run can resume from") from None
+
+
+def check_positions(state: dict, run: RunFolder, domain) -> None:
+    """``RunError`` when the checkpoint's particles lie outside the scene's domain (lower, upper)."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in domain)
+    x = state["x"]
+    if len(x) and (np.any(x < lo) or np.any(x > hi)):
+        raise RunError(f"{run.checkpoint}: holds particles outside the tank; not a checkpoint of this scene")
