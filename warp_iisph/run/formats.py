@@ -229,8 +229,3 @@ def _write_chunks(path: Path, chunks: list) -> None:
                 fh.write(chunk)
 
     atomic_write(path, write)
-
-
-def write_ply(path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> None:
-    """Binary PLY mesh (see :func:`ply_bytes`)."""
-    write_mesh(path, vertices, faces, normals, "ply")

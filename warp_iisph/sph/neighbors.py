@@ -44,42 +44,25 @@ def entry(nbrs: NeighborList, i: int, m: int) -> int:
 
 
 @wp.func
-def count_in_cells(g: CellGrid, x_i: wp.vec3, radius: float) -> int:
-    """How many of the points a :class:`CellGrid` holds lie within ``radius`` of ``x_i``."""
-    n = int(0)
-    if g.n == 0:
-        return n
-    r2 = radius * radius
-    cx = cell_range(g, x_i, radius, 0)
-    cy = cell_range(g, x_i, radius, 1)
-    cz = cell_range(g, x_i, radius, 2)
-    for z in range(cz[0], cz[1] + 1):
-        for y in range(cy[0], cy[1] + 1):
-            for x in range(cx[0], cx[1] + 1):
-                c = cell_hash(x, y, z)
-                s = cell_first(g, c)
-                while s < g.n and g.keys[s] == c:
-                    d = x_i - g.points[s]
-                    s += 1
-                    if wp.dot(d, d) < r2:
-                        n += 1
-    return n
-
-
-@wp.func
-def fill_from_cells(
+def walk_cells(
     g: CellGrid,
-    points: wp.array(dtype=wp.vec3),
-    first: int,
     x_i: wp.vec3,
     radius: float,
+    skip: int,
+    first: int,
     nbrs: NeighborList,
-    k: int,
-    capacity: int,
+    k0: int,
+    step: int,
+    slots: int,
+    write: int,
 ) -> int:
-    """Append the points of :func:`count_in_cells` to a list from entry ``k``; returns the next entry."""
+    """The points a :class:`CellGrid` holds within ``radius`` of ``x_i`` (but point ``skip``),
+    visited cell by cell, x fastest, as ``wp.hash_grid_query`` visits them: how many there are.
+    With ``write``, the m-th goes to list entry ``k0 + m step`` while ``m < slots`` (its index
+    ``first`` plus its id, ``grad W`` and ``W``)."""
+    m = int(0)
     if g.n == 0:
-        return k
+        return m
     r2 = radius * radius
     cx = cell_range(g, x_i, radius, 0)
     cy = cell_range(g, x_i, radius, 1)
@@ -93,13 +76,15 @@ def fill_from_cells(
                     x_ij = x_i - g.points[s]
                     s += 1
                     if wp.dot(x_ij, x_ij) < r2:
-                        j = first + g.ids[s - 1]
-                        if k < capacity:
-                            nbrs.index[k] = j
-                            nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
-                            nbrs.W[k] = cubic_W(wp.length(x_ij), radius)
-                        k += 1
-    return k
+                        j = g.ids[s - 1]
+                        if j != skip:
+                            if write != 0 and m < slots:
+                                e = k0 + m * step
+                                nbrs.index[e] = first + j
+                                nbrs.grad_W[e] = cubic_grad_W(x_ij, radius)
+                                nbrs.W[e] = cubic_W(wp.length(x_ij), radius)
+                            m += 1
+    return m
 
 
 @wp.kernel
@@ -112,7 +97,7 @@ def count_neighbors(
     mask: NearMask,
     moving: CellGrid,
     moving_first: int,
-    count: wp.array(dtype=wp.int32),
+    nbrs: NeighborList,
 ):
     """Neighbours among the still points (their ``wp.HashGrid``, skipped where ``mask`` clears
     the cell) and the moving ones (``moving``, over the points from ``moving_first``)."""
@@ -127,7 +112,7 @@ def count_neighbors(
             d = x_i - points[j]
             if wp.dot(d, d) < r2:
                 n += 1
-    count[i] = n + count_in_cells(moving, x_i, radius)
+    nbrs.count[i] = n + walk_cells(moving, x_i, radius, -1, moving_first, nbrs, 0, 1, 0, 0)
 
 
 @wp.kernel
@@ -163,7 +148,7 @@ def fill_neighbors(
                     nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
                     nbrs.W[k] = cubic_W(wp.length(x_ij), radius)
                 k += 1
-    k = fill_from_cells(moving, points, moving_first, x_i, radius, nbrs, k, capacity)
+    k += walk_cells(moving, x_i, radius, -1, moving_first, nbrs, k, 1, capacity - k, 1)
     if k > capacity:  # keep every later loop inside the storage
         nbrs.count[i] = wp.max(capacity - nbrs.start[i], 0)
 
@@ -185,31 +170,10 @@ def fill_neighbors_strided(
     stride (``stride_needed`` flags it; the step is redone with a longer stride)."""
     i = wp.tid() + offset
     x_i = points[i]
-    r2 = radius * radius
     b = nbrs.step
     k0 = (i // b) * b * stride + i % b
     nbrs.start[i] = k0
-    k = int(0)
-    cx = cell_range(grid, x_i, radius, 0)
-    cy = cell_range(grid, x_i, radius, 1)
-    cz = cell_range(grid, x_i, radius, 2)
-    for z in range(cz[0], cz[1] + 1):  # x fastest, as wp.hash_grid_query visits cells
-        for y in range(cy[0], cy[1] + 1):
-            for x in range(cx[0], cx[1] + 1):
-                c = cell_hash(x, y, z)
-                s = cell_first(grid, c)
-                while s < grid.n and grid.keys[s] == c:
-                    x_ij = x_i - grid.points[s]
-                    s += 1
-                    if wp.dot(x_ij, x_ij) < r2:
-                        j = grid.ids[s - 1]
-                        if j != i:
-                            if k < stride:
-                                e = k0 + k * nbrs.step
-                                nbrs.index[e] = j
-                                nbrs.grad_W[e] = cubic_grad_W(x_ij, radius)
-                                nbrs.W[e] = cubic_W(wp.length(x_ij), radius)
-                            k += 1
+    k = walk_cells(grid, x_i, radius, i, 0, nbrs, k0, b, stride, 1)
     nbrs.count[i] = wp.min(k, stride)
     wanted[i] = k
 
@@ -300,7 +264,7 @@ class NeighborListBuffer:
             return
         lists = self.lists
         common = [grid.id, points, queries, radius, mask, moving.grid, moving_first]
-        launch_particles(count_neighbors, n, [*common, lists.count], self.device)
+        launch_particles(count_neighbors, n, [*common, lists], self.device)
         self.needed.zero_()
         wp.launch(list_starts, dim=n, inputs=[lists, self.needed], device=self.device)
         if sync:

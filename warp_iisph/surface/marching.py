@@ -44,26 +44,10 @@ from .field import (
 # rows and nodes here would unroll into thousands of copies and take minutes to compile
 wp.set_module_options({"max_unroll": 1, "enable_backward": False})  # never differentiated either
 
-# warp.geometry's corner numbering: corner c of a cell sits at its lowest node + CUBE_CORNER_OFFSETS[c]
-# (0,0,0) (1,0,0) (1,1,0) (0,1,0) (0,0,1) (1,0,1) (1,1,1) (0,1,1); in a block's flat node slots
-# ((i * BLOCK + j) * BLOCK + k) those are these steps:
-S1 = wp.constant(BLOCK * BLOCK)
-S2 = wp.constant(BLOCK * BLOCK + BLOCK)
-S3 = wp.constant(BLOCK)
-S5 = wp.constant(BLOCK * BLOCK + 1)
-S6 = wp.constant(BLOCK * BLOCK + BLOCK + 1)
-S7 = wp.constant(BLOCK + 1)
-
 
 @wp.func
 def axis_step(axis: int) -> wp.vec3i:
     return wp.vec3i(wp.where(axis == 0, 1, 0), wp.where(axis == 1, 1, 0), wp.where(axis == 2, 1, 0))
-
-
-@wp.func
-def inside_bit(phi: float, c: int) -> int:
-    # the inside test of warp.geometry's marching cubes: phi >= 0 sets a corner's bit
-    return wp.where(phi >= 0.0, 1 << c, 0)
 
 
 @wp.func
