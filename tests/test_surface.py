@@ -11,7 +11,7 @@ from warp_iisph.run.formats import write_obj
 from warp_iisph.scene import Box, Sphere
 from warp_iisph.scene import SurfaceSettings as Surface
 from warp_iisph.setup.sampling import sample_box, sample_sphere
-from warp_iisph.surface import SurfaceReconstructor
+from warp_iisph.surface import SurfaceReconstructor, blocks, splat
 from warp_iisph.surface import field as surface
 
 H = 0.02
@@ -289,7 +289,7 @@ def test_block_marching_cubes_equals_warps_dense_marching_cubes(deep):
     r = SurfaceReconstructor(H, Surface(smoothing="none"))
     field = r.distance_field(x)
     assert 0 < field.n_stored < np.prod(field.block_dims)
-    assert (field.device.kind.numpy() == surface.FULL).sum() > (0 if deep else -1)
+    assert (field.device.kind.numpy() == blocks.FULL).sum() > (0 if deep else -1)
     verts, indices = (a.numpy() for a in r.marching_cubes(field))
     dense = field.dense()
     upper = field.lower + field.cell * (np.array(dense.shape) - 1)
@@ -367,7 +367,7 @@ def test_exclusive_scan_and_total():
 
 @wp.kernel
 def per_node_signed_distance(
-    f: surface.BlockField,
+    f: blocks.BlockField,
     grid: wp.uint64,
     x: wp.array(dtype=wp.vec3),
     R: float,
@@ -379,13 +379,13 @@ def per_node_signed_distance(
 ):
     """The plain definition: one node per thread, its own narrow-band test and grid query."""
     n = wp.tid()
-    p = surface.node_position(f, surface.block_coords(f, n // surface.CELLS3), surface.local_node(n % surface.CELLS3))
-    c = surface._coarse_index(p, f.lower, R, cdims)
-    kind = surface.coarse_kind(counts, cdims, c, c, full)
+    p = blocks.node_position(f, blocks.block_coords(f, n // blocks.CELLS3), blocks.local_node(n % blocks.CELLS3))
+    c = blocks._coarse_index(p, f.lower, R, cdims)
+    kind = blocks.coarse_kind(counts, cdims, c, c, full)
     phi[n] = R
-    if kind == surface.FULL:
+    if kind == blocks.FULL:
         phi[n] = -r0
-    elif kind == surface.SURFACE:
+    elif kind == blocks.SURFACE:
         wsum = float(0.0)
         xbar = wp.vec3(0.0)
         inv_R2 = 1.0 / (R * R)
@@ -408,7 +408,7 @@ def _splat_field(settings: dict, seed: int, monkeypatch):
     plain = surface.launch_particles
 
     def spy(kernel, n, inputs, device, **kw):
-        if kernel is surface.splat_blocks:
+        if kernel is splat.splat_blocks:
             launched["inputs"] = inputs
         return plain(kernel, n, inputs, device, **kw)
 
@@ -468,9 +468,9 @@ def test_gpu_row_gather_equals_the_splat(settings, monkeypatch):
     ball reaches it) gives bitwise the field splat_blocks (the CPU's) gives: the same terms in
     the same order. Run here on the CPU, so a GPU is not needed to check it."""
     _, field, (_, f, xs, start, cd, R, r0, _) = _splat_field(settings, 2, monkeypatch)
-    splat = f.phi.numpy().copy()
+    splatted = f.phi.numpy().copy()
     f.phi.fill_(np.nan)
-    wp.launch(surface.gather_rows, dim=field.n_stored * surface.ROWS, inputs=[0, f, xs, start, cd, R, r0], device="cpu")
+    wp.launch(splat.gather_rows, dim=field.n_stored * splat.ROWS, inputs=[0, f, xs, start, cd, R, r0], device="cpu")
     gathered = f.phi.numpy()
     assert field.n_stored > 50 and np.isfinite(gathered).all()
-    assert np.array_equal(gathered.view(np.int32), splat.view(np.int32))
+    assert np.array_equal(gathered.view(np.int32), splatted.view(np.int32))

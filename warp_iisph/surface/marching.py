@@ -22,23 +22,19 @@ import warp as wp
 import warp.geometry
 
 from ..engine.launch import launch_particles
-from .field import (
+from .blocks import (
     BLOCK,
     CELLS3,
     FULL,
     BlockField,
-    SparseField,
-    Workspace,
     block_coords,
     local_node,
     local_slot,
     node_phi,
     node_position,
     owner_block,
-    scan_with_total,
-    splat_workers,
-    substage,
 )
+from .field import SparseField, Workspace, scan_with_total, splat_workers, substage
 
 # Warp unrolls loops of constant trip count up to max_unroll (16): the nested loops over a block's
 # rows and nodes here would unroll into thousands of copies and take minutes to compile
