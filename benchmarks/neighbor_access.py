@@ -32,6 +32,7 @@ from warp_iisph.sph.grid import CellGrid, cell_first, cell_hash, cell_range
 from warp_iisph.sph.kernel import cubic_grad_W
 from warp_iisph.sph.neighbors import NeighborList, StridedListBuffer, entry
 from warp_iisph.sph.solvers.iisph import (
+    IISPHTerms,
     dij_pj_term,
     jacobi_boundary_sigma,
     jacobi_sigma_term,
@@ -39,6 +40,7 @@ from warp_iisph.sph.solvers.iisph import (
     pressure_jacobi,
     pressure_sum_dij_pj,
 )
+from warp_iisph.sph.wall_pressure import walls_of
 
 WALKS_OUTSIDE_JACOBI = 4  # density, advection velocity, advection density, pressure acceleration
 WALKS_PER_ITERATION = 2  # pressure_sum_dij_pj, pressure_jacobi
@@ -237,63 +239,32 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     def list_fill():
         search.fluid.build(search.grid, state.x, n, search.radius)
 
-    sum_list, sum_query = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.sum_dij_pj)
+    sum_list, sum_query = wp.zeros_like(solver.terms.sum_dij_pj), wp.zeros_like(solver.terms.sum_dij_pj)
     p_list, p_query = wp.zeros_like(solver.p_next), wp.zeros_like(solver.p_next)
-    disp = wp.zeros_like(solver.sum_dij_pj)  # each iteration writes it before it reads it
+    disp = wp.zeros_like(solver.terms.sum_dij_pj)  # each iteration writes it before it reads it
+
+    walls = walls_of(model, 0.0, n)  # the walls' pressures off (Akinci's term), as the query twins compute
+
+    def terms_with(sums):
+        # the solver's terms with the iteration's own sums, and a_ii as the diagonal
+        t = IISPHTerms()
+        for name in ("v_adv", "d_ii", "a_ii", "rho_adv", "wall_push"):
+            setattr(t, name, getattr(solver.terms, name))
+        t.a_diag, t.sum_dij_pj, t.displacement = solver.terms.a_ii, sums, disp
+        return t
 
     def iteration_lists(lists=nf, sums=sum_list, p_out=p_list):
-        # the fluid part of an iteration (the walls' pressures off, wall_weight 0; a_ii as the
-        # diagonal), as the query twins compute it
-        launch_particles(
-            pressure_sum_dij_pj,
-            n,
-            [
-                state.rho,
-                state.p,
-                model.boundary_psi,
-                0.0,
-                solver.walls.weight,
-                solver.walls.W0,
-                lists,
-                nb,
-                model.mass,
-                solver.dt,
-                solver.d_ii,
-                sums,
-                disp,
-            ],
-            device,
-        )
-        launch_particles(
-            pressure_jacobi,
-            n,
-            [
-                state.rho,
-                solver.rho_adv,
-                solver.a_ii,
-                solver.a_ii,
-                disp,
-                sums,
-                state.p,
-                model.boundary_psi,
-                lists,
-                nb,
-                model.mass,
-                solver.dt,
-                ph.rho0,
-                float(ph.omega),
-                p_out,
-                solver.solve.error,
-            ],
-            device,
-        )
+        # the fluid part of an iteration, as the query twins compute it
+        common = [solver.fluid, lists, nb, walls, terms_with(sums), state.rho, state.p]
+        launch_particles(pressure_sum_dij_pj, n, common, device)
+        launch_particles(pressure_jacobi, n, [*common, float(ph.omega), p_out, solver.solve.error], device)
 
     # the same lists in the other layout: slot-major (slot m of particle i at m * n + i, what a
     # GPU warp reads coalesced) against particle-major (i * stride + m, one cache line per list)
     slot_major = nf.step != 1
     other = StridedListBuffer(n, device, stride=search.fluid.stride, slot_major=not slot_major)
     other.build(search.grid, state.x, n, search.radius)
-    sum_other, p_other = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
+    sum_other, p_other = wp.zeros_like(solver.terms.sum_dij_pj), wp.zeros_like(solver.p_next)
 
     # the query twins walk a wp.HashGrid over the same points: the same candidates in the same
     # order as the solver's own grid (warp_iisph.sph.grid), so the sums are bitwise the lists'
@@ -305,7 +276,7 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
         launch_particles(
             pressure_sum_dij_pj_query,
             n,
-            [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, solver.d_ii, sum_query, disp],
+            [grid, state.x, H, state.rho, state.p, model.mass, solver.dt, solver.terms.d_ii, sum_query, disp],
             device,
         )
         launch_particles(
@@ -316,8 +287,8 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 state.x,
                 H,
                 state.rho,
-                solver.rho_adv,
-                solver.a_ii,
+                solver.terms.rho_adv,
+                solver.terms.a_ii,
                 disp,
                 sum_query,
                 state.p,
@@ -338,13 +309,13 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     t_lists = timed(iteration_lists, device, repeats)
     t_query = timed(iteration_query, device, repeats)
     t_other = timed(lambda: iteration_lists(other.lists, sum_other, p_other), device, repeats)
-    sum_index, p_index = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
+    sum_index, p_index = wp.zeros_like(solver.terms.sum_dij_pj), wp.zeros_like(solver.p_next)
 
     def iteration_index():
         launch_particles(
             pressure_sum_dij_pj_index,
             n,
-            [state.x, H, state.rho, state.p, nf, model.mass, solver.dt, solver.d_ii, sum_index, disp],
+            [state.x, H, state.rho, state.p, nf, model.mass, solver.dt, solver.terms.d_ii, sum_index, disp],
             device,
         )
         launch_particles(
@@ -354,8 +325,8 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 state.x,
                 H,
                 state.rho,
-                solver.rho_adv,
-                solver.a_ii,
+                solver.terms.rho_adv,
+                solver.terms.a_ii,
                 disp,
                 sum_index,
                 state.p,
@@ -389,7 +360,7 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
     # while a warp's fill writes stay within its own few kilobytes
     warp = StridedListBuffer(n, device, stride=search.fluid.stride, block=32)
     t_warp_fill = timed(lambda: warp.build(search.grid, state.x, n, search.radius, sync=False), device, repeats)
-    sum_warp, p_warp = wp.zeros_like(solver.sum_dij_pj), wp.zeros_like(solver.p_next)
+    sum_warp, p_warp = wp.zeros_like(solver.terms.sum_dij_pj), wp.zeros_like(solver.p_next)
     t_warp = timed(lambda: iteration_lists(warp.lists, sum_warp, p_warp), device, repeats)
     warp_difference = float(np.abs(p_list.numpy()[:n] - p_warp.numpy()[:n]).max())
     # both give the same iteration (same neighbours in the same order, same grad W)

@@ -31,15 +31,17 @@ import warp as wp
 from warp_iisph.engine.launch import launch_particles
 from warp_iisph.engine.reduce import sum_into
 from warp_iisph.sph.neighbors import NeighborList, entry
+from warp_iisph.sph.solvers.base import Fluid
 from warp_iisph.sph.solvers.iisph import (
     IISPHSolver,
+    IISPHTerms,
     dij_pj_term,
     jacobi_advance,
     jacobi_boundary_sigma,
     jacobi_sigma_term,
 )
 from warp_iisph.sph.solvers.iteration import IterativeSolve
-from warp_iisph.sph.wall_pressure import smoothed_pressure
+from warp_iisph.sph.wall_pressure import Walls, smoothed_pressure
 
 WARM_STARTS = ("half", "full", "hydrostatic")
 SCHEMES = ("jacobi", "bb", "cg", "chebyshev")
@@ -79,9 +81,7 @@ def add_hydrostatic(
 
 
 @wp.kernel
-def mark_inactive_walls(
-    offset: int, p: wp.array(dtype=float), nf: NeighborList, nb: NeighborList, W0: float, weight: wp.array(dtype=float)
-):
+def mark_inactive_walls(offset: int, p: wp.array(dtype=float), nf: NeighborList, nb: NeighborList, walls: Walls):
     """Freeze the walls' active set for the step: an entry whose pressure is zero at the start stays off."""
     i = wp.tid() + offset
     if nb.count[i] == 0:
@@ -90,7 +90,7 @@ def mark_inactive_walls(
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         p_sum += nf.W[k] * p[nf.index[k]]
-    p_c = smoothed_pressure(i, p, p_sum, W0, weight)
+    p_c = smoothed_pressure(i, p, p_sum, walls)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         if p_c + nb.head[k] <= 0.0:
@@ -100,36 +100,30 @@ def mark_inactive_walls(
 @wp.kernel
 def displacement_of(
     offset: int,
-    rho: wp.array(dtype=float),
-    p: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
-    wall_factor: float,
-    weight: wp.array(dtype=float),
-    W0: float,
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
-    d_ii: wp.array(dtype=wp.vec3),
+    walls: Walls,
+    iisph: IISPHTerms,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
     linear: int,
-    sum_dij_pj: wp.array(dtype=wp.vec3),
-    displacement: wp.array(dtype=wp.vec3),
 ):
     """As ``pressure_sum_dij_pj``; with ``linear`` the walls' pressure is the smoothed pressure of
     ``p`` alone (no head, no clamp) on the active entries: the operator's linear part."""
     i = wp.tid() + offset
-    dt = dt_step[0]
+    dt = fluid.dt[0]
     acc = wp.vec3(0.0, 0.0, 0.0)
-    walls = wall_factor > 0.0 and nb.count[i] > 0
+    extrapolated = walls.pressure_factor > 0.0 and nb.count[i] > 0
     p_sum = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         j = nf.index[k]
-        acc -= dij_pj_term(mass, p[j], rho[j], nf.grad_W[k])
-        if walls:
+        acc -= dij_pj_term(fluid.mass, p[j], rho[j], nf.grad_W[k])
+        if extrapolated:
             p_sum += nf.W[k] * p[j]
-    if walls:
-        p_c = smoothed_pressure(i, p, p_sum, W0, weight)
+    if extrapolated:
+        p_c = smoothed_pressure(i, p, p_sum, walls)
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
             head = nb.head[k]
@@ -139,40 +133,37 @@ def displacement_of(
                     p_b = p_c
                 else:
                     p_b = wp.max(p_c + head, 0.0)
-            acc -= (psi[nb.index[k]] * wall_factor * p_b) * nb.grad_W[k]
+            acc -= (walls.psi[nb.index[k]] * walls.pressure_factor * p_b) * nb.grad_W[k]
     sdp = dt * dt * acc
-    sum_dij_pj[i] = sdp
-    displacement[i] = d_ii[i] * p[i] + sdp
+    iisph.sum_dij_pj[i] = sdp
+    iisph.displacement[i] = iisph.d_ii[i] * p[i] + sdp
 
 
 @wp.kernel
 def density_change_of(
     offset: int,
-    rho: wp.array(dtype=float),
-    a_ii: wp.array(dtype=float),
-    displacement: wp.array(dtype=wp.vec3),
-    sum_dij_pj: wp.array(dtype=wp.vec3),
-    p: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
+    walls: Walls,
+    iisph: IISPHTerms,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
     out: wp.array(dtype=float),
 ):
     """``a_ii p_i + s_i``: the density change the pressures ``p`` give particle i."""
     i = wp.tid() + offset
-    dt = dt_step[0]
+    dt = fluid.dt[0]
     rho_i = rho[i]
     p_i = p[i]
-    sdp_i = sum_dij_pj[i]
-    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    sdp_i = iisph.sum_dij_pj[i]
+    d_ji_scale = dt * dt * fluid.mass / (rho_i * rho_i)
     sigma = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         g = nf.grad_W[k]
-        sigma += jacobi_sigma_term(mass, sdp_i, displacement[nf.index[k]], (d_ji_scale * g) * p_i, g)
-    out[i] = a_ii[i] * p_i + jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
+        sigma += jacobi_sigma_term(fluid.mass, sdp_i, iisph.displacement[nf.index[k]], (d_ji_scale * g) * p_i, g)
+    out[i] = iisph.a_ii[i] * p_i + jacobi_boundary_sigma(i, walls.psi, nb, sdp_i, sigma)
 
 
 @wp.func
@@ -442,22 +433,10 @@ class VariantIISPH(IISPHSolver):
         return super().launch_step(model, state, timer, sync)
 
     def pressure_change(self, model, state, p, linear: int, out) -> None:
-        walls, nf, nb = self.walls, self.search.fluid.lists, self.search.boundary.lists
-        n, dev = state.n, model.device
-        launch_particles(
-            displacement_of,
-            n,
-            [state.rho, p, model.boundary_psi, walls.factor, walls.weight, walls.W0, nf, nb, model.mass, self.dt,
-             self.d_ii, linear, self.sum_dij_pj, self.displacement],
-            dev,
-        )  # fmt: skip
-        launch_particles(
-            density_change_of,
-            n,
-            [state.rho, self.a_ii, self.displacement, self.sum_dij_pj, p, model.boundary_psi, nf, nb, model.mass,
-             self.dt, out],
-            dev,
-        )  # fmt: skip
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        common = [self.fluid, nf, nb, self.walls.walls, self.terms, state.rho, p]
+        launch_particles(displacement_of, state.n, [*common, linear], model.device)
+        launch_particles(density_change_of, state.n, [*common, out], model.device)
 
     # the solve: IISPHSolver.launch_step runs self.solve.run(..., jacobi_iteration, advance); the
     # other schemes replace those two callables through these methods
@@ -468,13 +447,13 @@ class VariantIISPH(IISPHSolver):
         return self.run_scheme(model, state)
 
     def bb_solve(self, model, state) -> None:
-        ph, n, dev = self.physics, state.n, model.device
+        ph, n, dev, t = self.physics, state.n, model.device, self.terms
         self.pressure_change(model, state, state.p, 0, self.change)
         launch_particles(
             bb_terms,
             n,
-            [self.rho_adv, self.change, ph.rho0, self.a_diag, state.rho, state.p, self.p_last, self.e, self.e_last,
-             self.t_a, self.t_b, self.solve.error],
+            [t.rho_adv, self.change, ph.rho0, t.a_diag, state.rho, state.p, self.p_last, self.e, self.e_last, self.t_a,
+             self.t_b, self.solve.error],
             dev,
         )  # fmt: skip
         sum_into(self.t_a, n, self.s_a)
@@ -482,24 +461,24 @@ class VariantIISPH(IISPHSolver):
         wp.launch(bb_length, dim=1, inputs=[self.s_a, self.s_b, self.solve.iterations, self.length], device=dev)
         # the step itself is taken by advance (after the convergence test), as Jacobi's update
         launch_particles(jacobi_advance, n, [self.no_blend(dev), state.p, self.p_next], dev)  # p_next = p
-        launch_particles(bb_step, n, [self.length, self.e, self.a_diag, self.p_next], dev)
+        launch_particles(bb_step, n, [self.length, self.e, self.terms.a_diag, self.p_next], dev)
 
     def cg_solve(self, model, state) -> None:
-        ph, n, dev = self.physics, state.n, model.device
+        ph, n, dev, t = self.physics, state.n, model.device, self.terms
         if int(self.solve.iterations.numpy()[0]) == 0:  # the start: residual, free set, first direction
             if self.walls.extrapolated:
                 launch_particles(
                     mark_inactive_walls,
                     n,
-                    [state.p, self.search.fluid.lists, self.search.boundary.lists, self.walls.W0, self.walls.weight],
+                    [state.p, self.search.fluid.lists, self.search.boundary.lists, self.walls.walls],
                     dev,
                 )
             self.pressure_change(model, state, state.p, 0, self.change)
             launch_particles(
                 cg_start,
                 n,
-                [self.rho_adv, self.change, ph.rho0, self.a_diag, state.rho, state.p, self.free, self.e, self.z,
-                 self.d, self.t_a],
+                [t.rho_adv, self.change, ph.rho0, t.a_diag, state.rho, state.p, self.free, self.e, self.z, self.d,
+                 self.t_a],
                 dev,
             )  # fmt: skip
             sum_into(self.t_a, n, self.s_a)
@@ -510,7 +489,7 @@ class VariantIISPH(IISPHSolver):
         launch_particles(
             cg_update,
             n,
-            [self.length, self.d, self.q, self.a_diag, state.rho, self.free, ph.rho0, state.p, self.e, self.z,
+            [self.length, self.d, self.q, self.terms.a_diag, state.rho, self.free, ph.rho0, state.p, self.e, self.z,
              self.t_a, self.t_b, self.solve.error],
             dev,
         )  # fmt: skip
@@ -526,7 +505,7 @@ class VariantIISPH(IISPHSolver):
         launch_particles(
             chebyshev_terms,
             n,
-            [self.solve.iterations, 0.01, 4.0, 2, self.rho_adv, self.change, ph.rho0, self.a_diag, state.p,
+            [self.solve.iterations, 0.01, 4.0, 2, self.terms.rho_adv, self.change, ph.rho0, self.terms.a_diag, state.p,
              self.d, self.p_next, self.solve.error],
             dev,
         )  # fmt: skip

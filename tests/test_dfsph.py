@@ -133,9 +133,7 @@ def test_divergence_solve_brings_the_compression_rate_below_eta_divergence():
     s.search.build(st.x, st.n)
     nf, nb = s.search.fluid.lists, s.search.boundary.lists
     s.compute_densities(model, st)
-    launch.launch_particles(
-        dfsph.dfsph_factor, st.n, [model.boundary_psi, nf, nb, model.mass, s.least_denominator, s.factor], "cpu"
-    )
+    launch.launch_particles(dfsph.dfsph_factor, st.n, [s.fluid, nf, nb, s.walls, s.min_denominator, s.factor], "cpu")
     dt = float(s.dt.numpy()[0])
     part = nf.count.numpy()[: st.n] + nb.count.numpy()[: st.n] >= dfsph.MIN_NEIGHBORS
 

@@ -39,12 +39,23 @@ from .kernel import cubic_W_np
 from .neighbors import NeighborList, entry
 
 
+@wp.struct
+class Walls:
+    """The boundary particles as the fluid's kernels see them."""
+
+    psi: wp.array(dtype=float)  # Akinci's psi: each boundary particle's volume times rho0 (kg)
+    v: wp.array(dtype=wp.vec3)  # their velocities (zero for still walls)
+    # 1/rho0^2 where they push with the fluid's pressure extrapolated into them, 0 with Akinci's
+    # walls (whose term is the fluid particle's own pressure)
+    pressure_factor: float
+    weight: wp.array(dtype=float)  # sum_j W_ij (i included) of each fluid particle near walls
+    W0: float  # W(0): a particle's own weight in that sum
+
+
 @wp.func
-def smoothed_pressure(
-    i: int, p: wp.array(dtype=float), p_sum: float, W0: float, weight: wp.array(dtype=float)
-) -> float:
+def smoothed_pressure(i: int, p: wp.array(dtype=float), p_sum: float, walls: Walls) -> float:
     """``p~_i`` from ``p_sum = sum_j W_ij p_j`` over i's neighbours (i itself added here)."""
-    return (W0 * p[i] + p_sum) / weight[i]
+    return (walls.W0 * p[i] + p_sum) / walls.weight[i]
 
 
 @wp.kernel
@@ -57,8 +68,7 @@ def wall_heads(
     gravity: wp.vec3,
     nf: NeighborList,
     nb: NeighborList,
-    W0: float,
-    weight: wp.array(dtype=float),
+    walls: Walls,
 ):
     """For a fluid particle i near a wall, once per step: ``sum_j W_ij`` (i included), the centre
     ``x~_i`` of its neighbourhood, where its smoothed pressure sits, and for each wall neighbour b
@@ -68,6 +78,7 @@ def wall_heads(
     if nb.count[i] == 0:
         return
     x_i = x[i]
+    W0 = walls.W0
     s = W0
     c = W0 * x_i
     for m in range(nf.count[i]):
@@ -76,7 +87,7 @@ def wall_heads(
         s += w
         c += w * x[nf.index[k]]
     c = c / s
-    weight[i] = s
+    walls.weight[i] = s
     rho_i = rho[i]
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
@@ -87,16 +98,12 @@ def wall_heads(
 class WallPressures:
     """The walls' pressures a method's pressure force and solve use: extrapolated
     (``physics.wall_pressure = "extrapolated"``, with boundary particles) or Akinci's (the fluid
-    particle's own, in one term). ``factor`` is the walls' 1/rho0^2 in the force and in IISPH's
-    ``sum_j d_ij p_j``, 0 for Akinci's walls; ``weight`` holds each fluid particle's
-    ``sum_j W_ij`` near walls (:func:`wall_heads`)."""
+    particle's own, in one term). ``walls`` is what the kernels take (:class:`Walls`)."""
 
     def __init__(self, model, capacity: int):
         ph = model.physics
         self.extrapolated = ph.wall_pressure == "extrapolated" and model.n_boundary > 0
-        self.factor = 1.0 / (ph.rho0 * ph.rho0) if self.extrapolated else 0.0
-        self.W0 = float(cubic_W_np(0.0, model.support_radius))
-        self.weight = wp.ones(max(capacity, 1), dtype=float, device=model.device)
+        self.walls = walls_of(model, 1.0 / (ph.rho0 * ph.rho0) if self.extrapolated else 0.0, capacity)
         self.gravity = wp.vec3(*ph.gravity)
 
     def heads(self, model, state, nf: NeighborList, nb: NeighborList) -> None:
@@ -106,6 +113,16 @@ class WallPressures:
             launch_particles(
                 wall_heads,
                 state.n,
-                [state.x, state.rho, model.boundary_x, model.boundary_a, self.gravity, nf, nb, self.W0, self.weight],
+                [state.x, state.rho, model.boundary_x, model.boundary_a, self.gravity, nf, nb, self.walls],
                 model.device,
             )
+
+
+def walls_of(model, pressure_factor: float = 0.0, capacity: int = 1) -> Walls:
+    """The :class:`Walls` of ``model`` (``capacity``: fluid particles the smoothing weights serve)."""
+    walls = Walls()
+    walls.psi, walls.v = model.boundary_psi, model.boundary_v
+    walls.pressure_factor = pressure_factor
+    walls.weight = wp.ones(max(capacity, 1), dtype=float, device=model.device)
+    walls.W0 = float(cubic_W_np(0.0, model.support_radius))
+    return walls

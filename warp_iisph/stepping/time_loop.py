@@ -67,24 +67,64 @@ def fit_to_landing(step: wp.float64, to_end: wp.float64) -> wp.float64:
     return to_end / n
 
 
+@wp.struct
+class StepRule:
+    """What chooses a step: the run's constants (s, m, m/s)."""
+
+    fixed_dt: wp.float64  # the scene's fixed dt; not positive for the CFL rule
+    cfl: wp.float64
+    h: wp.float64  # the particle spacing
+    velocity_scale: wp.float64  # the speed the CFL rule assumes at least, sqrt(2 g y_top)
+    signal_speed: wp.float64  # WCSPH's speed of sound, 0 for the incompressible methods
+    dt_min: wp.float64
+    dt_max: wp.float64
+    split: int  # whether a fixed dt longer than a step may be is cut into substeps
+
+
+@wp.struct
+class Clock:
+    """The loop's clock on the device, and where it must stop."""
+
+    time: wp.array(dtype=wp.float64)
+    end: wp.array(dtype=wp.float64)  # the landing time of this loop
+    dt_request: wp.array(dtype=wp.float64)  # a step asked for; not positive: the rules choose
+    dt: wp.array(dtype=wp.float64)  # this step's
+    steps: wp.array(dtype=wp.int32)  # steps taken in the run
+    slot: wp.array(dtype=wp.int32)  # the next log row
+    step_limit: wp.array(dtype=wp.int32)  # the most steps this loop may take
+    keep_going: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class Substeps:
+    """A fixed dt being cut into substeps."""
+
+    left: wp.array(dtype=wp.float64)  # what is left of the fixed step being cut
+    done: wp.array(dtype=wp.int32)  # substeps taken of it
+    pieces: wp.array(dtype=wp.int32)  # how many it is cut into (logged)
+
+
+@wp.struct
+class StepStatistics:
+    """The device scalars a step's log row is made of."""
+
+    compression_sum: wp.array(dtype=wp.float64)
+    error_sum: wp.array(dtype=wp.float64)
+    iterations: wp.array(dtype=wp.int32)
+    max_speed2: wp.array(dtype=float)  # the step's top speed, squared (the CFL rule's)
+    counts: wp.array(dtype=wp.int32)  # particles out of the domain, non-finite
+    corrections: wp.array(dtype=wp.int32)  # particles the last line put back (walls, obstacles)
+    needed: wp.array(dtype=wp.int32)  # list entries the loop's steps needed (fluid, boundary)
+    list_total_fluid: wp.array(dtype=wp.int32)  # this step's need of each list
+    list_total_boundary: wp.array(dtype=wp.int32)
+
+
 @wp.kernel
 def choose_dt(
-    fixed_dt: wp.float64,
-    cfl: wp.float64,
-    h: wp.float64,
-    velocity_scale: wp.float64,
-    signal_speed: wp.float64,
-    dt_min: wp.float64,
-    dt_max: wp.float64,
-    split: int,
-    dt_request: wp.array(dtype=wp.float64),
+    rule: StepRule,
+    clock: Clock,
+    sub: Substeps,
     max_speed2: wp.array(dtype=float),
-    time: wp.array(dtype=wp.float64),
-    end: wp.array(dtype=wp.float64),
-    sub_left: wp.array(dtype=wp.float64),
-    sub_done: wp.array(dtype=wp.int32),
-    pieces: wp.array(dtype=wp.int32),
-    dt64: wp.array(dtype=wp.float64),
     dt32: wp.array(dtype=float),
 ):
     """The step: a requested one, the scene's fixed dt, or the CFL rule
@@ -99,7 +139,10 @@ def choose_dt(
     ``dt^2 g y_top / h^2 <= 1/4`` (resting IISPH water bounces at 0.49 and its pressure alternates
     from step to step at 0.37). ``sub_left`` is what is left of the fixed step being cut
     (recounted every substep, as speeds change); a landing time inside it ends it there."""
-    dt = dt_request[0]
+    fixed_dt, cfl, h, split = rule.fixed_dt, rule.cfl, rule.h, rule.split
+    velocity_scale, signal_speed, dt_min, dt_max = rule.velocity_scale, rule.signal_speed, rule.dt_min, rule.dt_max
+    time, end, sub_left, sub_done = clock.time, clock.end, sub.left, sub.done
+    dt = clock.dt_request[0]
     n = wp.int32(1)
     splitting = False
     if dt <= wp.float64(0.0):
@@ -140,8 +183,8 @@ def choose_dt(
         else:
             sub_left[0] = rest
             sub_done[0] = sub_done[0] + 1
-    pieces[0] = n
-    dt64[0] = dt
+    sub.pieces[0] = n
+    clock.dt[0] = dt
     dt32[0] = float(dt)
 
 
@@ -204,48 +247,37 @@ def record_count(
 def record_step(
     n: int,
     velocity_limit: wp.float64,
-    dt64: wp.array(dtype=wp.float64),
-    compression_sum: wp.array(dtype=wp.float64),
-    error_sum: wp.array(dtype=wp.float64),
-    iterations: wp.array(dtype=wp.int32),
-    max_speed2: wp.array(dtype=float),
-    counts: wp.array(dtype=wp.int32),
-    corrections: wp.array(dtype=wp.int32),
-    pieces: wp.array(dtype=wp.int32),
-    needed: wp.array(dtype=wp.int32),
-    list_total_f: wp.array(dtype=wp.int32),
-    list_total_b: wp.array(dtype=wp.int32),
-    time: wp.array(dtype=wp.float64),
-    end: wp.array(dtype=wp.float64),
-    steps: wp.array(dtype=wp.int32),
-    slot: wp.array(dtype=wp.int32),
-    step_limit: wp.array(dtype=wp.int32),
+    clock: Clock,
+    sub: Substeps,
+    stats: StepStatistics,
     log: wp.array2d(dtype=wp.float64),
-    keep_going: wp.array(dtype=wp.int32),
 ):
     """Append the step's statistics to the log, advance the clock, and decide whether another
     step follows: not at the end time, not past the step limit, not after a divergence."""
-    k = slot[0]
-    t = time[0] + dt64[0]
-    time[0] = t
-    speed = wp.float64(wp.sqrt(max_speed2[0]))
-    log[k, 0] = dt64[0]
-    log[k, 1] = wp.float64(iterations[0])
-    log[k, 2] = error_sum[0] / wp.float64(n)
-    log[k, 3] = compression_sum[0] / wp.float64(n)
+    k = clock.slot[0]
+    dt = clock.dt[0]
+    t = clock.time[0] + dt
+    clock.time[0] = t
+    counts, corrections = stats.counts, stats.corrections
+    speed = wp.float64(wp.sqrt(stats.max_speed2[0]))
+    log[k, 0] = dt
+    log[k, 1] = wp.float64(stats.iterations[0])
+    log[k, 2] = stats.error_sum[0] / wp.float64(n)
+    log[k, 3] = stats.compression_sum[0] / wp.float64(n)
     log[k, 4] = speed
     log[k, 5] = wp.float64(counts[0])
     log[k, 6] = wp.float64(counts[1])
     log[k, 7] = wp.float64(corrections[0])
     log[k, 8] = wp.float64(corrections[1])
     log[k, 9] = t
-    log[k, 10] = wp.float64(pieces[0])
-    needed[0] = wp.max(needed[0], list_total_f[0])
-    needed[1] = wp.max(needed[1], list_total_b[0])
-    slot[0] = k + 1
-    steps[0] = steps[0] + 1
+    log[k, 10] = wp.float64(sub.pieces[0])
+    stats.needed[0] = wp.max(stats.needed[0], stats.list_total_fluid[0])
+    stats.needed[1] = wp.max(stats.needed[1], stats.list_total_boundary[0])
+    clock.slot[0] = k + 1
+    clock.steps[0] = clock.steps[0] + 1
     diverged = counts[0] > 0 or counts[1] > 0 or speed > velocity_limit
-    keep_going[0] = wp.where(diverged or k + 1 >= step_limit[0] or t >= end[0] - wp.float64(1.0e-9), 0, 1)
+    last = diverged or k + 1 >= clock.step_limit[0] or t >= clock.end[0] - wp.float64(1.0e-9)
+    clock.keep_going[0] = wp.where(last, 0, 1)
 
 
 class TimeLoop:
@@ -287,6 +319,31 @@ class TimeLoop:
         self.pieces = wp.ones(1, dtype=wp.int32, device=dev)
         self.log = wp.zeros((self.capacity, len(self.fields)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.rule, self.clock, self.substeps, self.statistics = self._structs()
+
+    def _structs(self) -> tuple[StepRule, Clock, Substeps, StepStatistics]:
+        """The kernels' views of the loop's settings and device state (the same arrays)."""
+        ph, f64 = self.physics, wp.float64
+        rule = StepRule()
+        rule.fixed_dt = f64(ph.dt if ph.dt is not None else -1.0)
+        rule.cfl, rule.h = f64(ph.cfl), f64(self.model.spacing)
+        rule.velocity_scale, rule.signal_speed = f64(self.velocity_scale), f64(self.solver.signal_speed)
+        rule.dt_min, rule.dt_max, rule.split = f64(ph.dt_min), f64(self.dt_limit), int(ph.substeps)
+        clock = Clock()
+        for name in ("time", "end", "dt_request", "steps", "slot", "step_limit", "keep_going"):
+            setattr(clock, name, getattr(self, name))
+        clock.dt = self.dt64
+        sub = Substeps()
+        sub.left, sub.done, sub.pieces = self.sub_left, self.sub_done, self.pieces
+        stats = StepStatistics()
+        stats.compression_sum = self.solver._compression_sum
+        stats.error_sum, stats.iterations = self.solver.solver_stats()
+        stats.max_speed2, stats.counts = self.max_speed2, self.counts
+        stats.corrections, stats.needed = self.model.containment.corrections, self.needed
+        search = self.solver.search
+        stats.list_total_fluid = search.fluid.needed
+        stats.list_total_boundary = search.boundary.needed if search.boundary_grid is not None else self._zero_total
+        return rule, clock, sub, stats
 
     def start(
         self, time: float, steps: int, end: float, dt: float | None = None, step_limit: int | None = None
@@ -303,32 +360,10 @@ class TimeLoop:
         """One step, all on the device. ``timer``: stage times (plain path); ``sync``: neighbour
         storage may be read back and grown (plain path); without it an overflow shows in
         ``needed`` and the caller redoes the step."""
-        model, state, solver, ph = self.model, self.state, self.solver, self.physics
+        model, state, solver = self.model, self.state, self.solver
         dev = model.device
-        f64 = wp.float64
         wp.launch(
-            choose_dt,
-            dim=1,
-            device=dev,
-            inputs=[
-                f64(ph.dt if ph.dt is not None else -1.0),
-                f64(ph.cfl),
-                f64(model.spacing),
-                f64(self.velocity_scale),
-                f64(solver.signal_speed),
-                f64(ph.dt_min),
-                f64(self.dt_limit),
-                int(ph.substeps),
-                self.dt_request,
-                self.max_speed2,
-                self.time,
-                self.end,
-                self.sub_left,
-                self.sub_done,
-                self.pieces,
-                self.dt64,
-                solver.dt,
-            ],
+            choose_dt, dim=1, device=dev, inputs=[self.rule, self.clock, self.substeps, self.max_speed2, solver.dt]
         )
         if model.bodies is not None:  # moving obstacles where they are at the step's start
             model.bodies.place(model.boundary_x, model.boundary_v, model.boundary_a, self.time, self.dt64)
@@ -367,24 +402,11 @@ class TimeLoop:
             device=dev,
             inputs=[
                 max(state.n, 1),
-                f64(self.velocity_limit),
-                self.dt64,
-                solver._compression_sum,
-                *solver.solver_stats(),
-                self.max_speed2,
-                self.counts,
-                model.containment.corrections,
-                self.pieces,
-                self.needed,
-                search.fluid.needed,
-                search.boundary.needed if search.boundary_grid is not None else self._zero_total,
-                self.time,
-                self.end,
-                self.steps,
-                self.slot,
-                self.step_limit,
+                wp.float64(self.velocity_limit),
+                self.clock,
+                self.substeps,
+                self.statistics,
                 self.log,
-                self.keep_going,
             ],
         )
 

@@ -20,10 +20,19 @@ from ...engine.launch import launch_particles
 from ...engine.reduce import sum_into
 from ..kernel import cubic_W
 from ..neighbors import NeighborList, NeighborSearch, entry
-from ..wall_pressure import WallPressures, smoothed_pressure
+from ..wall_pressure import WallPressures, Walls, smoothed_pressure
 from .forces import ViscousSubsteps, predict_velocity
 
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
+
+
+@wp.struct
+class Fluid:
+    """What a step's fluid kernels read besides the particles' arrays."""
+
+    mass: float  # each fluid particle's mass (kg)
+    rho0: float  # rest density (kg/m^3)
+    dt: wp.array(dtype=float)  # the step's length (s), on the device
 
 
 @wp.kernel
@@ -53,44 +62,40 @@ def compute_density(
 @wp.kernel
 def integrate(
     offset: int,
+    fluid: Fluid,
+    nf: NeighborList,
+    nb: NeighborList,
+    walls: Walls,
     v_adv: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
     p: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
-    wall_weight: float,
-    weight: wp.array(dtype=float),
-    W0: float,
-    nf: NeighborList,
-    nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
     v: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
 ):
-    """Pressure acceleration, then symplectic Euler: v = v_adv + dt a_p; x += dt v.
-    ``wall_weight`` is 1/rho0^2 with the walls' extrapolated pressures, 0 for Akinci's walls."""
+    """Pressure acceleration, then symplectic Euler: v = v_adv + dt a_p; x += dt v."""
     i = wp.tid() + offset
-    dt = dt_step[0]
+    dt = fluid.dt[0]
+    mass = fluid.mass
     rho_i = rho[i]
     p_i = p[i] / (rho_i * rho_i)
     a = wp.vec3(0.0, 0.0, 0.0)
-    walls = wall_weight > 0.0 and nb.count[i] > 0
+    extrapolated = walls.pressure_factor > 0.0 and nb.count[i] > 0
     p_sum = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         j = nf.index[k]
         a -= mass * (p_i + p[j] / (rho[j] * rho[j])) * nf.grad_W[k]
-        if walls:
+        if extrapolated:
             p_sum += nf.W[k] * p[j]
     p_c = float(0.0)
-    if walls:
-        p_c = smoothed_pressure(i, p, p_sum, W0, weight)
+    if extrapolated:
+        p_c = smoothed_pressure(i, p, p_sum, walls)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         p_b = float(0.0)
-        if walls:
+        if extrapolated:
             p_b = wp.max(p_c + nb.head[k], 0.0)
-        a -= psi[nb.index[k]] * (p_i + wall_weight * p_b) * nb.grad_W[k]
+        a -= walls.psi[nb.index[k]] * (p_i + walls.pressure_factor * p_b) * nb.grad_W[k]
     v_i = v_adv[i] + dt * a
     v[i] = v_i
     x[i] = x[i] + dt * v_i
@@ -114,6 +119,8 @@ class SPHSolver:
         self._compression_sum = wp.zeros(1, dtype=wp.float64, device=model.device)
         self._no_iterations = wp.zeros(1, dtype=wp.int32, device=model.device)
         self.dt = wp.zeros(1, dtype=float, device=model.device)  # the step, read by the kernels
+        self.fluid = Fluid()
+        self.fluid.mass, self.fluid.rho0, self.fluid.dt = model.mass, self.physics.rho0, self.dt
         self.viscous = ViscousSubsteps(model, n)  # the viscosity's sub-steps where a step exceeds its limit
 
     @property
@@ -177,20 +184,6 @@ class SPHSolver:
         launch_particles(
             integrate,
             state.n,
-            [
-                self.v_adv,
-                state.rho,
-                state.p,
-                model.boundary_psi,
-                walls.factor,
-                walls.weight,
-                walls.W0,
-                nf,
-                nb,
-                model.mass,
-                self.dt,
-                state.v,
-                state.x,
-            ],
+            [self.fluid, nf, nb, walls.walls, self.v_adv, state.rho, state.p, state.v, state.x],
             model.device,
         )

@@ -57,7 +57,8 @@ import warp as wp
 
 from ...engine.launch import launch_particles
 from ..neighbors import NeighborList, entry
-from .base import SPHSolver
+from ..wall_pressure import Walls, walls_of
+from .base import Fluid, SPHSolver
 from .iteration import IterativeSolve
 
 # Fewer neighbours (fluid and wall, self excluded) than this, and a particle takes no part in
@@ -75,15 +76,17 @@ OMEGA = wp.constant(0.5)
 @wp.kernel
 def dfsph_factor(
     offset: int,
-    psi: wp.array(dtype=float),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    least: float,
+    walls: Walls,
+    min_denominator: float,
     factor: wp.array(dtype=float),
 ):
-    """``alpha_i / rho_i``; zero for a particle too alone to have one (denominator under ``least``)."""
+    """``alpha_i / rho_i``; zero for a particle too alone to have one (its denominator is under
+    ``min_denominator``)."""
     i = wp.tid() + offset
+    mass = fluid.mass
     sum_grad = wp.vec3(0.0, 0.0, 0.0)
     sum_sq = float(0.0)
     for m in range(nf.count[i]):
@@ -92,31 +95,26 @@ def dfsph_factor(
         sum_sq += wp.dot(g, g)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
-        sum_grad += psi[nb.index[k]] * nb.grad_W[k]
+        sum_grad += walls.psi[nb.index[k]] * nb.grad_W[k]
     d = wp.dot(sum_grad, sum_grad) + sum_sq
-    factor[i] = wp.where(d > least, 1.0 / d, 0.0)
+    factor[i] = wp.where(d > min_denominator, 1.0 / d, 0.0)
 
 
 @wp.func
 def density_rate(
-    i: int,
-    v: wp.array(dtype=wp.vec3),
-    vb: wp.array(dtype=wp.vec3),
-    psi: wp.array(dtype=float),
-    nf: NeighborList,
-    nb: NeighborList,
-    mass: float,
+    i: int, v: wp.array(dtype=wp.vec3), fluid: Fluid, nf: NeighborList, nb: NeighborList, walls: Walls
 ) -> float:
     """``D rho_i/Dt = sum_j m (v_i - v_j) . grad W_ij + sum_b psi_b (v_i - v_b) . grad W_ib``."""
     v_i = v[i]
     r = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
-        r += mass * wp.dot(v_i - v[nf.index[k]], nf.grad_W[k])
+        r += fluid.mass * wp.dot(v_i - v[nf.index[k]], nf.grad_W[k])
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         b = nb.index[k]
-        r += psi[b] * wp.dot(v_i - vb[b], nb.grad_W[k])  # a moving wall's velocity: the flow through it compresses
+        # a moving wall's velocity: the flow through it compresses
+        r += walls.psi[b] * wp.dot(v_i - walls.v[b], nb.grad_W[k])
     return r
 
 
@@ -135,14 +133,12 @@ def relaxed_step(k: float, increment: float) -> float:
 @wp.kernel
 def start_divergence_solve(
     offset: int,
-    v: wp.array(dtype=wp.vec3),
-    kappa_v_dt: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
-    vb: wp.array(dtype=wp.vec3),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
+    walls: Walls,
+    v: wp.array(dtype=wp.vec3),
+    kappa_v_dt: wp.array(dtype=float),
     kappa_v: wp.array(dtype=float),
     delta: wp.array(dtype=float),
 ):
@@ -151,8 +147,8 @@ def start_divergence_solve(
     i = wp.tid() + offset
     k = float(0.0)
     if take_part(i, nf, nb):
-        if density_rate(i, v, vb, psi, nf, nb, mass) > 0.0:
-            k = WARM_START * kappa_v_dt[i] / dt_step[0]
+        if density_rate(i, v, fluid, nf, nb, walls) > 0.0:
+            k = WARM_START * kappa_v_dt[i] / fluid.dt[0]
     kappa_v[i] = 0.0
     delta[i] = k  # applied as the solve's first increment
 
@@ -160,15 +156,12 @@ def start_divergence_solve(
 @wp.kernel
 def start_density_solve(
     offset: int,
-    v: wp.array(dtype=wp.vec3),
-    rho: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
-    vb: wp.array(dtype=wp.vec3),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
-    rho0: float,
+    walls: Walls,
+    v: wp.array(dtype=wp.vec3),
+    rho: wp.array(dtype=float),
     kappa: wp.array(dtype=float),
     delta: wp.array(dtype=float),
 ):
@@ -176,7 +169,7 @@ def start_density_solve(
     the advected velocity ``v`` alone would compress the particle; zero elsewhere."""
     i = wp.tid() + offset
     k = float(0.0)
-    if rho[i] + dt_step[0] * density_rate(i, v, vb, psi, nf, nb, mass) > rho0:
+    if rho[i] + fluid.dt[0] * density_rate(i, v, fluid, nf, nb, walls) > fluid.rho0:
         k = WARM_START * kappa[i]
     kappa[i] = 0.0
     delta[i] = k  # applied as the solve's first increment
@@ -185,15 +178,12 @@ def start_density_solve(
 @wp.kernel
 def divergence_jacobi(
     offset: int,
-    v: wp.array(dtype=wp.vec3),
-    factor: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
-    vb: wp.array(dtype=wp.vec3),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
-    rho0: float,
+    walls: Walls,
+    v: wp.array(dtype=wp.vec3),
+    factor: wp.array(dtype=float),
     kappa_v: wp.array(dtype=float),
     delta: wp.array(dtype=float),
     error: wp.array(dtype=wp.float64),
@@ -201,27 +191,24 @@ def divergence_jacobi(
     """The stiffness change towards cancelling particle i's density rate, and its compression
     rate as the density it would add in one step, a fraction of rho0."""
     i = wp.tid() + offset
-    dt = dt_step[0]
+    dt = fluid.dt[0]
     rate = float(0.0)
     if take_part(i, nf, nb):
-        rate = density_rate(i, v, vb, psi, nf, nb, mass)
+        rate = density_rate(i, v, fluid, nf, nb, walls)
     delta[i] = relaxed_step(kappa_v[i], rate / dt * factor[i])
-    error[i] = wp.float64(wp.max(rate, 0.0) * dt / rho0)
+    error[i] = wp.float64(wp.max(rate, 0.0) * dt / fluid.rho0)
 
 
 @wp.kernel
 def density_jacobi(
     offset: int,
+    fluid: Fluid,
+    nf: NeighborList,
+    nb: NeighborList,
+    walls: Walls,
     v: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
     factor: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
-    vb: wp.array(dtype=wp.vec3),
-    nf: NeighborList,
-    nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
-    rho0: float,
     kappa: wp.array(dtype=float),
     delta: wp.array(dtype=float),
     error: wp.array(dtype=wp.float64),
@@ -229,8 +216,9 @@ def density_jacobi(
     """The stiffness change towards bringing particle i's predicted density ``rho*_i`` to rho0,
     and the predicted compression ``max(rho*_i / rho0 - 1, 0)``."""
     i = wp.tid() + offset
-    dt = dt_step[0]
-    rho_star = rho[i] + dt * density_rate(i, v, vb, psi, nf, nb, mass)
+    dt = fluid.dt[0]
+    rho0 = fluid.rho0
+    rho_star = rho[i] + dt * density_rate(i, v, fluid, nf, nb, walls)
     delta[i] = relaxed_step(kappa[i], (rho_star - rho0) / (dt * dt) * factor[i])
     error[i] = wp.max(wp.float64(rho_star / rho0) - wp.float64(1.0), wp.float64(0.0))
 
@@ -238,13 +226,12 @@ def density_jacobi(
 @wp.kernel
 def apply_stiffness(
     offset: int,
-    delta: wp.array(dtype=float),
-    blend: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
+    walls: Walls,
+    delta: wp.array(dtype=float),
+    blend: wp.array(dtype=float),
     kappa: wp.array(dtype=float),
     v: wp.array(dtype=wp.vec3),
 ):
@@ -259,13 +246,13 @@ def apply_stiffness(
     a = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
-        a += mass * (d_i + delta[nf.index[k]]) * nf.grad_W[k]
+        a += fluid.mass * (d_i + delta[nf.index[k]]) * nf.grad_W[k]
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
-        a += psi[nb.index[k]] * d_i * nb.grad_W[k]
+        a += walls.psi[nb.index[k]] * d_i * nb.grad_W[k]
     b = wp.where(blend[0] < 0.0, 1.0, blend[0])
     kappa[i] = kappa[i] + b * d_i
-    v[i] = v[i] - (dt_step[0] * b) * a
+    v[i] = v[i] - (fluid.dt[0] * b) * a
 
 
 @wp.kernel
@@ -312,7 +299,8 @@ class DFSPHSolver(SPHSolver):
         self._whole = wp.full(1, -1.0, dtype=float, device=dev)  # no blend: whole increments
         # a denominator of alpha below this is a particle with next to no neighbours: (m / H^4)^2
         # is the scale of one neighbour's |m grad W|^2, 1e-6 of it a neighbour at the support's edge
-        self.least_denominator = 1.0e-6 * (model.mass / model.support_radius**4) ** 2
+        self.min_denominator = 1.0e-6 * (model.mass / model.support_radius**4) ** 2
+        self.walls = walls_of(model)  # Akinci's walls: the fluid particle's own stiffness pushes
         self.carried = {"dfsph_kappa": self.kappa, "dfsph_kappa_v_dt": self.kappa_v_dt}
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
@@ -323,9 +311,7 @@ class DFSPHSolver(SPHSolver):
             nf, nb = self.find_neighbours(state, sync)
         with timer("density"):
             self.compute_densities(model, state)
-            launch_particles(
-                dfsph_factor, n, [model.boundary_psi, nf, nb, model.mass, self.least_denominator, self.factor], dev
-            )
+            launch_particles(dfsph_factor, n, [self.fluid, nf, nb, self.walls, self.min_denominator, self.factor], dev)
         with timer("pressure"):
             self.correct_divergence_error(model, state)
         with timer("advection"):
@@ -356,7 +342,7 @@ class DFSPHSolver(SPHSolver):
     def correct_density_error(self, model, state) -> None:
         """Bring the density ``v_adv`` predicts to rho0 (the constant-density solve)."""
         ph = self.physics
-        self.start_solve(model, state, start_density_solve, [self.v_adv, state.rho], self.kappa, self.v_adv, ph.rho0)
+        self.start_solve(model, state, start_density_solve, [self.v_adv, state.rho], self.kappa, self.v_adv)
         self.density_solve.run(
             state.n,
             ph.eta,
@@ -366,46 +352,25 @@ class DFSPHSolver(SPHSolver):
             lambda blend: self.apply(model, state, self.kappa, self.v_adv, blend),
         )
 
-    def start_solve(self, model, state, kernel, first, kappa, v, *constants) -> None:
+    def start_solve(self, model, state, kernel, first, kappa, v) -> None:
         """A solve's warm start (``kernel``: its increments from the last step's stiffness), applied
         to ``kappa`` and the velocities ``v`` as the solve's first increment."""
-        nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        launch_particles(
-            kernel,
-            state.n,
-            [*first, model.boundary_psi, model.boundary_v, nf, nb, model.mass, self.dt, *constants, kappa, self.delta],
-            model.device,
-        )
+        launch_particles(kernel, state.n, [*self.common(), *first, kappa, self.delta], model.device)
         self.apply(model, state, kappa, v, self._whole)
+
+    def common(self) -> list:
+        """The arguments every DFSPH kernel of the step starts with."""
+        return [self.fluid, self.search.fluid.lists, self.search.boundary.lists, self.walls]
 
     def apply(self, model, state, kappa, v, blend) -> None:
         """Add the increments ``delta`` (a ``blend`` share of them where it is not negative)."""
-        nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        launch_particles(
-            apply_stiffness,
-            state.n,
-            [self.delta, blend, model.boundary_psi, nf, nb, model.mass, self.dt, kappa, v],
-            model.device,
-        )
+        launch_particles(apply_stiffness, state.n, [*self.common(), self.delta, blend, kappa, v], model.device)
 
     def divergence_iteration(self, model, state) -> None:
         launch_particles(
             divergence_jacobi,
             state.n,
-            [
-                state.v,
-                self.factor,
-                model.boundary_psi,
-                model.boundary_v,
-                self.search.fluid.lists,
-                self.search.boundary.lists,
-                model.mass,
-                self.dt,
-                self.physics.rho0,
-                self.kappa_v,
-                self.delta,
-                self.divergence_solve.error,
-            ],
+            [*self.common(), state.v, self.factor, self.kappa_v, self.delta, self.divergence_solve.error],
             model.device,
         )
 
@@ -413,21 +378,7 @@ class DFSPHSolver(SPHSolver):
         launch_particles(
             density_jacobi,
             state.n,
-            [
-                self.v_adv,
-                state.rho,
-                self.factor,
-                model.boundary_psi,
-                model.boundary_v,
-                self.search.fluid.lists,
-                self.search.boundary.lists,
-                model.mass,
-                self.dt,
-                self.physics.rho0,
-                self.kappa,
-                self.delta,
-                self.density_solve.error,
-            ],
+            [*self.common(), self.v_adv, state.rho, self.factor, self.kappa, self.delta, self.density_solve.error],
             model.device,
         )
 

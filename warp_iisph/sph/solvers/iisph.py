@@ -37,10 +37,24 @@ import warp as wp
 
 from ...engine.launch import launch_particles
 from ..neighbors import NeighborList, entry
-from ..wall_pressure import WallPressures, smoothed_pressure
-from .base import SPHSolver
+from ..wall_pressure import WallPressures, Walls, smoothed_pressure
+from .base import Fluid, SPHSolver
 from .forces import ViscousTerms, advected_velocity
 from .iteration import IterativeSolve
+
+
+@wp.struct
+class IISPHTerms:
+    """IISPH's per-particle terms of a step (Ihmsen et al.'s names)."""
+
+    v_adv: wp.array(dtype=wp.vec3)  # velocity after the non-pressure forces
+    d_ii: wp.array(dtype=wp.vec3)  # displacement per unit of i's own pressure over the step
+    a_ii: wp.array(dtype=float)  # density change per unit of i's own pressure
+    a_diag: wp.array(dtype=float)  # the system's diagonal: a_ii plus i's share in the walls' pressures
+    rho_adv: wp.array(dtype=float)  # density after advection
+    sum_dij_pj: wp.array(dtype=wp.vec3)  # displacement the neighbours' (and walls') pressures give i
+    displacement: wp.array(dtype=wp.vec3)  # sum_dij_pj + d_ii p_i
+    wall_push: wp.array(dtype=wp.vec3)  # E_i: displacement per unit of the pressure i's walls push with
 
 
 @wp.kernel
@@ -53,19 +67,18 @@ def predict_advection_velocity(
     nb: NeighborList,
     terms: ViscousTerms,
     gravity: wp.vec3,
-    dt_step: wp.array(dtype=float),
-    wall_weight: float,
+    fluid: Fluid,
+    walls: Walls,
     p: wp.array(dtype=float),
-    v_adv: wp.array(dtype=wp.vec3),
-    d_ii: wp.array(dtype=wp.vec3),
-    push: wp.array(dtype=wp.vec3),
+    iisph: IISPHTerms,
 ):
     """``v_adv``, ``d_ii`` and, with extrapolated wall pressures, ``E_i = -dt^2 / rho0^2 sum_b
     psi_b grad W_ib`` over the walls whose pressure is positive at the step's start (judged from
     p_i): how far i moves per unit of the pressure its walls push with."""
     i = wp.tid() + offset
-    dt = dt_step[0]
-    v_adv[i] = advected_velocity(i, x, v, rho, nf, nb, terms, gravity, dt)
+    dt = fluid.dt[0]
+    wall_weight = walls.pressure_factor
+    iisph.v_adv[i] = advected_velocity(i, x, v, rho, nf, nb, terms, gravity, dt)
     d = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
@@ -80,47 +93,41 @@ def predict_advection_velocity(
         if wall_weight > 0.0:
             if p[i] + nb.head[k] > 0.0:
                 e += g
-    d_ii[i] = d * (dt * dt / (rho_i * rho_i))
-    push[i] = (-dt * dt * wall_weight) * e
+    iisph.d_ii[i] = d * (dt * dt / (rho_i * rho_i))
+    iisph.wall_push[i] = (-dt * dt * wall_weight) * e
 
 
 @wp.kernel
 def predict_advection_density(
     offset: int,
-    v_adv: wp.array(dtype=wp.vec3),
-    rho: wp.array(dtype=float),
-    d_ii: wp.array(dtype=wp.vec3),
-    psi: wp.array(dtype=float),
-    vb: wp.array(dtype=wp.vec3),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
-    wall_weight: float,
-    push: wp.array(dtype=wp.vec3),
-    weight: wp.array(dtype=float),
-    W0: float,
-    rho_adv: wp.array(dtype=float),
-    a_ii: wp.array(dtype=float),
-    a_diag: wp.array(dtype=float),
+    walls: Walls,
+    iisph: IISPHTerms,
+    rho: wp.array(dtype=float),
     p: wp.array(dtype=float),
 ):
     """``rho_adv``, ``a_ii`` and the warm start; with extrapolated wall pressures also the system's
     diagonal ``a_diag``: p_i enters the smoothed pressure of i and of its neighbours j near walls
     (weights ``w_ji = W_ij / sum_k W_jk``), whose walls then move them by ``w_ji E_j`` per unit
-    (``E_j``: ``push``), so ``a_diag = a_ii + sum_j m (w_ii E_i - w_ji E_j) . grad W_ij +
+    (``E_j``: ``wall_push``), so ``a_diag = a_ii + sum_j m (w_ii E_i - w_ji E_j) . grad W_ij +
     sum_b psi_b w_ii E_i . grad W_ib``. Without it the Jacobi step overshoots where a particle's
     own pressure dominates its walls' (edges, corners, thin films)."""
     i = wp.tid() + offset
-    dt = dt_step[0]
+    dt = fluid.dt[0]
+    mass = fluid.mass
+    push = iisph.wall_push
+    weight = walls.weight
+    v_adv = iisph.v_adv
     v_i = v_adv[i]
     rho_i = rho[i]
-    dii = d_ii[i]
+    dii = iisph.d_ii[i]
     d_ji_scale = dt * dt * mass / (rho_i * rho_i)
-    walls = wall_weight > 0.0
+    extrapolated = walls.pressure_factor > 0.0
     e_i = wp.vec3(0.0, 0.0, 0.0)
-    if walls and nb.count[i] > 0:
-        e_i = push[i] * (W0 / weight[i])
+    if extrapolated and nb.count[i] > 0:
+        e_i = push[i] * (walls.W0 / weight[i])
     r = float(0.0)
     a = float(0.0)
     w = float(0.0)
@@ -130,7 +137,7 @@ def predict_advection_density(
         g = nf.grad_W[k]
         r += mass * wp.dot(v_i - v_adv[j], g)
         a += mass * wp.dot(dii - d_ji_scale * g, g)
-        if walls:
+        if extrapolated:
             e = e_i
             if nb.count[j] > 0:
                 e = e_i - push[j] * (nf.W[k] / weight[j])
@@ -139,15 +146,15 @@ def predict_advection_density(
         k = entry(nb, i, m)
         g = nb.grad_W[k]
         b = nb.index[k]
-        psi_b = psi[b]
-        r += psi_b * wp.dot(v_i - vb[b], g)  # a moving wall's velocity: the flow through it compresses
+        psi_b = walls.psi[b]
+        r += psi_b * wp.dot(v_i - walls.v[b], g)  # a moving wall's velocity: the flow through it compresses
         a += psi_b * wp.dot(dii, g)
-        if walls:
+        if extrapolated:
             w += psi_b * wp.dot(e_i, g)
-    rho_adv[i] = rho_i + dt * r
-    a_ii[i] = a
-    if walls:
-        a_diag[i] = a + w
+    iisph.rho_adv[i] = rho_i + dt * r
+    iisph.a_ii[i] = a
+    if extrapolated:
+        iisph.a_diag[i] = a + w
     p[i] = 0.5 * p[i]
 
 
@@ -215,79 +222,73 @@ def jacobi_update(
 @wp.kernel
 def pressure_sum_dij_pj(
     offset: int,
-    rho: wp.array(dtype=float),
-    p: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
-    wall_weight: float,
-    weight: wp.array(dtype=float),
-    W0: float,
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
-    d_ii: wp.array(dtype=wp.vec3),
-    sum_dij_pj: wp.array(dtype=wp.vec3),
-    displacement: wp.array(dtype=wp.vec3),
+    walls: Walls,
+    iisph: IISPHTerms,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
 ):
     """``sum_j d_ij p_j``: the displacement the neighbours' pressures give particle i over the
-    step, with the walls' pressures extrapolated from this iteration's (``wall_weight`` = 1/rho0^2;
-    0 for Akinci's walls, whose term is i's own pressure, in ``d_ii``); and ``displacement``, that
-    plus i's own ``d_ii p_i``, which the Jacobi update gathers from each neighbour."""
+    step, with the walls' pressures extrapolated from this iteration's (none with Akinci's walls,
+    whose term is i's own pressure, in ``d_ii``); and ``displacement``, that plus i's own
+    ``d_ii p_i``, which the Jacobi update gathers from each neighbour."""
     i = wp.tid() + offset
-    dt = dt_step[0]
+    dt = fluid.dt[0]
+    mass = fluid.mass
     acc = wp.vec3(0.0, 0.0, 0.0)
-    walls = wall_weight > 0.0 and nb.count[i] > 0
+    extrapolated = walls.pressure_factor > 0.0 and nb.count[i] > 0
     p_sum = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         j = nf.index[k]
         acc -= dij_pj_term(mass, p[j], rho[j], nf.grad_W[k])
-        if walls:
+        if extrapolated:
             p_sum += nf.W[k] * p[j]
-    if walls:
-        p_c = smoothed_pressure(i, p, p_sum, W0, weight)
+    if extrapolated:
+        p_c = smoothed_pressure(i, p, p_sum, walls)
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
-            acc -= (psi[nb.index[k]] * wall_weight * wp.max(p_c + nb.head[k], 0.0)) * nb.grad_W[k]
+            p_b = wp.max(p_c + nb.head[k], 0.0)
+            acc -= (walls.psi[nb.index[k]] * walls.pressure_factor * p_b) * nb.grad_W[k]
     sdp = dt * dt * acc
-    sum_dij_pj[i] = sdp
-    displacement[i] = d_ii[i] * p[i] + sdp
+    iisph.sum_dij_pj[i] = sdp
+    iisph.displacement[i] = iisph.d_ii[i] * p[i] + sdp
 
 
 @wp.kernel
 def pressure_jacobi(
     offset: int,
-    rho: wp.array(dtype=float),
-    rho_adv: wp.array(dtype=float),
-    a_ii: wp.array(dtype=float),
-    a_diag: wp.array(dtype=float),
-    displacement: wp.array(dtype=wp.vec3),
-    sum_dij_pj: wp.array(dtype=wp.vec3),
-    p: wp.array(dtype=float),
-    psi: wp.array(dtype=float),
+    fluid: Fluid,
     nf: NeighborList,
     nb: NeighborList,
-    mass: float,
-    dt_step: wp.array(dtype=float),
-    rho0: float,
+    walls: Walls,
+    iisph: IISPHTerms,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
     omega: float,
     p_new: wp.array(dtype=float),
     density_error: wp.array(dtype=wp.float64),
 ):
+    """One relaxed Jacobi update from ``s_i`` (:func:`jacobi_update`)."""
     i = wp.tid() + offset
-    dt = dt_step[0]
+    dt = fluid.dt[0]
+    mass = fluid.mass
     rho_i = rho[i]
     p_i = p[i]
-    sdp_i = sum_dij_pj[i]
+    sdp_i = iisph.sum_dij_pj[i]
     d_ji_scale = dt * dt * mass / (rho_i * rho_i)
     sigma = float(0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         j = nf.index[k]
         g = nf.grad_W[k]
-        sigma += jacobi_sigma_term(mass, sdp_i, displacement[j], (d_ji_scale * g) * p_i, g)
-    sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
-    jacobi_update(i, sigma, p_i, a_ii[i], a_diag[i], rho_adv[i], rho0, omega, p_new, density_error)
+        sigma += jacobi_sigma_term(mass, sdp_i, iisph.displacement[j], (d_ji_scale * g) * p_i, g)
+    sigma = jacobi_boundary_sigma(i, walls.psi, nb, sdp_i, sigma)
+    jacobi_update(
+        i, sigma, p_i, iisph.a_ii[i], iisph.a_diag[i], iisph.rho_adv[i], fluid.rho0, omega, p_new, density_error
+    )
 
 
 @wp.kernel
@@ -316,15 +317,21 @@ class IISPHSolver(SPHSolver):
         super().__init__(model)
         n, dev = model.capacity, model.device
         self.walls = WallPressures(model, n)
-        self.d_ii = wp.zeros(n, dtype=wp.vec3, device=dev)
-        self.a_ii = wp.zeros(n, dtype=float, device=dev)
+
+        def vectors():
+            return wp.zeros(n, dtype=wp.vec3, device=dev)
+
+        def scalars():
+            return wp.zeros(n, dtype=float, device=dev)
+
+        t = IISPHTerms()
+        t.v_adv = self.v_adv
+        t.d_ii, t.sum_dij_pj, t.displacement, t.wall_push = vectors(), vectors(), vectors(), vectors()
+        t.a_ii, t.rho_adv = scalars(), scalars()
         # the diagonal the Jacobi step divides by: a_ii itself with Akinci's walls
-        self.a_diag = wp.zeros(n, dtype=float, device=dev) if self.walls.extrapolated else self.a_ii
-        self.rho_adv = wp.zeros(n, dtype=float, device=dev)
-        self.sum_dij_pj = wp.zeros(n, dtype=wp.vec3, device=dev)
-        self.displacement = wp.zeros(n, dtype=wp.vec3, device=dev)
-        self.p_next = wp.zeros(n, dtype=float, device=dev)
-        self.push = wp.zeros(n, dtype=wp.vec3, device=dev)
+        t.a_diag = scalars() if self.walls.extrapolated else t.a_ii
+        self.terms = t
+        self.p_next = scalars()
         self.solve = IterativeSolve(n, dev)  # the pressure solve: relaxed Jacobi, ending where its error reaches eta
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
@@ -353,104 +360,25 @@ class IISPHSolver(SPHSolver):
     def predict_advection(self, model, state) -> None:
         """``v_adv``, ``d_ii``, ``rho_adv``, ``a_ii`` (and the diagonal with the walls' share),
         and the warm start ``0.5 p(t - dt)``."""
-        ph, walls = self.physics, self.walls
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        n, dev = state.n, model.device
-        g = wp.vec3(*ph.gravity)
+        n, dev, walls = state.n, model.device, self.walls.walls
+        g = wp.vec3(*self.physics.gravity)
         launch_particles(
             predict_advection_velocity,
             n,
-            [
-                state.x,
-                state.v,
-                state.rho,
-                nf,
-                nb,
-                self.viscous.terms,
-                g,
-                self.dt,
-                walls.factor,
-                state.p,
-                self.v_adv,
-                self.d_ii,
-                self.push,
-            ],
+            [state.x, state.v, state.rho, nf, nb, self.viscous.terms, g, self.fluid, walls, state.p, self.terms],
             dev,
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
-        launch_particles(
-            predict_advection_density,
-            n,
-            [
-                self.v_adv,
-                state.rho,
-                self.d_ii,
-                model.boundary_psi,
-                model.boundary_v,
-                nf,
-                nb,
-                model.mass,
-                self.dt,
-                walls.factor,
-                self.push,
-                walls.weight,
-                walls.W0,
-                self.rho_adv,
-                self.a_ii,
-                self.a_diag,
-                state.p,
-            ],
-            dev,
-        )
+        launch_particles(predict_advection_density, n, [self.fluid, nf, nb, walls, self.terms, state.rho, state.p], dev)
 
     def jacobi_iteration(self, model, state) -> None:
         """One relaxed Jacobi iteration: ``p_next`` and the predicted density error of ``p``."""
-        ph, walls = self.physics, self.walls
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
-        n, dev = state.n, model.device
-        launch_particles(
-            pressure_sum_dij_pj,
-            n,
-            [
-                state.rho,
-                state.p,
-                model.boundary_psi,
-                walls.factor,
-                walls.weight,
-                walls.W0,
-                nf,
-                nb,
-                model.mass,
-                self.dt,
-                self.d_ii,
-                self.sum_dij_pj,
-                self.displacement,
-            ],
-            dev,
-        )
-        launch_particles(
-            pressure_jacobi,
-            n,
-            [
-                state.rho,
-                self.rho_adv,
-                self.a_ii,
-                self.a_diag,
-                self.displacement,
-                self.sum_dij_pj,
-                state.p,
-                model.boundary_psi,
-                nf,
-                nb,
-                model.mass,
-                self.dt,
-                ph.rho0,
-                float(ph.omega),
-                self.p_next,
-                self.solve.error,
-            ],
-            dev,
-        )
+        n, dev, walls = state.n, model.device, self.walls.walls
+        common = [self.fluid, nf, nb, walls, self.terms, state.rho, state.p]
+        launch_particles(pressure_sum_dij_pj, n, common, dev)
+        launch_particles(pressure_jacobi, n, [*common, float(self.physics.omega), self.p_next, self.solve.error], dev)
 
     def solver_stats(self) -> tuple[wp.array, wp.array]:
         return self.solve.stats()
