@@ -7,7 +7,7 @@ Warm starts (the pressure a step's solve starts from, after ``predict_advection`
 - ``half``: ``0.5 p(t - dt)``, the package's.
 - ``full``: ``p(t - dt)``.
 - ``hydrostatic``: ``0.5 p(t - dt) + 0.5 rho0 |g| d``, ``d`` the depth below the highest particle of
-  the particle's column (cells of one spacing across gravity, which must be -y here).
+  the particle's column: the package's ``physics.warm_start = "hydrostatic"`` (warp_iisph.sph.hydrostatic).
 
 Schemes, each run through the package's one loop (``IterativeSolve``; but for Jacobi none ends at
 eta by blending, so each reports its last iterate's error):
@@ -30,6 +30,7 @@ import warp as wp
 
 from warp_iisph.engine.launch import launch_particles
 from warp_iisph.engine.reduce import sum_into
+from warp_iisph.sph.hydrostatic import HydrostaticPressure
 from warp_iisph.sph.neighbors import NeighborList, entry
 from warp_iisph.sph.solvers.base import Fluid
 from warp_iisph.sph.solvers.iisph import (
@@ -52,32 +53,6 @@ INACTIVE = wp.constant(-1.0e30)  # a wall entry's head that marks it inactive fo
 def scale_pressure(offset: int, s: float, p: wp.array(dtype=float)):
     i = wp.tid() + offset
     p[i] = s * p[i]
-
-
-@wp.kernel
-def column_tops(x: wp.array(dtype=wp.vec3), lower: wp.vec3, h: float, nz: int, top: wp.array(dtype=float)):
-    i = wp.tid()
-    cx = int((x[i][0] - lower[0]) / h)
-    cz = int((x[i][2] - lower[2]) / h)
-    wp.atomic_max(top, cx * nz + cz, x[i][1])
-
-
-@wp.kernel
-def add_hydrostatic(
-    offset: int,
-    x: wp.array(dtype=wp.vec3),
-    lower: wp.vec3,
-    h: float,
-    nz: int,
-    top: wp.array(dtype=float),
-    rho_g: float,
-    share: float,
-    p: wp.array(dtype=float),
-):
-    i = wp.tid() + offset
-    cx = int((x[i][0] - lower[0]) / h)
-    cz = int((x[i][2] - lower[2]) / h)
-    p[i] = p[i] + share * rho_g * wp.max(top[cx * nz + cz] + 0.5 * h - x[i][1], 0.0)
 
 
 @wp.kernel
@@ -387,8 +362,6 @@ class VariantIISPH(IISPHSolver):
         super().__init__(model)
         if warm not in WARM_STARTS or scheme not in SCHEMES:
             raise ValueError(f"variant {warm}/{scheme}: warm start one of {WARM_STARTS}, scheme one of {SCHEMES}")
-        if warm == "hydrostatic" and tuple(model.physics.gravity)[::2] != (0.0, 0.0):
-            raise ValueError("the hydrostatic warm start here needs gravity along -y")
         self.warm, self.scheme = warm, scheme
         n, dev = model.capacity, model.device
         self.solve = IterativeSolve(n, dev, ends_at_eta=scheme == "jacobi")  # the package's ending for Jacobi
@@ -405,10 +378,7 @@ class VariantIISPH(IISPHSolver):
         self.length = wp.zeros(1, dtype=float, device=dev)
         self.beta = wp.zeros(1, dtype=float, device=dev)
         if warm == "hydrostatic":
-            self.lower = wp.vec3(*model.domain_lower)
-            span = [u - lo for u, lo in zip(model.domain_upper, model.domain_lower)]
-            self.nx, self.nz = (int(span[a] / model.spacing) + 2 for a in (0, 2))
-            self.tops = wp.zeros(self.nx * self.nz, dtype=float, device=dev)
+            self.hydrostatic = HydrostaticPressure(model)
 
     def predict_advection(self, model, state) -> None:
         super().predict_advection(model, state)  # leaves 0.5 p(t - dt)
@@ -416,15 +386,7 @@ class VariantIISPH(IISPHSolver):
         if self.warm == "full":
             launch_particles(scale_pressure, n, [2.0, state.p], dev)
         elif self.warm == "hydrostatic":
-            self.tops.fill_(-1.0e30)
-            wp.launch(column_tops, dim=n, inputs=[state.x, self.lower, model.spacing, self.nz, self.tops], device=dev)
-            rho_g = self.physics.rho0 * abs(self.physics.gravity[1])
-            launch_particles(
-                add_hydrostatic,
-                n,
-                [state.x, self.lower, model.spacing, self.nz, self.tops, rho_g, 0.5, state.p],
-                dev,
-            )
+            self.hydrostatic.add(state.x, n, 0.5, state.p)
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
         if self.scheme == "jacobi":

@@ -36,6 +36,7 @@ from contextlib import nullcontext
 import warp as wp
 
 from ...engine.launch import launch_particles
+from ..hydrostatic import HydrostaticPressure
 from ..neighbors import NeighborList, entry
 from ..wall_pressure import WallPressures, Walls, smoothed_pressure
 from .base import Fluid, SPHSolver
@@ -333,6 +334,8 @@ class IISPHSolver(SPHSolver):
         self.terms = t
         self.p_next = scalars()
         self.solve = IterativeSolve(n, dev)  # the pressure solve: relaxed Jacobi, ending where its error reaches eta
+        # physics.warm_start = "hydrostatic": half the last pressure plus half the hydrostatic one
+        self.hydrostatic = HydrostaticPressure(model) if self.physics.warm_start == "hydrostatic" else None
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
         """One IISPH step (Ihmsen et al. 2014, Algorithm 1), stage by stage."""
@@ -359,7 +362,8 @@ class IISPHSolver(SPHSolver):
 
     def predict_advection(self, model, state) -> None:
         """``v_adv``, ``d_ii``, ``rho_adv``, ``a_ii`` (and the diagonal with the walls' share),
-        and the warm start ``0.5 p(t - dt)``."""
+        and the warm start ``0.5 p(t - dt)`` (plus half the hydrostatic pressure with
+        ``physics.warm_start = "hydrostatic"``)."""
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev, walls = state.n, model.device, self.walls.walls
         g = wp.vec3(*self.physics.gravity)
@@ -371,6 +375,8 @@ class IISPHSolver(SPHSolver):
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
         launch_particles(predict_advection_density, n, [self.fluid, nf, nb, walls, self.terms, state.rho, state.p], dev)
+        if self.hydrostatic is not None:
+            self.hydrostatic.add(state.x, n, 0.5, state.p)
 
     def jacobi_iteration(self, model, state) -> None:
         """One relaxed Jacobi iteration: ``p_next`` and the predicted density error of ``p``."""
