@@ -136,10 +136,18 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="4 cm resting tank, the dam break at 6 cm for 0.1 s")
     ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--replot", action="store_true", help="draw the chart again from the result file, run nothing")
     cluster_options(ap)
     args = ap.parse_args()
     check_cluster_options(ap, args)
     wp.config.log_level = wp.LOG_WARNING
+    if args.replot:
+        import json
+        from pathlib import Path
+
+        stem = "pressure_solve_quick" if args.quick else "pressure_solve"
+        chart(json.loads((Path(args.out) / f"{stem}.json").read_text())["runs"], Path(args.out) / f"{stem}.png")
+        return
     calls = [functools.partial(resting, s, w, args.quick) for s, w in VARIANTS]
     calls += [functools.partial(dam_break, s, w, eta, args.quick) for eta in (1e-3, 3e-4) for s, w in VARIANTS]
     rows = []
@@ -171,7 +179,7 @@ def main():
 
 def chart(rows, path):
     plt = pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(15, 5.2), gridspec_kw={"width_ratios": [1.0, 1.15], "wspace": 0.9})
     colours = {v: f"C{i}" for i, v in enumerate(VARIANTS)}
     for r in rows:
         if r["case"] != "dam_break" or r["diverged"] or not r["iterations_per_step"]:
@@ -181,23 +189,28 @@ def chart(rows, path):
                   color=c, label=f"{label(r)} (eta {100 * r['eta']:g} %)")  # fmt: skip
     ax.set_xlabel("mean compression (%)")
     ax.set_ylabel("pressure iterations per simulated second")
-    ax.set_title("32k dam break, first 0.5 s: iterations against the compression reached")
-    ax.legend(fontsize=6.5)
+    ax.set_title("32k dam break, first 0.5 s: iterations against compression\n(circles eta 0.1 %, squares 0.03 %)")
+    handles = {}
+    for h, lab in zip(*ax.get_legend_handles_labels()):
+        handles.setdefault(lab.split(" (eta")[0], h)
+    ax.legend(handles.values(), handles.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     rest = [r for r in rows if r["case"] == "resting"]
     names = [label(r) for r in rest]
     speeds = [100 * r["mean_speed"] if not r["diverged"] else np.nan for r in rest]
     bars = bx.barh(names, speeds, color=[colours[(r["scheme"], r["warm"])] for r in rest])
+    bx.set_xscale("log")
+    finite = [v for v in speeds if np.isfinite(v)]
+    bx.set_xlim(0.5 * min(finite), 60 * max(finite))  # room for the labels
     for b, r in zip(bars, rest):
         if r["diverged"]:
             text = "diverged"
         else:
             text = f"{r['iterations_per_step']:.1f} it/step, slope +-{100 * r['slope_spread']:.1f} %"
-        bx.text(b.get_width() if not r["diverged"] else 0.01, b.get_y() + b.get_height() / 2, " " + text, va="center",
-                fontsize=7)  # fmt: skip
-    bx.set_xscale("log")
+        x = b.get_width() if not r["diverged"] else bx.get_xlim()[0]
+        bx.text(x, b.get_y() + b.get_height() / 2, " " + text, va="center", fontsize=7)
     bx.set_xlabel("largest mean speed while at rest (cm/s, log)")
     bx.set_title("Resting tank, frame by frame: motion, iterations, pressure spread")
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.06, right=0.97, bottom=0.12, top=0.88)
     fig.savefig(path, dpi=120)
 
 

@@ -18,11 +18,19 @@ def run(scene, graph: bool, duration: float = 0.15, device: str = "cpu", shrink_
     return sim
 
 
-@pytest.mark.parametrize("method", ["iisph", "wcsph", "dfsph"])
-def test_captured_step_equals_plain_launches(method):
+@pytest.mark.parametrize(
+    "method, warm_start", [("iisph", "half"), ("iisph", "hydrostatic"), ("wcsph", "half"), ("dfsph", "half")]
+)
+def test_captured_step_equals_plain_launches(method, warm_start):
     def scene():
         return scenes.martin_moyce(
-            spacing=0.02, a=0.2, depth=0.1, method=method, viscosity=1e-4, boundary_viscosity=0.003
+            spacing=0.02,
+            a=0.2,
+            depth=0.1,
+            method=method,
+            viscosity=1e-4,
+            boundary_viscosity=0.003,
+            warm_start=warm_start,
         )
 
     plain, graph = run(scene(), False), run(scene(), True)
@@ -111,8 +119,8 @@ def test_cuda_graph_matches_cpu(method):
     assert np.max(np.abs(cuda.positions - cpu.positions)) < 0.02
 
 
-@pytest.mark.parametrize("method", ["iisph", "dfsph"])
-def test_nothing_in_a_conditional_body_allocates(monkeypatch, method):
+@pytest.mark.parametrize("method, warm_start", [("iisph", "half"), ("iisph", "hydrostatic"), ("dfsph", "half")])
+def test_nothing_in_a_conditional_body_allocates(monkeypatch, method, warm_start):
     """On CUDA, a conditional body of a graph (the loop over steps, the reorder's capture_if, the
     Jacobi loops of IISPH and of DFSPH's two solves) may not allocate: wp.utils.array_sum and
     array_scan fail there, and so does HashGrid.build. On the CPU they work, so this test makes
@@ -154,7 +162,7 @@ def test_nothing_in_a_conditional_body_allocates(monkeypatch, method):
     # a scene with walls and an obstacle near the fluid: fluid, wall and reorder paths all recorded
     from warp_iisph import Box
 
-    scene = scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method)
+    scene = scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method, warm_start=warm_start)
     scene.add_obstacle(Box((0.3, 0.0, 0.0), (0.35, 0.1, 0.1)))
     sim = Simulation(scene, "cpu", graph=True)
     sim.advance(0.05)

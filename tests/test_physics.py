@@ -146,3 +146,35 @@ def test_tank_not_a_multiple_of_h_starts_at_rest(spacing, depth):
     sim = Simulation(scenes.martin_moyce(spacing=spacing, a=0.2, depth=depth, dt=1e-4), "cpu")
     rec = sim.step()
     assert rec["max_velocity"] < 0.05 and rec["compression"] < 1e-4
+
+
+def test_the_hydrostatic_warm_start_takes_fewer_iterations_at_the_same_tolerance():
+    """physics.warm_start = "hydrostatic": the Martin & Moyce column's first 0.5 s takes at most
+    half the iterations of the half warm start, its mean compression stays at most eta, no
+    particle is put back, and its front is within 3 % of the half warm start's."""
+    runs = {}
+    for warm_start in ("half", "hydrostatic"):
+        sim = Simulation(scenes.martin_moyce(spacing=0.02, warm_start=warm_start), "cpu")
+        sim.advance(0.5)
+        st = sim.stats
+        runs[warm_start] = (
+            np.mean([s["iterations"] for s in st]),
+            np.mean([s["compression"] for s in st]),
+            sum(s["wall_corrections"] + s["obstacle_corrections"] for s in st),
+            surge_front(sim.positions, 0.02),
+        )
+    (it_half, _, _, front_half), (it_hydro, comp, put_back, front) = runs["half"], runs["hydrostatic"]
+    assert it_hydro <= 0.5 * it_half, runs
+    assert comp <= 1e-3 and put_back == 0, runs
+    assert abs(front / front_half - 1.0) < 0.03, runs
+
+
+def test_the_hydrostatic_warm_start_keeps_water_at_rest():
+    """Water settled with the hydrostatic warm start rests (mean speed under 1 cm/s, none above
+    10 cm/s) at the minimum of iterations, its slope within 5 % of rho0 g."""
+    sim = settled_resting_tank(warm_start="hydrostatic")
+    rows = [at_rest(sim, sim.step()) for _ in range(20)]
+    slopes, mean_speed, max_speed, _ = (np.asarray(c) for c in zip(*rows))
+    assert np.all(np.abs(slopes - 1.0) <= 0.05), slopes
+    assert max(mean_speed) < 0.01 and max(max_speed) < 0.1
+    assert all(s["iterations"] <= 3 for s in sim.stats[-20:])

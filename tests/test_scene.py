@@ -27,6 +27,21 @@ def _scene(**kw):
         (lambda s: setattr(s.physics, "viscosity", -1.0), r"physics.viscosity = -1.0: must be in \[0, 1\]"),
         (lambda s: setattr(s.physics, "dt", 0.0), r"physics.dt = 0.0"),
         (
+            lambda s: setattr(s.physics, "warm_start", "full"),
+            r"physics.warm_start = 'full': must be one of half, hydrostatic",
+        ),
+        (
+            lambda s: (setattr(s.physics, "warm_start", "hydrostatic"), setattr(s.physics, "method", "dfsph")),
+            r"physics.warm_start = 'hydrostatic': IISPH's only",
+        ),
+        (
+            lambda s: (
+                setattr(s.physics, "warm_start", "hydrostatic"),
+                setattr(s.physics, "gravity", (1.0, -9.81, 0.0)),
+            ),
+            r"physics.warm_start = 'hydrostatic': needs physics.gravity along an axis",
+        ),
+        (
             lambda s: s.add_fluid_box((0.9, 0.0, 0.0), (1.2, 0.1, 0.1)),
             r"fluids\[1\]: fluid .* must lie inside the tank",
         ),
