@@ -71,10 +71,8 @@ def test_water_at_rest_rests_at_the_defaults():
     walls, which push with the particle's own stiffness, keep it about 3 % above, where IISPH's
     extrapolated walls hold 2 %), the water is at rest (the issue's bounds: mean speed under
     1 cm/s, no particle faster than 5 cm/s) and the floor layer is compressed by at most three
-    times eta (Akinci's walls again: IISPH's test holds it to two).
-
-    Before the solves were relaxed Jacobi iterations that may take stiffness back, the whole
-    column bounced: slope 0.07-3.4, mean speed up to 8 cm/s, a particle at 50 cm/s."""
+    times eta (Akinci's walls again: IISPH's test holds it to two). The solves' relaxed Jacobi
+    iterations may take stiffness back; one-way increments leave the column bouncing."""
     sim = settled_resting_tank(method="dfsph")
     rows = []
     while sim.time < 2.3:

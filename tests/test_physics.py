@@ -16,11 +16,9 @@ def test_water_at_rest_holds_hydrostatic_pressure_every_step():
     rho0 g depth within 3 % (it has to carry the column's weight: momentum balance), also on the
     steps shortened to land on frame times; the water stays at rest and no particle needs putting
     back. The layer on the floor is compressed by at most twice the solver's tolerance eta (with
-    Akinci's walls it carried twice the pressure, and more).
-
-    Before the solve ended where its error reaches eta (docs/physics.md, round 4), the slope
-    wandered from 0.98 to 1.06 between steps with the iteration count: relaxed Jacobi leaves a
-    long-wave error, whose pressure the step's last iteration moves by percents."""
+    Akinci's walls it carried twice the pressure, and more). The solve ends where its error
+    reaches eta: relaxed Jacobi leaves a long-wave error, whose pressure the step's last
+    iteration would otherwise move by percents with the iteration count."""
     sim = settled_resting_tank()
     rows = []
     while sim.time < 2.3 - 1e-9:  # every step of the CFL rule
@@ -130,8 +128,9 @@ def test_iisph_stable_where_wcsph_diverges():
 
 
 def test_fine_dam_break_starts_from_rest_without_blowing_up():
-    """At a/h = 20 the first steps from rest used to take dt_max = 5 ms (dt/h = 1 s/m) and IISPH
-    blew up at step 15; the CFL rule now assumes at least the free-fall speed sqrt(2 g H)."""
+    """At a/h = 20 the first steps from rest are no longer than the CFL rule at the free-fall
+    speed sqrt(2 g H) (dt_max, 5 ms, is dt/h = 1 s/m there, beyond IISPH's linearised
+    prediction), and the run stays bounded."""
     h, a = 0.005, 0.1
     sim = Simulation(scenes.martin_moyce(spacing=h, a=a, depth=4 * h, length=5 * a, height=2.5 * a), "cpu")
     sim.advance(0.1)
@@ -142,7 +141,8 @@ def test_fine_dam_break_starts_from_rest_without_blowing_up():
 @pytest.mark.parametrize("spacing,depth", [(0.04, 0.1), (0.03, 0.1), (0.02, 0.1)])
 def test_tank_not_a_multiple_of_h_starts_at_rest(spacing, depth):
     """Walls sampled closer than h (the side is not a multiple of h) still sit h/2 outside the
-    faces: a tiny first step does not kick the fluid (it used to reach 27 m/s at h = 4 cm)."""
+    faces: a tiny first step does not kick the fluid (walls closer than h/2 shot it out at tens
+    of m/s)."""
     sim = Simulation(scenes.martin_moyce(spacing=spacing, a=0.2, depth=depth, dt=1e-4), "cpu")
     rec = sim.step()
     assert rec["max_velocity"] < 0.05 and rec["compression"] < 1e-4

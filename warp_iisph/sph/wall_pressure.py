@@ -17,12 +17,9 @@ hydrostatic (and, for a moving obstacle, inertial) gradient the momentum equatio
 ``grad p = rho (g - a_b)``. For a hydrostatic field it is exact. It is never negative (a wall
 does not pull).
 
-Measured alternatives (docs/physics.md): Adami's own form, a Shepard average over each wall
-particle's fluid neighbours, does as well at rest but needs the fluid-to-wall lists turned around
-every step, a pass over the walls every iteration and a costly diagonal, and its front is no
-better; the fluid particle's own pressure unsmoothed (``p_i`` at ``x_i``) is as accurate and as
-cheap but doubles the push of a single over-compressed particle and blew up the 32k dam break at
-a fixed 5 ms where a sheet hits the far wall. Smoothing over the neighbourhood keeps both.
+Smoothing over i's neighbourhood keeps a single over-compressed particle from doubling its walls'
+push; the alternatives measured (Adami's own Shepard form, the unsmoothed p_i) are in
+docs/physics.md 4.6.
 
 IISPH treats p_b like a neighbour's pressure: it enters ``sum_j d_ij p_j`` from the iteration's
 pressures (so the predicted density, and the convergence test, are those of the iterate), and

@@ -31,22 +31,13 @@ A step (stages as :data:`~.base.STAGES`):
 Each iteration computes the increments from the velocities so far (a gather), then moves the
 velocities by the increments (a second gather), so the loop's error is that of its input
 velocities. Both solves are relaxed Jacobi iterations (omega :data:`OMEGA`) on the total
-stiffness, kept at or above zero, as IISPH's on the pressure (and SPlisHSPlasH's
-TimeStepDFSPH.cpp at commit c5a063d, the newest we read; earlier versions add only): an
-iteration takes back stiffness the error says is too much.
-Both start from half of the last step's stiffness (a warm start, as IISPH's) where the velocity
-they start from compresses the particle, and from zero elsewhere: the constant-density solve
-from ``kappa / rho`` itself (``p / rho^2``, which does not depend on dt), the divergence solve
-from ``kappa_v / rho * dt`` over this step's dt (the velocity change it made does not depend on
-dt).
-
-Why not the paper's increments (omega 1, the error's sign, sources clamped at zero): they can
-only add stiffness, so a warm start that proves too much stays in place (the 32,768-particle dam
-break at a fixed 10 ms diverged within 0.35 s), and letting them take back only the warm start
-(this module's form until 2026-11-26) leaves the pressure a step adds there for good: water at
-rest bounced as a whole column (0.6 m tank: mean speed 15 cm/s, max 92 cm/s; now 0.3 and 3 cm/s,
-docs/physics.md 4.13). Unrelaxed iterations that may take back (omega 1, or 0.75) diverge
-within ten steps.
+stiffness, kept at or above zero, as IISPH's on the pressure: an iteration takes back stiffness
+the error says is too much, so a warm start that proves too much does not stay in place (the
+paper's one-way increments left resting water bouncing as a whole column; docs/physics.md 4.13).
+Both start from half of the last step's stiffness where the velocity they start from compresses
+the particle, and from zero elsewhere: the constant-density solve from ``kappa / rho`` itself
+(``p / rho^2``, which does not depend on dt), the divergence solve from ``kappa_v / rho * dt``
+over this step's dt (the velocity change it made does not depend on dt).
 """
 
 from __future__ import annotations
@@ -66,10 +57,9 @@ from .iteration import IterativeSolve
 # neighbours within 2h, and more beside a wall).
 MIN_NEIGHBORS = wp.constant(20)
 # Both solves start from this share of the last step's stiffness where the velocity they start
-# from compresses (see the module's docstring; 0.75 and 1 take 13 and 11 iterations where 0.5
-# takes 23 at eta 0.03 %, but the resting column bounces at 0.75: slope -0.18..3.5).
+# from compresses (a larger share makes the resting column bounce: docs/physics.md 4.13).
 WARM_START = wp.constant(0.5)
-# The Jacobi relaxation of both solves (0.75 and 1 diverge, see the module's docstring).
+# The Jacobi relaxation of both solves (0.75 and 1 diverge: docs/physics.md 4.13).
 OMEGA = wp.constant(0.5)
 
 

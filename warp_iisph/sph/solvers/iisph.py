@@ -6,7 +6,7 @@ Per step, after densities: ``predict_advection`` computes ``v_adv = v + dt a_non
 ``rho_adv = rho_i + dt sum_j m v_adv_ij . grad W_ij + dt sum_b psi_b (v_adv_i - v_b) . grad W_ib`` and
 ``a_ii = sum_j m (d_ii - d_ji) . grad W_ij + sum_b psi_b d_ii . grad W_ib`` with
 ``d_ji = dt^2 m/rho_i^2 grad W_ij``; the pressure starts at ``0.5 p(t - dt)``.
-``pressure_solve`` runs relaxed Jacobi: ``sum_j d_ij p_j = -dt^2 sum_j m p_j/rho_j^2 grad W_ij
+The solve is relaxed Jacobi: ``sum_j d_ij p_j = -dt^2 sum_j m p_j/rho_j^2 grad W_ij
 - dt^2 sum_b psi_b p_b/rho0^2 grad W_ib`` (the walls' pressures ``p_b`` extrapolated from this
 iteration's pressures: known values like the neighbours', so they enter ``s_i``; with
 ``physics.wall_pressure = "fluid"`` the wall term is Akinci's, i's own pressure, held by ``d_ii``),
@@ -19,14 +19,10 @@ until the average predicted density error ``mean(max(rho_i/rho0 - 1, 0))`` (redu
 is at most ``eta`` and at least ``min_iterations`` ran, or ``max_iterations`` is reached. The
 error is that of the iteration's input pressures (the residual; see ``jacobi_update``).
 
-The solve ends at the Jacobi update of the pressures at which the error reaches eta: in the
-iteration that takes it below eta, those lie between the last iterate and this one (the error
-taken as linear between them), and as the update is affine in the pressures it is the same share
-of the way from this iterate to its update. Relaxed Jacobi leaves a long-wave error (compression
-growing with depth), and one iteration more or less moved the pressure of resting water by
-percents: ending at an iterate's update, the pressure jumped from step to step with the
-iteration count (hydrostatic slope 0.98-1.06 between steps, 1.020-1.021 with this ending;
-docs/physics.md, round 4).
+The solve ends at the Jacobi update of the pressures at which the error reaches eta (the one
+loop's ending, :mod:`.iteration`), so the pressure of resting water does not jump with the
+integer iteration count from step to step. Why relaxed Jacobi from half the last pressure, and
+what faster schemes run into: docs/pressure_solve.md.
 """
 
 from __future__ import annotations
