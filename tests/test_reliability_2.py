@@ -933,10 +933,10 @@ def test_a_camera_looking_straight_down_sees_the_liquid(made, tmp_path):
 
 def test_a_render_variant_this_machine_cannot_run_is_one_line(made, monkeypatch, capsys):
     pytest.importorskip("mitsuba")
-    import warp_iisph.view.render as render
+    import warp_iisph.view.mitsuba_variant as variants
 
-    monkeypatch.setattr(render, "llvm_libraries", lambda: [(15, "/usr/lib/libLLVM-15.so")])
-    monkeypatch.setattr(render, "_cuda_present", lambda: False)
+    monkeypatch.setattr(variants, "llvm_libraries", lambda: [(15, "/usr/lib/libLLVM-15.so")])
+    monkeypatch.setattr(variants, "_cuda_present", lambda: False)
     before = snapshot(made)
     for variant, words in (("llvm_ad_rgb", "libLLVM >= 16"), ("cuda_ad_rgb", "NVIDIA driver")):
         assert main(["render", str(made), "--variant", variant, "--no-progress"]) == 2

@@ -16,6 +16,7 @@ from conftest import finish, terminal_signals
 
 from warp_iisph.cli import main
 from warp_iisph.run import sweep as sw
+from warp_iisph.run import sweep_chart as charts
 from warp_iisph.run.checkpoint import OWNER_KEYS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -119,10 +120,10 @@ def test_values_split_at_top_level_commas_and_names_are_plain_folders():
 
 def test_a_measure_is_a_path_or_a_name_in_the_summary():
     s = {"totals": {"mean_compression": 0.001, "steps": 21, "flag": True}, "particles": {"fluid": 250}}
-    assert sw.measure_value(s, "totals.mean_compression") == 0.001
-    assert sw.measure_value(s, "mean_compression") == 0.001 and sw.measure_value(s, "fluid") == 250
-    assert sw.measure_value(s, "totals.flag") is None and sw.measure_value(s, "totals.nothing") is None
-    assert "totals.steps" in sw.numbers_in(s) and "particles.fluid" in sw.numbers_in(s)
+    assert charts.measure_value(s, "totals.mean_compression") == 0.001
+    assert charts.measure_value(s, "mean_compression") == 0.001 and charts.measure_value(s, "fluid") == 250
+    assert charts.measure_value(s, "totals.flag") is None and charts.measure_value(s, "totals.nothing") is None
+    assert "totals.steps" in charts.numbers_in(s) and "particles.fluid" in charts.numbers_in(s)
 
 
 @pytest.mark.parametrize(

@@ -134,14 +134,14 @@ def test_missing_extra_is_a_clear_message(tiny_run, monkeypatch, capsys):
 
 @needs_mitsuba
 def test_old_libllvm_falls_back_to_scalar_and_says_what_to_install(monkeypatch):
-    from warp_iisph.view import render
+    from warp_iisph.view import mitsuba_variant as variants
 
-    monkeypatch.setattr(render, "_cuda_present", lambda: False)
-    monkeypatch.setattr(render, "llvm_libraries", lambda: [(15, "/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")])
-    variant, why = render.choose_variant("cpu")
+    monkeypatch.setattr(variants, "_cuda_present", lambda: False)
+    monkeypatch.setattr(variants, "llvm_libraries", lambda: [(15, "/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")])
+    variant, why = variants.choose_variant("cpu")
     assert variant == "scalar_rgb" and "libLLVM >= 16" in why and "libLLVM 15" in why and "install" in why
-    monkeypatch.setattr(render, "llvm_libraries", lambda: [])
-    assert "none found" in render.choose_variant("cpu")[1]
+    monkeypatch.setattr(variants, "llvm_libraries", lambda: [])
+    assert "none found" in variants.choose_variant("cpu")[1]
 
 
 def test_camera_keys_in_scene_files(tmp_path):

@@ -235,11 +235,12 @@ def _run(args) -> int:
 
 def _sweep(args) -> int:
     from ..run import sweep as sw
+    from ..run import sweep_chart as charts
     from ..run.cluster import ClusterUnavailable, check_options, open_workers
 
     try:
         check_options(args.scheduler, args.workers)
-        sw.require_chart()
+        charts.require_chart()
     except (ClusterUnavailable, RuntimeError) as e:
         raise ValueError(f"sweep: {e}") from None
     if args.threads is not None and not 1 <= args.threads <= 1024:
@@ -264,7 +265,7 @@ def _sweep(args) -> int:
             raise ValueError(f"--resume SWEEP_DIR: runs that sweep with its own settings; give no {', '.join(given)}")
         record, out = sw.load_sweep(args.resume), args.resume
         if args.measure:
-            record["measure"] = sw.check_measure(args.measure)
+            record["measure"] = charts.check_measure(args.measure)
     elif not args.scene:
         raise ValueError("SCENE: required (a scene file or a bundled scene's name), or --resume SWEEP_DIR")
     else:
@@ -278,7 +279,7 @@ def _sweep(args) -> int:
             args.device,
             use_graph(args.graph, args.device),
             args.out,
-            args.measure or sw.DEFAULT_MEASURE,
+            args.measure or charts.DEFAULT_MEASURE,
         )
     if args.scheduler is None and args.workers is None:
         _start_warp(args.threads)  # the variants run in this process
@@ -295,7 +296,7 @@ def _sweep(args) -> int:
         if e["ended"] not in sw.DONE:
             print(f"warp-iisph: warning: variant {e['name']} {e['ended']}: {e['message']}", file=sys.stderr)
     if record["chart"] is None:
-        names = next((sw.numbers_in(e["summary"]) for e in variants if e["summary"]), [])
+        names = next((charts.numbers_in(e["summary"]) for e in variants if e["summary"]), [])
         names.sort(key=lambda n: not n.startswith("totals."))  # the totals first: what a study measures
         print(
             f"warp-iisph: warning: --measure {record['measure']}: no variant has it, no chart"

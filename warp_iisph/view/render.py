@@ -6,287 +6,24 @@ guides. Frames go to ``frames/frame_NNNNN.png`` and, together, into ``video.mp4`
 
 from __future__ import annotations
 
-import glob
 import json
-import math
-import os
-import re
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ..engine.devices import native_stderr
 from ..engine.signals import deferred
 from ..run.atomic import atomic_write
 from ..run.folder import FRAMES, MESHES, RunError, RunFolder, frame_files, frame_index, select_frames, tank_bounds
 from ..run.formats import read_mesh
 from ..run.lock import FolderLock
 from ..run.progress import frame_bar
-from .camera import camera_up, framing_box, run_camera
-from .materials import IOR, THICKNESS, material_color
+from .camera import framing_box, run_camera
+from .materials import material_color
+from .mitsuba_scene import far_walls, scene_dict, sky_emitter
+from .mitsuba_variant import EXTRA, RenderUnavailable, choose_variant, use_variant
 from .video import parse_resolution, write_video
-
-EXTRA = "pip install 'warp_iisph[render]'  (Mitsuba 3, pyoidn, imageio)"
-
-
-class RenderUnavailable(RuntimeError):
-    """The render extra (or a library it needs) is missing; the message says what to install."""
-
-
-def llvm_libraries() -> list[tuple[int, str]]:
-    """(major version, path) of the libLLVM shared libraries Dr.Jit could load."""
-    if os.environ.get("DRJIT_LIBLLVM_PATH"):
-        path = os.environ["DRJIT_LIBLLVM_PATH"]
-        m = re.search(r"LLVM[-.]?(\d+)", os.path.basename(path))
-        return [(int(m.group(1)) if m else 99, path)]
-    found = {}
-    for d in (
-        "/usr/lib",
-        "/usr/lib64",
-        "/usr/local/lib",
-        "/usr/lib/x86_64-linux-gnu",
-        "/usr/lib/aarch64-linux-gnu",
-        "/opt/homebrew/opt/llvm/lib",
-    ):
-        for path in (
-            glob.glob(os.path.join(d, "libLLVM*.so*"))
-            + glob.glob(os.path.join(d, "llvm-*", "lib", "libLLVM*.so*"))
-            + glob.glob(os.path.join(d, "libLLVM*.dylib"))
-        ):
-            m = re.search(r"libLLVM[-.](?:so\.)?(\d+)", os.path.basename(path))
-            if m:
-                found.setdefault(int(m.group(1)), path)
-    return sorted(found.items())
-
-
-def choose_variant(device_hint: str | None = None, forced: str | None = None) -> tuple[str, str]:
-    """The fastest Mitsuba variant that works here, and a line saying why."""
-    try:
-        with deferred():  # Ctrl-C while it loads: raised once it has
-            import mitsuba as mi
-    except ImportError:
-        raise RenderUnavailable(f"the render extra is not installed: {EXTRA}") from None
-    if forced:
-        if forced not in mi.variants():
-            raise RunError(f"--variant {forced!r}: must be one of {', '.join(mi.variants())}")
-        why = _cannot_run(forced)
-        if why is None:
-            try:
-                with deferred(), native_stderr():
-                    mi.set_variant(forced)
-            except Exception as e:  # noqa: BLE001 - Dr.Jit raises many kinds for a backend it cannot start
-                why = (str(e).strip().splitlines() or [type(e).__name__])[0]
-        if why is not None:
-            raise RunError(f"--variant {forced}: cannot run on this machine: {why}")
-        return forced, f"{forced} (asked for)"
-    notes = []
-    if device_hint != "cpu" and "cuda_ad_rgb" in mi.variants() and _cuda_present():
-        try:
-            with deferred(), native_stderr():
-                mi.set_variant("cuda_ad_rgb")
-            return "cuda_ad_rgb", "cuda_ad_rgb (GPU)"
-        except Exception as e:  # noqa: BLE001 - any failure falls back to the CPU
-            notes.append(f"cuda_ad_rgb failed ({str(e).splitlines()[0]})")
-    libs = llvm_libraries()
-    good = [(v, p) for v, p in libs if v >= 16]
-    if "llvm_ad_rgb" in mi.variants() and good:
-        os.environ.setdefault("DRJIT_LIBLLVM_PATH", good[-1][1])
-        try:
-            with deferred(), native_stderr():
-                mi.set_variant("llvm_ad_rgb")
-            return "llvm_ad_rgb", f"llvm_ad_rgb (libLLVM {good[-1][0]}, vectorised on the CPU)"
-        except Exception as e:  # noqa: BLE001
-            notes.append(f"llvm_ad_rgb failed ({str(e).splitlines()[0]})")
-    elif libs:
-        notes.append(
-            f"llvm_ad_rgb needs libLLVM >= 16 and this machine has only libLLVM {', '.join(str(v) for v, _ in libs)} "
-            "(Debian's libllvm15 crashes it); install libllvm16 or newer (e.g. apt install libllvm17) or point "
-            "DRJIT_LIBLLVM_PATH at one"
-        )
-    else:
-        notes.append("llvm_ad_rgb needs libLLVM >= 16, none found (e.g. apt install libllvm17)")
-    with deferred():
-        mi.set_variant("scalar_rgb")
-    return "scalar_rgb", "scalar_rgb (slowest)" + ("; " + "; ".join(notes) if notes else "")
-
-
-def _cannot_run(variant: str) -> str | None:
-    """Why a Mitsuba variant cannot run here (``None``: it may): its backend's driver or library
-    is missing (a libLLVM older than 16 crashes the process, so it is not tried)."""
-    if variant.startswith("cuda") and not _cuda_present():
-        return "it needs an NVIDIA driver (libcuda), and none is installed"
-    if variant.startswith("llvm"):
-        libs = llvm_libraries()
-        good = [(v, p) for v, p in libs if v >= 16]
-        if not good:
-            have = f"only libLLVM {', '.join(str(v) for v, _ in libs)}" if libs else "no libLLVM"
-            return (
-                f"it needs libLLVM >= 16 and this machine has {have} (Debian's libllvm15 crashes it); "
-                "install libllvm16 or newer, or point DRJIT_LIBLLVM_PATH at one"
-            )
-        os.environ.setdefault("DRJIT_LIBLLVM_PATH", good[-1][1])
-    return None
-
-
-def _cuda_present() -> bool:
-    try:
-        import ctypes
-
-        ctypes.CDLL("libcuda.so.1")
-        return True
-    except OSError:
-        return False
-
-
-def sky_bitmap(height: int = 128) -> np.ndarray:
-    """Equirectangular sky (y up): blue zenith, pale horizon, grey ground, and a small sun."""
-    width = 2 * height
-    theta = (np.arange(height) + 0.5) / height * math.pi  # 0 at the zenith
-    phi = (np.arange(width) + 0.5) / width * 2 * math.pi
-    elev = 0.5 * math.pi - theta[:, None]
-    t = np.clip(np.sin(elev), 0.0, 1.0)[..., None]
-    zenith, horizon, ground = np.array([0.25, 0.45, 0.85]), np.array([0.85, 0.9, 0.95]), np.array([0.35, 0.33, 0.3])
-    img = np.where(elev[..., None] >= 0, horizon * (1 - t**0.5) + zenith * t**0.5, ground) * np.ones((height, width, 3))
-    d = np.stack(
-        np.broadcast_arrays(
-            np.sin(theta)[:, None] * np.cos(phi)[None],
-            np.cos(theta)[:, None] + 0 * phi[None],
-            np.sin(theta)[:, None] * np.sin(phi)[None],
-        ),
-        -1,
-    )
-    sun = np.array([0.4, 0.75, 0.5]) / np.linalg.norm([0.4, 0.75, 0.5])
-    img += 400.0 * (d @ sun > math.cos(math.radians(2.0)))[..., None]
-    return img.astype(np.float32)
-
-
-def scene_dict(
-    mesh_path: Path | None,
-    camera,
-    floor_y: float,
-    extent: float,
-    color,
-    spp: int,
-    width: int,
-    height: int,
-    fov: float,
-    walls: list | None = None,
-    obstacles: Path | None = None,
-    sky=None,
-) -> dict:
-    """Mitsuba's scene of one frame; ``sky``: the sky emitter, loaded once for many frames (made
-    here otherwise)."""
-    import mitsuba as mi
-
-    T = mi.ScalarTransform4f
-    origin, target = camera
-    sigma = -np.log(np.asarray(color)) / THICKNESS  # 1/m
-    scale = float(max(sigma.max(), 1e-6))
-    d = {
-        "type": "scene",
-        "integrator": {
-            "type": "aov",
-            "aovs": "albedo:albedo,nn:sh_normal",
-            "img": {"type": "volpath", "max_depth": 24, "rr_depth": 12},
-        },
-        "sensor": {
-            "type": "perspective",
-            "fov": float(fov),
-            "fov_axis": "x",
-            "to_world": T().look_at(
-                origin=[float(c) for c in origin], target=[float(c) for c in target], up=camera_up(origin, target)
-            ),
-            "sampler": {"type": "independent", "sample_count": int(spp)},
-            "film": {
-                "type": "hdrfilm",
-                "width": width,
-                "height": height,
-                "rfilter": {"type": "box"},
-                "pixel_format": "rgb",
-            },
-        },
-        "sky": sky if sky is not None else sky_emitter(),
-        "floor": {
-            "type": "rectangle",
-            "to_world": T()
-            .translate([float(target[0]), float(floor_y), float(target[2])])
-            .rotate([1, 0, 0], -90)
-            .scale(extent),
-            "bsdf": {
-                "type": "diffuse",
-                "reflectance": {
-                    "type": "checkerboard",
-                    "color0": 0.25,
-                    "color1": 0.55,
-                    "to_uv": T().scale([extent * 4, extent * 4, 1]),
-                },
-            },
-        },
-    }
-    if mesh_path is not None:
-        d["liquid"] = {
-            "type": Path(mesh_path).suffix.lstrip(".").lower(),
-            "filename": str(mesh_path),
-            "face_normals": False,
-            "bsdf": {"type": "dielectric", "int_ior": IOR, "ext_ior": 1.0},
-            "interior": {
-                "type": "homogeneous",
-                "albedo": 0.0,
-                "scale": scale,
-                "sigma_t": {"type": "rgb", "value": [float(s / scale) for s in sigma]},
-            },
-        }
-    if obstacles is not None:  # flat-shaded: boxes keep their edges
-        d["obstacles"] = {
-            "type": "obj",
-            "filename": str(obstacles),
-            "face_normals": True,
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}},
-        }
-    for k, (center, normal, size) in enumerate(walls or []):
-        d[f"wall_{k}"] = {
-            "type": "rectangle",
-            "to_world": _rectangle(T, center, normal, size),
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.72, 0.75]}},
-        }
-    return d
-
-
-def sky_emitter() -> dict:
-    import mitsuba as mi
-
-    return {"type": "envmap", "bitmap": mi.Bitmap(sky_bitmap())}
-
-
-def _rectangle(T, center, normal, size):
-    """Mitsuba's rectangle ([-1, 1]^2 in z = 0) moved to ``center`` facing ``normal``, ``size`` = half extents."""
-    n = np.asarray(normal, float)
-    up = np.array([0.0, 1.0, 0.0]) if abs(n[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    return (
-        T()
-        .look_at(origin=[float(c) for c in center], target=[float(c) for c in np.asarray(center) + n], up=up.tolist())
-        .scale([float(size[0]), float(size[1]), 1.0])
-    )
-
-
-def far_walls(lower, upper, eye) -> list:
-    """The vertical tank faces on the far side of the liquid from the camera, facing inward."""
-    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    c = 0.5 * (lower + upper)
-    half = 0.5 * (upper - lower)
-    walls = []
-    for axis in (0, 2):
-        for sign in (-1.0, 1.0):
-            face = c.copy()
-            face[axis] += sign * half[axis]
-            if (np.asarray(eye)[axis] - c[axis]) * sign < 0:  # the camera is on the other side
-                normal = np.zeros(3)
-                normal[axis] = -sign
-                other = 2 if axis == 0 else 0
-                walls.append((face, normal, (half[other], half[1])))
-    return walls
 
 
 def denoise(color: np.ndarray, albedo: np.ndarray, normal: np.ndarray) -> np.ndarray:
@@ -358,17 +95,6 @@ class FrameRenderer:
             sky=self.sky,
         )
         return render_image(sd, s["denoise"], seed=seed)
-
-
-def use_variant(variant: str) -> None:
-    """Set Mitsuba's ``variant`` (the one :func:`choose_variant` chose) in this process."""
-    import mitsuba as mi
-
-    if variant == "llvm_ad_rgb":
-        good = [p for v, p in llvm_libraries() if v >= 16]
-        if good:
-            os.environ.setdefault("DRJIT_LIBLLVM_PATH", good[-1])
-    mi.set_variant(variant)
 
 
 def render_frame(settings: dict, mesh: str, obstacles: str | None, png: str) -> float:
