@@ -17,6 +17,14 @@ import warp as wp
 from ..engine.launch import launch_particles
 
 
+@wp.func
+def column_of(x_i: wp.vec3, across: wp.vec2i, lower: wp.vec3, h: float, n_columns: wp.vec2i) -> int:
+    """The column a point is in (columns ``h`` wide along the two axes ``across`` gravity)."""
+    a = wp.clamp(int((x_i[across[0]] - lower[across[0]]) / h), 0, n_columns[0] - 1)
+    b = wp.clamp(int((x_i[across[1]] - lower[across[1]]) / h), 0, n_columns[1] - 1)
+    return a * n_columns[1] + b
+
+
 @wp.kernel
 def column_tops(
     x: wp.array(dtype=wp.vec3),
@@ -32,9 +40,7 @@ def column_tops(
     direction)."""
     i = wp.tid()
     x_i = x[i]
-    a = wp.clamp(int((x_i[across[0]] - lower[across[0]]) / h), 0, n_columns[0] - 1)
-    b = wp.clamp(int((x_i[across[1]] - lower[across[1]]) / h), 0, n_columns[1] - 1)
-    wp.atomic_max(top, a * n_columns[1] + b, sign * x_i[up])
+    wp.atomic_max(top, column_of(x_i, across, lower, h, n_columns), sign * x_i[up])
 
 
 @wp.kernel
@@ -55,9 +61,7 @@ def add_hydrostatic(
     """``p += share rho0 |g| d``, ``d`` the depth below the column's top plus half a spacing."""
     i = wp.tid() + offset
     x_i = x[i]
-    a = wp.clamp(int((x_i[across[0]] - lower[across[0]]) / h), 0, n_columns[0] - 1)
-    b = wp.clamp(int((x_i[across[1]] - lower[across[1]]) / h), 0, n_columns[1] - 1)
-    depth = top[a * n_columns[1] + b] + 0.5 * h - sign * x_i[up]
+    depth = top[column_of(x_i, across, lower, h, n_columns)] + 0.5 * h - sign * x_i[up]
     p[i] = p[i] + share * rho_g * wp.max(depth, 0.0)
 
 
