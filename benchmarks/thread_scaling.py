@@ -4,7 +4,8 @@ and ms per stage for each count, and its mean actual compression. Beside it, in 
 the same cores, SPlisHSPlasH's IISPH and DFSPH on the same dam break with 2 threads
 (benchmarks/peer_splishsplash.py; the `bench` extra, skipped when not installed). Writes
 benchmarks/results/thread_scaling.json and .png. ``--matched iisph:3e-4,dfsph:5e-4`` adds runs of
-ours with 2 threads at other methods and tolerances, to set beside the peers at a like compression.
+ours with 2 threads at other methods and tolerances, to set beside the peers at a like compression
+(``iisph-hydrostatic:1e-3``: IISPH with ``physics.warm_start = "hydrostatic"``).
 
     python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer]
         [--matched METHOD:ETA,...] [--quick]
@@ -21,9 +22,12 @@ from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import available_cores, set_threads
 
 
-def run(threads: int, spacing: float, duration: float, method: str = "iisph", eta: float = 1e-3) -> dict:
+def run(
+    threads: int, spacing: float, duration: float, method: str = "iisph", eta: float = 1e-3, warm_start: str = "half"
+) -> dict:
     set_threads(threads)
-    sim = Simulation(scenes.dam_break_cube(spacing=spacing, method=method, eta=eta, cfl=0.5, dt_max=5e-3), "cpu")
+    scene = scenes.dam_break_cube(spacing=spacing, method=method, eta=eta, cfl=0.5, dt_max=5e-3, warm_start=warm_start)
+    sim = Simulation(scene, "cpu")
     t0 = time.perf_counter()
     sim.advance(duration)
     wall = time.perf_counter() - t0
@@ -31,6 +35,7 @@ def run(threads: int, spacing: float, duration: float, method: str = "iisph", et
     stages = {k: float(np.median([s["ms"][k] for s in st])) for k in st[0]["ms"]}
     return {
         "method": method,
+        "warm_start": warm_start,
         "eta": eta,
         "threads": threads,
         "particles": sim.n_particles,
@@ -54,12 +59,13 @@ def chart(results: list, peers: list, path, matched: list = ()) -> None:
         "o-",
         label=f"warp_iisph IISPH ({100 * results[0]['mean_density_error']:.3f} %)",
     )
-    for r, marker in zip(matched, "sD^v"):
+    for r, marker in zip(matched, "sD^v<>ph"):
         a.plot(
             [r["threads"]],
             [r["wall_seconds_per_simulated_second"]],
             marker,
-            label=f"warp_iisph {r['method'].upper()} eta {r['eta']:g} ({100 * r['mean_density_error']:.3f} %)",
+            label=f"warp_iisph {r['method'].upper()}{' ' + r['warm_start'] if r['warm_start'] != 'half' else ''} "
+            f"eta {r['eta']:g} ({100 * r['mean_density_error']:.3f} %)",
         )
     for p, style in zip(peers, ("--", ":")):
         a.axhline(
@@ -94,7 +100,7 @@ def main():
     ap.add_argument("--spacing", type=float, default=0.03)
     ap.add_argument("--threads", default=",".join(str(t) for t in sorted({1, 2, available_cores()})))
     ap.add_argument("--no-peer", action="store_true", help="skip SPlisHSPlasH")
-    ap.add_argument("--matched", default="", help="extra 2-thread runs of ours, METHOD:ETA,...")
+    ap.add_argument("--matched", default="", help="extra 2-thread runs of ours, METHOD[-WARM_START]:ETA,...")
     ap.add_argument("--quick", action="store_true", help="a coarse, short run (under a minute)")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
@@ -128,10 +134,11 @@ def main():
     matched = []
     for item in filter(None, args.matched.split(",")):
         method, eta = item.split(":")
-        r = run(2, args.spacing, args.duration, method, float(eta))
+        method, _, warm = method.partition("-")  # iisph-hydrostatic: IISPH with that warm start
+        r = run(2, args.spacing, args.duration, method, float(eta), warm or "half")
         matched.append(r)
         print(
-            f"warp_iisph {method.upper()} eta {float(eta):g}, 2 threads: "
+            f"warp_iisph {method.upper()}{' (' + warm + ' warm start)' if warm else ''} eta {float(eta):g}, 2 threads: "
             f"{r['wall_seconds_per_simulated_second']:.1f} s/sim s, "
             f"{r['steps']} steps, {r['mean_iterations']:.2f} iterations, "
             f"mean compression {100 * r['mean_density_error']:.3f} %"
