@@ -8,7 +8,7 @@ stage shares (devices, CPU thread launches, timing), ``analysis`` the checks aga
 
 __version__ = "0.1.0"
 
-from .scene import Box, Camera, MeshShape, Output, Physics, Scene, Sphere, load_scene
+from .scene import Box, Camera, MeshShape, Output, Physics, Probe, Scene, Sphere, load_scene
 from .scene import cases as scenes
 
 
@@ -28,6 +28,7 @@ __all__ = [
     "MeshShape",
     "Output",
     "Physics",
+    "Probe",
     "Scene",
     "Sphere",
     "Simulation",

@@ -17,6 +17,7 @@ import numpy as np
 
 from .checks import MAX_PARTICLES, floats, positive
 from .flows import Emitter, Sink
+from .probes import validate_probes
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere
 
@@ -43,6 +44,7 @@ class Scene:
     camera: Camera = field(default_factory=Camera)
     emitters: list = field(default_factory=list)
     sinks: list = field(default_factory=list)
+    probes: list = field(default_factory=list)  # sensors (scene.probes.Probe), sampled as output.probe_interval says
     max_particles: Optional[int] = (
         None  # fluid particles at most (with emitters); None: what they emit over output.duration
     )
@@ -65,6 +67,10 @@ class Scene:
 
     def add_sink(self, sink: Sink) -> "Scene":
         self.sinks.append(sink)
+        return self
+
+    def add_probe(self, probe) -> "Scene":
+        self.probes.append(probe)
         return self
 
     def validate(self) -> "Scene":
@@ -118,6 +124,8 @@ class Scene:
                     f"({_open_edges(o.load())} open edges), so its inside is "
                     f"undefined; close it, or set {name}.shell = true to use it as a thin wall"
                 )
+        _check_obstacle_names(self.obstacles)
+        validate_probes(self.probes, self.tank.bounds, self.obstacles)
         for k, e in enumerate(self.emitters):
             name = f"emitters[{k}]"
             if not isinstance(e, Emitter):
@@ -186,6 +194,20 @@ class Scene:
 
     def _fingerprint(self) -> str:
         return repr(dataclasses.asdict(self))
+
+
+def _check_obstacle_names(obstacles: list) -> None:
+    """Obstacle names (optional) are non-empty strings, each used once."""
+    seen = set()
+    for k, o in enumerate(obstacles):
+        name = getattr(o, "name", None)
+        if name is None:
+            continue
+        if not isinstance(name, str) or not name.strip():
+            raise ValueError(f"obstacles[{k}].name = {name!r}: must be a non-empty string")
+        if name in seen:
+            raise ValueError(f"obstacles[{k}].name = {name!r}: another obstacle has that name")
+        seen.add(name)
 
 
 def _open_edges(mesh) -> int:
