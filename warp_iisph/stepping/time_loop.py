@@ -287,6 +287,7 @@ class TimeLoop:
         self.pieces = wp.ones(1, dtype=wp.int32, device=dev)
         self.log = wp.zeros((self.capacity, len(self.fields)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.probes = None  # a scene's probes (.probing.ProbeSampler), sampled at the end of a step
 
     def start(
         self, time: float, steps: int, end: float, dt: float | None = None, step_limit: int | None = None
@@ -335,6 +336,8 @@ class TimeLoop:
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
             wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x, state.n)))
+        if self.probes:
+            self.probes.before_step(state)
         solver.launch_step(model, state, timer, sync=sync)
         search = solver.search
         with timer("integration") if timer else nullcontext():
@@ -356,6 +359,8 @@ class TimeLoop:
                 ],
             )
             max_into(self.speed2, state.n, self.max_speed2)
+        if self.probes:
+            self.probes.sample(state, solver, self.time, self.dt64, self.max_speed2, self.slot)
         for column, value in enumerate(self.extra.values(), len(LOG_FIELDS)):  # before record_step moves the slot on
             if value.dtype == wp.float64:
                 wp.launch(record_mean, dim=1, device=dev, inputs=[self.slot, max(state.n, 1), value, column, self.log])
