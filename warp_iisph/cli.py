@@ -1,4 +1,4 @@
-"""Command line: ``warp-iisph run | sweep | scenes | mesh | preview | render | usd | blender-script``.
+"""Command line: ``warp-iisph run | sweep | scenes | mesh | preview | plot | render | usd | blender-script``.
 
 Every error is one line on stderr: exit status 2 for bad input (a file, key or argument and its
 allowed range), 1 for a failure at run time, 130 for Ctrl-C and 143 for SIGTERM; ``--debug``
@@ -212,6 +212,9 @@ def _parser() -> argparse.ArgumentParser:
         "--out", default=None, help="video path (default RUN_DIR/preview.mp4), or a .png for one frame's still"
     )
     preview.add_argument("--no-progress", action="store_true", help="no progress bar")
+    plot = sub.add_parser("plot", help="chart every probe of a run over time (probes.csv) in a PNG")
+    plot.add_argument("run_dir", help="an output folder of `warp-iisph run` of a scene with [[probes]]")
+    plot.add_argument("--out", default=None, help="the PNG's path (default RUN_DIR/probes.png)")
     usd = sub.add_parser(
         "usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)"
     )
@@ -277,6 +280,13 @@ def _preview(args) -> int:
         f"preview of {r['frames']} frames ({r['source']}, "
         f"{1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}"
     )
+    return 0
+
+
+def _plot(args) -> int:
+    from .view.plots import plot_probes
+
+    print(f"probes of {args.run_dir} -> {plot_probes(args.run_dir, args.out)}")
     return 0
 
 
@@ -566,6 +576,7 @@ COMMANDS = {
     "scenes": _scenes,
     "mesh": _mesh,
     "preview": _preview,
+    "plot": _plot,
     "render": _render,
     "usd": _usd,
     "blender-script": _blender_script,

@@ -34,6 +34,7 @@ from .folder import MESHES, OBSTACLE_FRAMES, OBSTACLES, PARTICLES, RunError, Run
 from .formats import StatsWriter, read_stats, write_obj, write_particles
 from .frame_queue import FrameQueue
 from .meshing import FrameMesher, mesh_settings
+from .probe_file import open_probe_file
 from .progress import frame_bar
 
 
@@ -112,8 +113,8 @@ def run_scene(
     resume: bool = False,
 ) -> dict:
     """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
-    says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene
-    with obstacles, ``obstacles.obj``.
+    says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json``, for a scene
+    with obstacles ``obstacles.obj`` and for one with probes ``probes.csv``.
     Returns the run record (``ended`` says how it ended). Frame files are written on a background
     thread while the next frame simulates (``background_output=False``: inline). With ``resume``,
     ``out`` is a run stopped (or diverged, then fixed) after a checkpoint: it continues from there,
@@ -136,7 +137,7 @@ def run_scene(
         replacing = _check_target(out, overwrite)
     t_start = time.perf_counter()
     # everything is built before the disk changes; step records go to stats.jsonl, not memory
-    sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration)
+    sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration, probe_history=1)
     first = 0
     if resume:
         sim.restore(checkpoint)
@@ -227,7 +228,7 @@ def run_scene(
         record["output"].update(writer_seconds=queue.busy, waited_seconds=queue.blocked)
         run.write_record(record)
 
-    stats = None
+    stats = probe_file = None
     bar = frame_bar(plan.frames, progress)
     ended, message = "completed", ""
     try:
@@ -246,11 +247,13 @@ def run_scene(
             for r in kept:
                 totals.add(r)
             stats = StatsWriter(run.stats, keep=kept)
+            probe_file = open_probe_file(run.probes, sim, keep_until=sim.time)
             written[0] = first
             update_record()
         else:
             run.path.mkdir(parents=True, exist_ok=True)
             stats = StatsWriter(run.stats)
+            probe_file = open_probe_file(run.probes, sim)
             if scene.obstacles:  # one file for the viewers and Blender (at t = 0; per frame as well when some move)
                 mesh = obstacles_mesh(scene.obstacles)
                 write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
@@ -269,6 +272,8 @@ def run_scene(
             sim.advance(k / plan.fps - sim.time, callback=on_step)
             write_frame(k)
             stats.flush()
+            if probe_file is not None:
+                probe_file.flush()
             update_record()
             rate = (sim.step_count - steps_before) / max(time.perf_counter() - wall_before, 1e-9)
             last = sim.stats[-1] if sim.stats else {}
@@ -292,11 +297,12 @@ def run_scene(
         except OSError as e:
             if ended == "completed":
                 ended, message = "failed", f"writing the run to {out}: {e}"
-        if stats is not None:
-            try:
-                stats.close()
-            except OSError:
-                pass
+        for f in (stats, probe_file):
+            if f is not None:
+                try:
+                    f.close()
+                except OSError:
+                    pass
     if not run.path.exists() or (replacing and run.path != out):
         # the new run never got its first frame onto the disk: the old run stays as it was
         shutil.rmtree(run.path, ignore_errors=True)
