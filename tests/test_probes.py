@@ -254,7 +254,7 @@ def test_the_release_pressure_is_harmonic_and_meets_its_conditions():
     assert np.allclose(p(np.linspace(0, a, 7), H), 0.0, atol=1e-6) and np.allclose(
         p(a, np.linspace(0, H, 7)), 0.0, atol=0.1
     )
-    assert np.allclose((p(e, np.linspace(0.02, 0.18, 5)) - p(0.0, np.linspace(0.02, 0.18, 5))) / e, 0.0, atol=1.0)
+    assert np.allclose((p(e, np.linspace(0.02, 0.18, 5)) - p(0.0, np.linspace(0.02, 0.18, 5))) / e, 0.0, atol=10.0)
     assert np.allclose((p(np.linspace(0.0, 0.08, 5), e) - p(np.linspace(0.0, 0.08, 5), 0.0)) / e, -9810.0, rtol=2e-3)
     assert release_pressure(0.0, 0.05, 50.0, H) == pytest.approx(9810 * 0.15, rel=1e-9)
     assert p(0.0, 0.0) / (9810 * H) == pytest.approx(0.36972, abs=1e-4)
