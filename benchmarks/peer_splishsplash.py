@@ -18,6 +18,12 @@ same sampling, viscosity and CFL as above) and adds the surge front (``surge_fro
 ours gets) at every step to the record as ``T``/``Z`` (T = t sqrt(2g/a), Z = front / a), and
 ``escaped``: the most particles found beyond the tank mesh (0.6 spacings outside the faces) at
 any step.
+
+``--scene spheric_test2 --spacing H`` runs the bundled SPHERIC Test 2 scene (the MARIN dam break
+onto a box): the tank and water as ours, the box a static rigid body (its mesh 0.6 spacings inside
+the box's faces, where its boundary particles hold the water at the faces, as the tank's do) and,
+every 5 ms, the readings of our pressure sensors and level gauges taken from its particles
+(``warp_iisph.analysis.sensors``: the same definitions, in NumPy, its IISPH pressures) as ``probes``.
 """
 
 import argparse
@@ -36,6 +42,7 @@ from warp_iisph.analysis.dam_break import surge_front
 PRELOAD = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
 G = 9.81
 MM_WIDTH = 0.3  # validation.py's Martin & Moyce column width a (m)
+PROBE_INTERVAL = 0.005  # how often the SPHERIC Test 2 sensors are read from its particles (s)
 BOX = (
     "\n".join(
         [
@@ -115,20 +122,56 @@ def run(
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def sensor_readings(sim, sensors, h) -> list:
+    """Our pressure sensors' and level gauges' readings from the peer's particles now (its IISPH
+    pressures), in the scene's order."""
+    from scipy.spatial import cKDTree
+
+    from warp_iisph.analysis.sensors import level_readings, pressure_readings
+
+    fm = sim.getFluidModel(0)
+    n = fm.numActiveParticles()
+    data = sim.getTimeStep().getSimulationData()
+    x = np.array([fm.getPosition(i) for i in range(n)], dtype=np.float64)
+    p = np.array([data.getPressure(0, i) for i in range(n)], dtype=np.float64)
+    rho = np.array([fm.getDensity(i) for i in range(n)], dtype=np.float64)
+    tree = cKDTree(x)
+    pressure = [s for s in sensors if s.kind == "pressure"]
+    levels = [s for s in sensors if s.kind == "level"]
+    out = pressure_readings(
+        x, p, rho, [s.position for s in pressure], [s.normal for s in pressure], h, fm.getDensity0(), (0, -G, 0), tree
+    )
+    top = max(x[:, 1].max(), 0.0) + 2 * h
+    heights = level_readings(x, [s.position for s in levels], levels[0].bottom, top, h, tree) if levels else []
+    return [float(v) for v in out] + [float(v) for v in heights]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=1.0)
     ap.add_argument("--method", choices=("iisph", "dfsph"), default="iisph")
     ap.add_argument("--spacing", type=float, default=0.03)
-    ap.add_argument("--scene", choices=("dam_break", "martin_moyce"), default="dam_break")
+    ap.add_argument("--scene", choices=("dam_break", "martin_moyce", "spheric_test2"), default="dam_break")
     ap.add_argument("--nx", type=int, default=20, help="Martin & Moyce: particles across the column (sets the spacing)")
     args = ap.parse_args()
     import pysplishsplash as sph
 
+    block_lo, obstacles, sensors = np.zeros(3), [], None
     if args.scene == "martin_moyce":
         a = MM_WIDTH
         h = a / args.nx
         tank, block = np.array([6 * a, 3 * a, 0.5 * a]), np.array([a, 2 * a, 0.5 * a])
+    elif args.scene == "spheric_test2":
+        from warp_iisph.scene import load_scene
+
+        h = args.spacing
+        ours = load_scene("spheric_test2", [f"spacing={h}"])
+        tank = np.asarray(ours.tank.upper, dtype=float)
+        block_lo, block = np.asarray(ours.fluids[0].lower), np.asarray(ours.fluids[0].upper)
+        box = ours.obstacles[0]
+        b_lo, b_hi = np.asarray(box.lower) + 0.6 * h, np.asarray(box.upper) - 0.6 * h
+        obstacles = [{"translation": ((b_lo + b_hi) / 2).tolist(), "scale": (b_hi - b_lo).tolist()}]
+        sensors = ours.probes
     else:
         h = args.spacing
         tank, block = np.array([4.0, 3.0, 1.5]), np.full(3, 32 * 0.03)
@@ -155,8 +198,11 @@ def main():
     scene = {
         "Configuration": conf,
         "Materials": [{"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "viscosity": 0.01}],
-        "RigidBodies": [{**wall, "translation": ((lo + hi) / 2).tolist(), "scale": (hi - lo).tolist()}],
-        "FluidBlocks": [{"denseMode": 0, "start": [-0.5 * h] * 3, "end": (block + 0.5 * h).tolist()}],
+        "RigidBodies": [{**wall, "translation": ((lo + hi) / 2).tolist(), "scale": (hi - lo).tolist()}]
+        + [
+            {"geometryFile": "box.obj", "isDynamic": False, "isWall": False, "mapInvert": False, **o} for o in obstacles
+        ],
+        "FluidBlocks": [{"denseMode": 0, "start": (block_lo - 0.5 * h).tolist(), "end": (block + 0.5 * h).tolist()}],
     }
     path = Path(folder) / "scene.json"
     path.write_text(json.dumps(scene))
@@ -170,6 +216,8 @@ def main():
         "T": [],
         "Z": [],
         "escaped": 0,
+        "probes": [],
+        "next_probe": 0.0,
     }
 
     def on_step():
@@ -186,6 +234,10 @@ def main():
             # particles beyond the tank mesh its boundary particles sit on: its walls leaked
             outside = np.any((x < lo) | (x > hi), axis=1)
             state["escaped"] = max(state["escaped"], int(outside.sum()))
+        t_now = sph.TimeManager.getCurrent().getTime()
+        if sensors is not None and t_now >= state["next_probe"] - 1e-9:  # every 5 ms, as ours are charted
+            state["next_probe"] += PROBE_INTERVAL
+            state["probes"].append([t_now, *sensor_readings(sim, sensors, h)])
         if state["steps"] % 20 == 0:
             fm = sim.getFluidModel(0)
             n = fm.numActiveParticles()
@@ -217,6 +269,17 @@ def main():
                 **(
                     {"nx": args.nx, "T": state["T"], "Z": state["Z"], "escaped": state["escaped"]}
                     if args.scene == "martin_moyce"
+                    else {}
+                ),
+                **(
+                    {
+                        "probes": {
+                            "names": [p.name for p in sensors if p.kind != "force"],
+                            "rows": state["probes"],
+                            "interval": PROBE_INTERVAL,
+                        }
+                    }
+                    if sensors is not None
                     else {}
                 ),
             }

@@ -103,6 +103,7 @@ def scene_keys() -> set:
     keys |= {f"camera.{f}" for f in _fields(sc.Camera)}
     keys |= {f"emitters[k].{f}" for f in _fields(sc.Emitter)}
     keys |= {f"sinks[k].{f}" for f in _fields(sc.Sink)}
+    keys |= {f"probes[k].{f}" for f in _fields(sc.Probe)}
     keys |= {"obstacles[k].motion"} | {f"obstacles[k].motion.{f}" for f in _fields(Motion)}
     # the shapes each place takes (``shape`` chooses one); base_dir is the scene file's folder,
     # set by the loader, and only obstacles move
@@ -110,8 +111,9 @@ def scene_keys() -> set:
     places["obstacles[k]"] = (sc.Box, sc.Sphere, sc.MeshShape)
     for where, classes in places.items():
         keys.add(f"{where}.shape")
+        only_obstacles = () if where == "obstacles[k]" else ("name", "sampling")  # the file refuses them elsewhere
         for cls in classes:
-            keys |= {f"{where}.{f}" for f in _fields(cls, skip=("base_dir", "motion"))}
+            keys |= {f"{where}.{f}" for f in _fields(cls, skip=("base_dir", "motion", *only_obstacles))}
     return keys
 
 

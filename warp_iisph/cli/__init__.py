@@ -1,4 +1,4 @@
-"""Command line: ``warp-iisph run | sweep | scenes | mesh | preview | render | usd | blender-script``
+"""Command line: ``warp-iisph run | sweep | scenes | mesh | preview | plot | render | usd | blender-script``
 (the grammar in :mod:`.parser`, what each command does in :mod:`.commands`).
 
 Every error is one line on stderr: exit status 2 for bad input (a file, key or argument and its

@@ -30,6 +30,13 @@ def _preview(args) -> int:
     return 0
 
 
+def _plot(args) -> int:
+    from ..view.plots import plot_probes
+
+    print(f"probes of {args.run_dir} -> {plot_probes(args.run_dir, args.out)}")
+    return 0
+
+
 def _render(args) -> int:
     from ..run.cluster import ClusterUnavailable
     from ..view.render import RenderUnavailable, render_run
@@ -318,6 +325,7 @@ COMMANDS = {
     "scenes": _scenes,
     "mesh": _mesh,
     "preview": _preview,
+    "plot": _plot,
     "render": _render,
     "usd": _usd,
     "blender-script": _blender_script,

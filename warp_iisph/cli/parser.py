@@ -204,6 +204,9 @@ def _parser():
         "--out", default=None, help="video path (default RUN_DIR/preview.mp4), or a .png for one frame's still"
     )
     preview.add_argument("--no-progress", action="store_true", help="no progress bar")
+    plot = sub.add_parser("plot", help="chart every probe of a run over time (probes.csv) in a PNG")
+    plot.add_argument("run_dir", help="an output folder of `warp-iisph run` of a scene with [[probes]]")
+    plot.add_argument("--out", default=None, help="the PNG's path (default RUN_DIR/probes.png)")
     usd = sub.add_parser(
         "usd", help="write the run as one USD stage for Blender, Houdini, Omniverse (needs the usd extra)"
     )

@@ -2,6 +2,7 @@
 
 ```
 RUN/particles/frame_00000.ply   particle frames (.vtu    RUN/stats.jsonl  one record per step
+                                                         RUN/probes.csv   the probes' samples
                                 with output.format vtu)  RUN/run.json     scene, device, totals, how it ended
 RUN/mesh/frame_00000.obj        surface meshes (.ply     RUN/run.usdc     the whole run as one USD stage
                                 with surface.format ply)
@@ -30,6 +31,7 @@ PARTICLES = "particles"
 MESHES = "mesh"
 FRAMES = "frames"  # rendered images (warp-iisph render)
 STATS = "stats.jsonl"
+PROBES = "probes.csv"  # the probes' samples (time, one column per probe)
 RECORD = "run.json"
 OBSTACLES = "obstacles.obj"
 OBSTACLE_FRAMES = "obstacles"  # with moving obstacles: obstacles/frame_00000.obj, all of them at each frame
@@ -151,6 +153,10 @@ class RunFolder:
     @property
     def stats(self) -> Path:
         return self.path / STATS
+
+    @property
+    def probes(self) -> Path:
+        return self.path / PROBES
 
     @property
     def record_path(self) -> Path:

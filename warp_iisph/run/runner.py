@@ -48,6 +48,7 @@ from .formats import StatsWriter, read_stats, write_obj, write_particles
 from .frame_queue import FrameQueue
 from .lock import FolderLock
 from .meshing import FrameMesher, mesh_settings
+from .probe_file import open_probe_file
 from .progress import frame_bar
 from .replace import OutputExistsError, commit, discard, prepare, recover, resolved, stage
 
@@ -158,8 +159,8 @@ def run_scene(
     inputs=(),
 ) -> dict:
     """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
-    says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json`` and, for a scene
-    with obstacles, ``obstacles.obj``.
+    says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json``, for a scene
+    with obstacles ``obstacles.obj`` and for one with probes ``probes.csv``.
     Returns the run record (``ended`` says how it ended). Frame files are written on a background
     thread while the next frame simulates (``background_output=False``: inline). With ``resume``,
     ``out`` is a run stopped (or diverged, then fixed) after a checkpoint: it continues from there,
@@ -185,7 +186,7 @@ def run_scene(
             out = target.path
         t_start = time.perf_counter()
         # everything is built before the disk changes; step records go to stats.jsonl, not memory
-        sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration)
+        sim = Simulation(scene, device=device, graph=graph, history=1, until=plan.duration, probe_history=1)
         scene = sim.scene  # its own validated copy, which the caller cannot change while it runs
         first = 0
         if resume:
@@ -249,7 +250,7 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
     owner_keys = owner(record["run_id"], scene)
     written = [0]  # frames whose files are all on disk
     moving_obstacles = any(o.motion is not None for o in scene.obstacles)
-    mesher = queue = stats = None
+    mesher = queue = stats = probe_file = None
     placed = resume  # whether the run folder is in its place (a new one moves there with frame 0)
 
     def write_frame(k: int) -> None:
@@ -319,10 +320,12 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
             for r in kept:
                 totals.add(r)
             stats = StatsWriter(run.stats, keep=kept)
+            probe_file = open_probe_file(run.probes, sim, keep_until=sim.time)
             written[0] = first
             update_record()
         else:
             stats = StatsWriter(run.stats)
+            probe_file = open_probe_file(run.probes, sim)
             if scene.obstacles:  # one file for the viewers and Blender (at t = 0; per frame as well when some move)
                 mesh = obstacles_mesh(scene.obstacles)
                 write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
@@ -342,6 +345,8 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
             sim.advance(k / plan.fps - sim.time, callback=on_step)
             write_frame(k)
             stats.flush()
+            if probe_file is not None:
+                probe_file.flush()
             update_record()
             rate = (sim.step_count - steps_before) / max(time.perf_counter() - wall_before, 1e-9)
             last = sim.stats[-1] if sim.stats else {}
@@ -369,8 +374,9 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
             except Exception as e:
                 if ended == "completed":
                     ended, message = "failed", f"writing the run to {run.path}: {_failure(e)}"
-        if stats is not None:
-            _close_quietly(stats.close)
+        for f in (stats, probe_file):
+            if f is not None:
+                _close_quietly(f.close)
     if not placed:  # the new run never got its first frame in place: the old folder stays as it was
         record.update(ended=ended if ended != "completed" else "failed", message=message or "no frame was written")
         record["totals"] = totals.record(sim, 0, time.perf_counter() - t_start)

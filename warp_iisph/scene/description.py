@@ -18,6 +18,7 @@ import numpy as np
 
 from .checks import MAX_ITEMS, MAX_PARTICLES, Record, floats, folder_name, freeze, positive
 from .flows import Emitter, Sink
+from .probes import validate_probes
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere, contains
 
@@ -44,6 +45,7 @@ class Scene(Record):
     camera: Camera = field(default_factory=Camera)
     emitters: list = field(default_factory=list)
     sinks: list = field(default_factory=list)
+    probes: list = field(default_factory=list)  # sensors (scene.probes.Probe), sampled as output.probe_interval says
     max_particles: Optional[int] = (
         None  # fluid particles at most (with emitters); None: what they emit over output.duration
     )
@@ -68,6 +70,10 @@ class Scene(Record):
         self.sinks.append(sink)
         return self
 
+    def add_probe(self, probe) -> "Scene":
+        self.probes.append(probe)
+        return self
+
     def validate(self) -> "Scene":
         """Check every value (``ValueError`` naming the key and its range) and normalise it. A
         scene validated before and not changed since is trusted as it is."""
@@ -85,7 +91,7 @@ class Scene(Record):
         tlo, thi = self.tank.bounds
         if np.any((thi - tlo) < self.spacing):
             raise ValueError(f"tank: every side must be at least spacing = {self.spacing} m long")
-        for key in ("fluids", "obstacles", "emitters", "sinks"):
+        for key in ("fluids", "obstacles", "emitters", "sinks", "probes"):
             items = getattr(self, key)
             if not isinstance(items, (list, tuple)) or len(items) > MAX_ITEMS:
                 raise ValueError(f"{key}: must be a list of at most {MAX_ITEMS} items")
@@ -124,6 +130,8 @@ class Scene(Record):
                     f"({_open_edges(o.load())} open edges), so its inside is "
                     f"undefined; close it, or set {name}.shell = true to use it as a thin wall"
                 )
+        _check_obstacle_names(self.obstacles)
+        validate_probes(self.probes, self.tank.bounds, self.obstacles)
         for k, e in enumerate(self.emitters):
             name = f"emitters[{k}]"
             if not isinstance(e, Emitter):
@@ -233,6 +241,20 @@ class Scene(Record):
 
     def _fingerprint(self) -> str:
         return repr(dataclasses.asdict(self))
+
+
+def _check_obstacle_names(obstacles: list) -> None:
+    """Obstacle names (optional) are non-empty strings, each used once."""
+    seen = set()
+    for k, o in enumerate(obstacles):
+        name = getattr(o, "name", None)
+        if name is None:
+            continue
+        if not isinstance(name, str) or not name.strip():
+            raise ValueError(f"obstacles[{k}].name = {name!r}: must be a non-empty string")
+        if name in seen:
+            raise ValueError(f"obstacles[{k}].name = {name!r}: another obstacle has that name")
+        seen.add(name)
 
 
 def _open_edges(mesh) -> int:

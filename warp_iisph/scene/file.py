@@ -17,6 +17,7 @@ from .checks import SceneFileError, folder_name
 from .description import Scene
 from .flows import Emitter, Sink
 from .library import resolve_scene
+from .probes import Probe
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, MeshShape, Sphere
 
@@ -37,6 +38,7 @@ TOP_KEYS = {
     "camera",
     "emitters",
     "sinks",
+    "probes",
     "max_particles",
 }
 SHAPE_KEYS = {
@@ -44,6 +46,9 @@ SHAPE_KEYS = {
     "sphere": {"center", "radius"},
     "mesh": {"path", "translate", "rotate", "scale", "shell"},
 }
+# keys only an obstacle takes: its name (probes refer to it), and a box's sampling
+OBSTACLE_KEYS = {"name"}
+BOX_OBSTACLE_KEYS = {"sampling"}
 
 
 def _parse_value(text: str):
@@ -91,12 +96,13 @@ def _check_keys(table, allowed: set, where: str) -> dict:
 
 
 def _shape(table, where: str, allowed: tuple, base_dir: Path, movable: bool = False):
-    extra = {"shape", "motion"} if movable else {"shape"}
-    _check_keys(table, extra | set().union(*(SHAPE_KEYS[s] for s in allowed)), where)
+    extra = {"shape", "motion"} | OBSTACLE_KEYS if movable else {"shape"}
+    boxed = BOX_OBSTACLE_KEYS if movable else set()
+    _check_keys(table, extra | boxed | set().union(*(SHAPE_KEYS[s] for s in allowed)), where)
     kind = table.get("shape", "box")
     if kind not in allowed:
         raise ValueError(f"{where}.shape = {kind!r}: must be one of {', '.join(allowed)}")
-    _check_keys(table, extra | SHAPE_KEYS[kind], where)
+    _check_keys(table, extra | SHAPE_KEYS[kind] | (boxed if kind == "box" else set()), where)
     missing = [
         k for k in sorted(SHAPE_KEYS[kind]) if k not in table and k in ("lower", "upper", "center", "radius", "path")
     ]
@@ -138,7 +144,14 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
     obstacles = data.get("obstacles", [])
     emitters = data.get("emitters", [])
     sinks = data.get("sinks", [])
-    for key, value in (("fluids", fluids), ("obstacles", obstacles), ("emitters", emitters), ("sinks", sinks)):
+    probes = data.get("probes", [])
+    for key, value in (
+        ("fluids", fluids),
+        ("obstacles", obstacles),
+        ("emitters", emitters),
+        ("sinks", sinks),
+        ("probes", probes),
+    ):
         if not isinstance(value, list):
             raise ValueError(f"{key}: must be an array of tables ([[{key}]])")
     physics = _check_keys(data.get("physics", {}), _fields(Physics), "physics")
@@ -163,6 +176,7 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         camera=Camera(**camera),
         emitters=[_record(Emitter, e, f"emitters[{k}]") for k, e in enumerate(emitters)],
         sinks=[_record(Sink, s, f"sinks[{k}]") for k, s in enumerate(sinks)],
+        probes=[_record(Probe, p, f"probes[{k}]") for k, p in enumerate(probes)],
         max_particles=data.get("max_particles"),
     )
     return scene.validate()
@@ -183,6 +197,10 @@ def _shape_table(shape) -> dict:
         }
         if shape.shell:
             table["shell"] = True
+    if getattr(shape, "name", None) is not None:
+        table["name"] = shape.name
+    if getattr(shape, "sampling", "cells") != "cells":
+        table["sampling"] = shape.sampling
     if shape.motion is not None:
         table["motion"] = _settings_table(shape.motion)
     return table
@@ -210,6 +228,7 @@ def scene_to_dict(scene: Scene) -> dict:
         "camera": _settings_table(scene.camera),
         "emitters": [_settings_table(e) for e in scene.emitters],
         "sinks": [_settings_table(s) for s in scene.sinks],
+        **({"probes": [_settings_table(p) for p in scene.probes]} if scene.probes else {}),
         **({"max_particles": scene.max_particles} if scene.max_particles is not None else {}),
     }
 

@@ -72,7 +72,9 @@ class SurfaceSettings(Record):
 class Output(Record):
     """What a run writes: ``fps`` frames per simulated second over ``duration`` seconds,
     particle files (``particles``, in ``format``: ``ply`` or ``vtu``), surface meshes (``mesh``),
-    and the full state every ``checkpoint_every`` frames (0: never) for ``warp-iisph run --resume``."""
+    and the full state every ``checkpoint_every`` frames (0: never) for ``warp-iisph run --resume``;
+    the probes (``[[probes]]``) are sampled at the end of the first step at or after every
+    multiple of ``probe_interval`` seconds (0: every step)."""
 
     fps: float = 30.0
     duration: float = 2.0
@@ -80,6 +82,7 @@ class Output(Record):
     mesh: bool = False
     checkpoint_every: int = 1
     format: str = "ply"
+    probe_interval: float = 0.0
 
     def validate(self) -> None:
         self.fps = in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
@@ -93,6 +96,9 @@ class Output(Record):
             )
         if self.format not in PARTICLE_FORMATS:
             raise ValueError(f"output.format = {self.format!r}: must be one of {', '.join(PARTICLE_FORMATS)}")
+        self.probe_interval = in_range(
+            self.probe_interval, "output.probe_interval", 0.0, 1.0e6, "seconds between probe samples, 0: every step"
+        )
 
 
 @dataclass

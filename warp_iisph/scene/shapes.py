@@ -28,16 +28,29 @@ def _check_motion(shape, name: str) -> None:
     shape.motion.validate(f"{name}.motion")
 
 
+# obstacles[k].sampling of a box: boundary particles in the cells its faces cross, or in layers
+# inside its faces (see Box)
+BOX_SAMPLING = ("cells", "faces")
+
+
 @dataclass
 class Box(Record):
-    """Axis-aligned box from ``lower`` to ``upper`` (metres); an obstacle may move (``motion``)."""
+    """Axis-aligned box from ``lower`` to ``upper`` (metres); an obstacle may move (``motion``),
+    have a ``name`` (probes refer to it) and be sampled (``sampling``) as a mesh is, one boundary
+    particle per grid cell its faces cross (``"cells"``, the liquid then rests about h/2 beyond
+    the faces), or as the tank's walls are, inside out (``"faces"``: two staggered layers h/2
+    and h inside its faces, so that the liquid rests against the faces themselves)."""
 
     lower: tuple
     upper: tuple
     motion: Optional[Motion] = None
+    name: Optional[str] = None
+    sampling: str = "cells"
 
     def validate(self, name: str) -> None:
         self.lower, self.upper = box_corners(self.lower, self.upper, name)
+        if self.sampling not in BOX_SAMPLING:
+            raise ValueError(f"{name}.sampling = {self.sampling!r}: must be one of {', '.join(BOX_SAMPLING)}")
         _check_motion(self, name)
 
     @property
@@ -47,11 +60,13 @@ class Box(Record):
 
 @dataclass
 class Sphere(Record):
-    """Ball of ``radius`` around ``center`` (metres); an obstacle may move (``motion``)."""
+    """Ball of ``radius`` around ``center`` (metres); an obstacle may move (``motion``) and have a
+    ``name``."""
 
     center: tuple
     radius: float
     motion: Optional[Motion] = None
+    name: Optional[str] = None
 
     def validate(self, name: str) -> None:
         self.center = floats(position(self.center, f"{name}.center"))
@@ -79,6 +94,7 @@ class MeshShape(Record):
     base_dir: str = "."
     shell: bool = False
     motion: Optional[Motion] = None
+    name: Optional[str] = None
 
     def validate(self, name: str) -> None:
         if not isinstance(self.path, str) or not self.path:

@@ -13,7 +13,7 @@ from ..sph.neighbors import FIRST_STRIDE, LIST_ENTRIES_LIMIT, cell_order, make_g
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
 from .rasterize import clear_fluid, sample_mesh
-from .sampling import sample_fluid, sample_tank_walls
+from .sampling import sample_box_faces, sample_fluid, sample_tank_walls
 
 # Largest initial compression (fraction of rho0) a fluid particle beside a mesh may start with.
 INITIAL_COMPRESSION = 0.005
@@ -27,13 +27,13 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
     ph = scene.physics
     meshes = _shape_meshes(scene)
     _check_memory(*(int(c) for c in scene.particle_estimate()), device)  # before sampling allocates anything
-    xf, xb, bodies = sample_scene(scene, device, meshes)
+    xf, xb, bodies, owner = sample_scene(scene, device, meshes)
     if len(xf) == 0 and not scene.emitters:
         raise ValueError(f"fluids: no particle fits at spacing = {h} m; make the blocks larger or the spacing smaller")
     n_moving = sum(len(rest) for _, rest in bodies)
     _check_memory(len(xf), len(xb) + n_moving, device)
     H = 2.0 * h
-    xb_dev = _cell_sorted(xb, H, device)
+    xb_dev, owner = _cell_sorted(xb, H, device, owner)
     psi = compute_boundary_psi(xb_dev, h, ph.rho0, device)
     moving = None
     if bodies:
@@ -50,6 +50,8 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         xb_dev = wp.array(np.concatenate([xb_dev.numpy(), at_start]).astype(np.float32), dtype=wp.vec3, device=device)
         psi = wp.array(np.concatenate(psis).astype(np.float32), dtype=float, device=device)
         moving = MovingBodies([m for m, _ in bodies], rest, body_of, len(xb), device)
+        movers = [k for k, o in enumerate(scene.obstacles) if o.motion is not None]
+        owner = np.concatenate([owner, np.asarray(movers, dtype=np.int32)[body_of]])
     if scene.obstacles or not isinstance(scene.tank, Box):
         # Rasterised meshes are not a calibrated wall: fluid sampled where they make it denser
         # than rest is left out rather than kicked away in the first step.
@@ -71,6 +73,7 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         boundary_psi=psi,
         boundary_v=wp.zeros(max(xb_dev.shape[0], 1), dtype=wp.vec3, device=device),
         boundary_a=wp.zeros(max(xb_dev.shape[0], 1), dtype=wp.vec3, device=device),
+        boundary_owner=wp.array((owner if len(owner) else np.full(1, -1)).astype(np.int32), device=device),
         bodies=moving,
         containment=_containment(scene, meshes, h, moving, device),
         domain_lower=lo - margin,
@@ -128,11 +131,12 @@ def _placed(motion, points: np.ndarray, time: float) -> np.ndarray:
     return points @ m[:3, :3].T + m[:3, 3]
 
 
-def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.ndarray, list]:
+def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
     """Fluid particles, the static boundary particles (tank and still obstacles) and, per moving
     obstacle, its motion and its boundary particles where the scene places it (``meshes``: the
-    shapes' meshes, from :func:`_shape_meshes`). A scene without obstacles and with a box tank
-    costs no mesh work; fluid overlapping an obstacle (where it is at t = 0) or outside a mesh
+    shapes' meshes, from :func:`_shape_meshes`), and which shape each static boundary particle
+    belongs to (its obstacle's index, -1 for the tank). A scene without obstacles and with a box
+    tank costs no mesh work; fluid overlapping an obstacle (where it is at t = 0) or outside a mesh
     container is dropped."""
     h = scene.spacing
     box_tank = isinstance(scene.tank, Box)
@@ -140,9 +144,15 @@ def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.nda
     walls = [sample_tank_walls(scene.tank, h)] if box_tank else []
     shapes = ([] if box_tank else [scene.tank]) + list(scene.obstacles)
     if not shapes:
-        return xf, walls[0], []
+        return xf, walls[0], [], np.full(len(walls[0]), -1, dtype=np.int32)
     trimeshes = [meshes[id(s)] for s in shapes]
-    sampled = [sample_mesh(m.vertices, m.faces, h, device) for m in trimeshes]
+    sampled = [
+        sample_box_faces(s, h)
+        if getattr(s, "sampling", "cells") == "faces"
+        else sample_mesh(m.vertices, m.faces, h, device)
+        for s, m in zip(shapes, trimeshes)
+    ]
+    labels = ([] if box_tank else [-1]) + list(range(len(scene.obstacles)))
     # where everything is at t = 0: moving bodies as their first keyframe places them
     start = [_placed(o.motion, x, 0.0) if getattr(o, "motion", None) else x for x, o in zip(sampled, shapes)]
     solids = [
@@ -153,20 +163,27 @@ def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.nda
     containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
     xf = clear_fluid(xf, np.concatenate(start), solids, h, containers, device)
     still = walls + [x for x, o in zip(sampled, shapes) if not getattr(o, "motion", None)]
+    owner = [np.full(len(w), -1) for w in walls] + [
+        np.full(len(x), k) for x, o, k in zip(sampled, shapes, labels) if not getattr(o, "motion", None)
+    ]
     bodies = [(o.motion, x) for x, o in zip(sampled, shapes) if getattr(o, "motion", None)]
-    return xf, np.concatenate(still) if still else np.zeros((0, 3)), bodies
+    if not still:
+        return xf, np.zeros((0, 3)), bodies, np.zeros(0, dtype=np.int32)
+    return xf, np.concatenate(still), bodies, np.concatenate(owner).astype(np.int32)
 
 
-def _cell_sorted(points: np.ndarray, H: float, device) -> wp.array:
-    """Upload points sorted by hash-grid cell, so that neighbouring walls are close in memory."""
+def _cell_sorted(points: np.ndarray, H: float, device, labels: np.ndarray) -> tuple[wp.array, np.ndarray]:
+    """Upload points sorted by hash-grid cell, so that neighbouring walls are close in memory;
+    ``labels`` (one per point) in the same order."""
     arr = wp.array(points.astype(np.float32), dtype=wp.vec3, device=device)
     if len(points) == 0:
-        return arr
+        return arr, labels
     grid = make_grid(device)
     grid.build(arr, H)
     order = wp.zeros(len(points), dtype=wp.int32, device=device)
     wp.launch(cell_order, dim=len(points), inputs=[grid.id, order], device=device)
-    return wp.array(points[order.numpy()].astype(np.float32), dtype=wp.vec3, device=device)
+    order = order.numpy()
+    return wp.array(points[order].astype(np.float32), dtype=wp.vec3, device=device), labels[order]
 
 
 # Bytes per fluid particle: state, solver scratch and about 40 neighbour entries of 20 bytes

@@ -36,6 +36,7 @@ class Model:
     domain_upper: np.ndarray
     boundary_v: wp.array = None  # zero for still walls; moving obstacles' particles carry their velocity
     boundary_a: wp.array = None  # and their acceleration (the walls' extrapolated pressure uses it)
+    boundary_owner: wp.array = None  # each boundary particle's obstacle (its index in the scene), -1: the tank
     bodies: Optional[MovingBodies] = None  # the moving obstacles: the last boundary particles
     containment: Optional[Containment] = None  # the walls no particle may be beyond after a step
     capacity: int = 0  # fluid particles the arrays hold at most (more than n_fluid with emitters)

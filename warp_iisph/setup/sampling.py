@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import Box, Sphere
+from ..scene.checks import floats
 
 
 def _axis(lo: float, hi: float, h: float) -> np.ndarray:
@@ -81,6 +82,20 @@ def sample_tank_walls(tank: Box, h: float) -> np.ndarray:
     """
     lo, hi = tank.bounds
     return np.concatenate([_box_shell(lo, hi, h, 0.5 * h), _box_shell(lo, hi, h, h)], axis=0)
+
+
+def sample_box_faces(box: Box, h: float) -> np.ndarray:
+    """Boundary particles of a box obstacle as :func:`sample_tank_walls` samples a tank, inside
+    out: two staggered layers h/2 and h inside its faces, so that a fluid particle resting against
+    a face is one spacing from the inner layer and its volume ends at the face, and the weights
+    ``psi`` calibrated on the tank's walls hold for it. Needs every side at least 3 h long."""
+    lo, hi = box.bounds
+    if np.any(hi - lo < 3.0 * h - 1e-9):
+        raise ValueError(
+            f"sampling = 'faces': every side of the box must be at least 3 spacings ({3 * h:g} m) long; "
+            f"it is {floats(hi - lo)}"
+        )
+    return np.concatenate([_box_shell(lo, hi, h, -0.5 * h), _box_shell(lo, hi, h, -h)], axis=0)
 
 
 def flat_wall_patch(h: float, half_width: int = 4) -> tuple[np.ndarray, np.ndarray]:

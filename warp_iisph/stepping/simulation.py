@@ -15,6 +15,7 @@ from ..setup import build_model
 from ..sph.solvers import make_solver
 from .flows import Flows
 from .graph import LoopGraph
+from .probing import ProbeSampler, ProbeSamples
 from .time_loop import TimeLoop
 
 
@@ -47,10 +48,12 @@ class Simulation:
         graph: bool = False,
         history: Optional[int] = None,
         until: Optional[float] = None,
+        probe_history: Optional[int] = None,
     ):
         """``history``: how many step records ``stats`` keeps (``None``: every one; a long run that
-        writes them to disk keeps the last few, so memory stays flat). ``until``: how long it will
-        run (s), for the room emitters need (default: the scene's ``output.duration``)."""
+        writes them to disk keeps the last few, so memory stays flat); ``probe_history`` the same
+        for the probes' samples (``probes``). ``until``: how long it will run (s), for the room
+        emitters need (default: the scene's ``output.duration``)."""
         init_warp()
         # its own validated copy, read-only: a change to the scene (or to sim.physics) after this
         # point would otherwise reach the run without validation
@@ -81,6 +84,9 @@ class Simulation:
         self.flows = Flows(self.scene, self.state, self.device)
         self.flows.emit(self.time)  # the layers due at the start are there from the start
         self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)
+        self.loop.probes = ProbeSampler(self.scene, self.model, self.loop.capacity) if self.scene.probes else None
+        # the probes' samples, as NumPy arrays by column name (empty for a scene without probes)
+        self.probes = ProbeSamples(self.loop.probes.columns if self.loop.probes else [], probe_history)
         # graph=True replays the recorded loop over steps (see .graph); the plain path launches the
         # same step body from Python, times every stage, and is the reference the graph is tested against
         self.graph = LoopGraph(self.loop) if graph else None
@@ -140,6 +146,8 @@ class Simulation:
             records = [self.loop.plain_step()]
         else:
             records = self.graph.replay(restart)
+        if self.loop.probes:
+            self.probes.add(self.loop.probes.rows(len(records)))
         for record in records:
             yield self._accept(record)
 

@@ -185,6 +185,7 @@ class TimeLoop:
         self.log = wp.zeros((self.capacity, len(self.fields)), dtype=f64, device=dev)
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
         self.rule, self.clock, self.substeps, self.statistics = self._structs()
+        self.probes = None  # a scene's probes (.probing.ProbeSampler), sampled at the end of a step
 
     def _structs(self) -> tuple[StepRule, Clock, Substeps, StepStatistics]:
         """The kernels' views of the loop's settings and device state (the same arrays)."""
@@ -235,6 +236,8 @@ class TimeLoop:
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
             wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x, state.n)))
+        if self.probes:
+            self.probes.before_step(state)
         solver.launch_step(model, state, timer, sync=sync)
         search = solver.search
         with timer("integration") if timer else nullcontext():
@@ -256,6 +259,8 @@ class TimeLoop:
                 ],
             )
             max_into(self.speed2, state.n, self.max_speed2)
+        if self.probes:
+            self.probes.sample(state, solver, self.time, self.dt64, self.max_speed2, self.slot)
         for column, value in enumerate(self.extra.values(), len(LOG_FIELDS)):  # before record_step moves the slot on
             if value.dtype == wp.float64:
                 wp.launch(record_mean, dim=1, device=dev, inputs=[self.slot, max(state.n, 1), value, column, self.log])

@@ -1,0 +1,354 @@
+"""Probes: their keys checked, their samples the same bits on every path and across a resume
+(and the run itself unchanged by them), probes.csv and its chart, and readings that are right
+where the answer is known: water at rest, a box's buoyancy, the column on a box, the pressure
+of a column at the instant of release."""
+
+import numpy as np
+import pytest
+
+import warp_iisph.engine.launch as launch
+from warp_iisph import Box, Probe, Scene, Simulation
+from warp_iisph.cli import main
+from warp_iisph.run.probe_file import read_probes
+from warp_iisph.scene import SceneFileError, load_scene, scene_from_dict, scene_to_dict
+
+SCENE = """
+name = "probed"
+spacing = 0.04
+[tank]
+lower = [0.0, 0.0, 0.0]
+upper = [0.8, 0.5, 0.2]
+[[fluids]]
+lower = [0.0, 0.0, 0.0]
+upper = [0.24, 0.4, 0.2]
+[[obstacles]]
+name = "block"
+lower = [0.52, 0.0, 0.04]
+upper = [0.64, 0.12, 0.16]
+sampling = "faces"
+[output]
+fps = 20
+duration = 0.3
+{output}
+[[probes]]
+name = "wall"
+kind = "pressure"
+position = [0.0, 0.05, 0.1]
+normal = [1.0, 0.0, 0.0]
+[[probes]]
+name = "face"
+kind = "pressure"
+position = [0.52, 0.04, 0.1]
+normal = [-1.0, 0.0, 0.0]
+[[probes]]
+name = "gauge"
+kind = "level"
+position = [0.1, 0.1]
+[[probes]]
+name = "load"
+kind = "force"
+obstacle = "block"
+{probes}
+"""
+
+
+def scene_file(tmp_path, output="", probes="", name="scene.toml"):
+    path = tmp_path / name
+    path.write_text(SCENE.format(output=output, probes=probes))
+    return path
+
+
+def _probe(*lines):
+    return "\n".join(["[[probes]]", 'name = "x"', *lines])
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (_probe('kind = "velocity"'), r"probes\[4\]\.kind = 'velocity': must be one of pressure, level"),
+        (_probe('kind = "pressure"', "position = [0.1, 0.1, 0.1]"), r"probes\[4\]\.normal: required"),
+        (
+            _probe('kind = "level"', "position = [0.1, 0.1]", "normal = [1, 0, 0]"),
+            r"probes\[4\]\.normal: not a key of a level probe",
+        ),
+        (_probe('kind = "level"', "position = [0.1, 0.1, 0.1]"), r"probes\[4\]\.position = .*two finite numbers"),
+        (
+            _probe('kind = "level"', "position = [2.0, 0.1]"),
+            r"probes\[4\]\.position = \[2\.0, 0\.1\]: \[x, z\] must lie",
+        ),
+        (
+            _probe('kind = "pressure"', "position = [0.1, 0.1, 0.1]", "normal = [0, 0, 0]"),
+            r"probes\[4\]\.normal = .*must be non-zero",
+        ),
+        (
+            _probe('kind = "force"', 'obstacle = "post"'),
+            r"probes\[4\]\.obstacle = 'post': no obstacle has that name \(named: 'block'\)",
+        ),
+        (
+            _probe('kind = "force"', "obstacle = 3"),
+            r"probes\[4\]\.obstacle = 3: must be an obstacle's name or its index in \[0, 0\]",
+        ),
+        (
+            '[[probes]]\nname = "gauge"\nkind = "level"\nposition = [0.2, 0.1]',
+            r"probes\[4\]\.name = 'gauge': another probe has that name",
+        ),
+        (
+            '[[probes]]\nname = "a,b"\nkind = "level"\nposition = [0.2, 0.1]',
+            r"probes\[4\]\.name = 'a,b': must be 1-64 letters",
+        ),
+        (_probe('kind = "level"', "position = [0.2, 0.1]", "colour = 1"), r"probes\[4\]\.colour: unknown key"),
+        (
+            _probe('kind = "level"', "position = [0.2, 0.1]", "bottom = 0.6"),
+            r"probes\[4\]\.bottom = 0\.6: must be in \[0, 0\.5\]",
+        ),
+    ],
+)
+def test_probe_keys_are_checked(tmp_path, extra, message):
+    with pytest.raises(SceneFileError, match=r"scene\.toml: " + message):
+        load_scene(scene_file(tmp_path, probes=extra))
+
+
+def test_bad_probe_settings_stop_the_command_with_one_line(tmp_path, capsys):
+    path = scene_file(tmp_path, output="probe_interval = -1")
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "scene.toml: output.probe_interval = -1: must be in [0, 1e+06]" in err
+    bad = SCENE.format(output="", probes="").replace('sampling = "faces"', 'sampling = "layers"')
+    (tmp_path / "bad.toml").write_text(bad)
+    assert main(["run", str(tmp_path / "bad.toml"), "--no-progress"]) == 2
+    assert "obstacles[0].sampling = 'layers': must be one of cells, faces" in capsys.readouterr().err
+
+
+def test_a_scene_with_probes_round_trips(tmp_path):
+    scene = load_scene(scene_file(tmp_path, output="probe_interval = 0.01"))
+    again = scene_from_dict(scene_to_dict(scene))
+    assert again.probes == scene.probes and again.obstacles[0].name == "block"
+    assert again.obstacles[0].sampling == "faces" and again.output.probe_interval == 0.01
+    assert scene.probes[3].point == pytest.approx((0.58, 0.06, 0.1))  # the obstacle's centre by default
+    assert scene.probes[2].bottom == 0.0  # the tank's floor
+
+
+def _run(scene, graph=False, threads=None, duration=0.35):
+    if threads:
+        launch.set_threads(threads)
+    try:
+        sim = Simulation(scene, "cpu", graph=graph)
+        sim.advance(duration)
+    finally:
+        launch.set_threads(launch.available_cores())
+    return sim
+
+
+def test_probes_are_the_same_bits_on_every_path_and_leave_the_run_unchanged(tmp_path, monkeypatch):
+    """Pressure, level and force probes (with wall friction) sampled every step: a plain run on one
+    thread, split over three and replayed as a graph give the same samples, and the same particles
+    as the run without probes."""
+    scene = lambda probes=True: load_scene(  # noqa: E731
+        scene_file(tmp_path),
+        ["physics.boundary_viscosity=0.01"] + ([] if probes else ["probes=[]"]),
+    )
+    bare = _run(scene(False))
+    plain = _run(scene(), threads=1)
+    assert np.array_equal(plain.positions, bare.positions) and np.array_equal(plain.pressures, bare.pressures)
+    monkeypatch.setattr(launch, "MIN_CHUNK", 50)
+    split = _run(scene(), threads=3)
+    graph = _run(scene(), graph=True)
+    reference = plain.probes.array()
+    assert len(reference) == plain.step_count and plain.probes.names[:3] == ["wall", "face", "gauge"]
+    for other in (split, graph):
+        assert np.array_equal(other.probes.array(), reference)
+        assert np.array_equal(other.positions, bare.positions)
+    assert np.all(plain.probes["wall"] > 0.0) and plain.probes["gauge"][-1] > 0.2
+    assert np.any(plain.probes["load.Fv_x"] != 0.0) and np.any(plain.probes["load.Fp_x"] > 1.0)  # the water hit it
+    assert np.all(plain.probes["face"][: plain.probes.time.searchsorted(0.1)] == 0.0)  # dry until the water comes
+
+
+def test_probe_interval_samples_the_first_step_at_or_after_each_multiple(tmp_path):
+    sim = _run(load_scene(scene_file(tmp_path, output="probe_interval = 0.02")), duration=0.2)
+    t = sim.probes.time
+    steps = np.cumsum([s["dt"] for s in sim.stats])
+    expected = [steps[np.searchsorted(steps, m - 1e-9)] for m in np.arange(0.02, 0.2 + 1e-9, 0.02)]
+    assert np.allclose(t, expected, rtol=0, atol=1e-12) and len(t) == 10
+
+
+def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys):
+    path = scene_file(tmp_path)
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(["run", str(path), "--out", str(whole), "--no-progress"]) == 0
+    assert main(["run", str(path), "--out", str(cut), "--duration", "0.15", "--no-progress"]) == 0
+    with open(cut / "probes.csv", "a") as f:  # what a run killed after its last checkpoint had written
+        f.write("0.2," + ",".join(["1"] * 15) + "\n0.21,1,2")
+    capsys.readouterr()
+    assert main(["run", "--resume", str(cut), "--duration", "0.3", "--no-progress"]) == 0
+    assert (cut / "probes.csv").read_text() == (whole / "probes.csv").read_text()
+    names, units, rows = read_probes(whole / "probes.csv")
+    assert names[:4] == ["wall", "face", "gauge", "load.Fp_x"] and units[:4] == ["Pa", "Pa", "m", "N"]
+    assert units[-1] == "N m" and len(names) == 3 + 12 and rows.shape[1] == 16
+    assert (whole / "probes.csv").read_text().startswith("t [s],wall [Pa],face [Pa],gauge [m],load.Fp_x [N],")
+    assert main(["plot", str(whole)]) == 0
+    assert (whole / "probes.png").stat().st_size > 10_000
+    assert main(["plot", str(tmp_path / "nowhere")]) == 2
+    assert "no such run folder" in capsys.readouterr().err
+
+
+def test_water_at_rest_reads_its_depth_and_its_pressure_as_the_numpy_sensors_do():
+    """A tank settled for 2 s (the water takes that long to come to rest from its lattice): the
+    gauge reads the water's depth, the wall and floor sensors its
+    hydrostatic pressure at their points, a sensor above the water 0; and every reading is what
+    the NumPy twins (warp_iisph.analysis.sensors, float64) read from the same particles."""
+    from warp_iisph.analysis.sensors import level_readings, pressure_readings
+
+    h, depth = 0.02, 0.32
+    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (0.3, 0.42, 0.12)), name="rest")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (0.3, depth, 0.12))
+    sensors = [("side", (0.0, 0.1, 0.06), (1, 0, 0)), ("floor", (0.15, 0.0, 0.06), (0, 1, 0))]
+    sensors.append(("dry", (0.0, 0.38, 0.06), (1, 0, 0)))
+    for name, at, normal in sensors:
+        scene.add_probe(Probe(name, "pressure", position=at, normal=normal))
+    scene.add_probe(Probe("gauge", "level", position=(0.15, 0.06)))
+    sim = Simulation(scene, "cpu")
+    sim.advance(2.0)
+    got = {n: float(sim.probes[n][-1]) for n in sim.probes.names}
+    x, p, rho = (a.astype(np.float64) for a in (sim.positions, sim.pressures, sim.densities))
+    twin = pressure_readings(x, p, rho, [s[1] for s in sensors], [s[2] for s in sensors], h)
+    assert np.allclose([got[s[0]] for s in sensors], twin, rtol=1e-4, atol=1e-2)
+    (level,) = level_readings(x, [(0.15, 0.06)], 0.0, 0.42 + h, h)
+    assert got["gauge"] == pytest.approx(level, abs=1e-5)
+    top = np.sort(x[:, 1])[-len(x) // 16 :].mean() + 0.5 * h  # the top layer's face
+    assert got["gauge"] == pytest.approx(top, abs=0.25 * h) and abs(got["gauge"] - depth) < 0.5 * h
+    rho_g = 1000.0 * 9.81
+    assert got["side"] == pytest.approx(rho_g * (got["gauge"] - 0.1), rel=0.03)
+    assert got["floor"] == pytest.approx(rho_g * (got["gauge"] - 0.5 * h), rel=0.03)  # settled: -0.4 and -0.9 %
+    assert got["dry"] == 0.0
+
+
+def test_a_level_gauge_ignores_spray_and_bridges_a_short_gap():
+    """The NumPy twin of the gauge (the device's is checked against it above): a droplet cloud
+    above the water does not count, an air pocket thinner than 2h inside it is bridged."""
+    from warp_iisph.analysis.sensors import level_readings
+
+    h = 0.02
+    g = np.arange(0.5, 10) * h
+    water = np.stack(np.meshgrid(g, np.arange(0.5, 15) * h, g, indexing="ij"), -1).reshape(-1, 3)  # 0.3 m deep
+    spray = np.array([[0.1, 0.45, 0.1], [0.11, 0.5, 0.1], [0.1, 0.55, 0.09]])
+    depth = level_readings(water, [(0.1, 0.1)], 0.0, 0.8, h)[0]
+    assert depth == pytest.approx(0.3, abs=0.01)
+    assert level_readings(np.concatenate([water, spray]), [(0.1, 0.1)], 0.0, 0.8, h)[0] == depth
+    pocket = water[np.abs(water[:, 1] - 0.15) > 0.5 * h]  # one layer missing, mid-column
+    assert level_readings(pocket, [(0.1, 0.1)], 0.0, 0.8, h)[0] == pytest.approx(depth, abs=0.01)
+    assert level_readings(water[water[:, 1] > 0.1], [(0.1, 0.1)], 0.0, 0.8, h)[0] == 0.0  # not standing on the floor
+
+
+def test_the_release_pressure_is_harmonic_and_meets_its_conditions():
+    """The exact pressure at the instant of release (analysis.release): Laplace's equation inside,
+    p = 0 on the free surfaces, dp/dx = 0 at the back wall, dp/dy = -rho g at the floor, and the
+    hydrostatic column for a very wide one; 0.3697 rho g H at the foot for the Martin & Moyce
+    column (a = H/2)."""
+    from warp_iisph.analysis.release import release_pressure
+
+    a, H, e = 0.1, 0.2, 1e-4
+    p = lambda x, y: release_pressure(x, y, a, H)  # noqa: E731
+    for x, y in ((0.03, 0.05), (0.07, 0.15), (0.05, 0.1)):
+        lap = (p(x + e, y) + p(x - e, y) + p(x, y + e) + p(x, y - e) - 4 * p(x, y)) / e**2
+        assert abs(lap) < 1e-3 * 9810 / H
+    assert np.allclose(p(np.linspace(0, a, 7), H), 0.0, atol=1e-6) and np.allclose(
+        p(a, np.linspace(0, H, 7)), 0.0, atol=0.1
+    )
+    assert np.allclose((p(e, np.linspace(0.02, 0.18, 5)) - p(0.0, np.linspace(0.02, 0.18, 5))) / e, 0.0, atol=10.0)
+    assert np.allclose((p(np.linspace(0.0, 0.08, 5), e) - p(np.linspace(0.0, 0.08, 5), 0.0)) / e, -9810.0, rtol=2e-3)
+    assert release_pressure(0.0, 0.05, 50.0, H) == pytest.approx(9810 * 0.15, rel=1e-9)
+    assert p(0.0, 0.0) / (9810 * H) == pytest.approx(0.36972, abs=1e-4)
+
+
+@pytest.mark.parametrize("submerged", [True, False])
+def test_a_bar_at_rest_feels_its_buoyancy_or_the_water_above_it(submerged):
+    """A bar through a tank (its ends in the side walls), sampled as the walls are, 8 spacings
+    square, settled 3 s: held clear of the floor its force probe reads rho0 g V upward, standing on
+    the floor the weight of the water above its top, each within 2 % (+0.8 % and -1.3 %; at 6
+    spacings +3.4 % and -2.3 %: the edges' share shrinks with h, benchmarks/validation.py loads)."""
+    h, L, X, depth, W = 0.015, 0.12, 0.30, 0.32, 0.12
+    y0 = 0.105 if submerged else 0.0
+    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (X, depth + 0.1, W)), name="bar")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (X, depth, W))
+    lo, hi = (X / 2 - L / 2, y0, -5 * h), (X / 2 + L / 2, y0 + L, W + 5 * h)
+    scene.add_obstacle(Box(lo, hi, name="bar", sampling="faces"))
+    scene.add_probe(Probe("bar", "force", obstacle="bar"))
+    scene.add_probe(Probe("level", "level", position=(0.03, W / 2)))
+    sim = Simulation(scene, "cpu", history=1)
+    sim.advance(3.0)
+    late = sim.probes.time > 2.5
+    force, level = sim.probes["bar.Fp_y"][late].mean(), sim.probes["level"][late].mean()
+    expected = 9810.0 * L * L * W if submerged else -9810.0 * (level - hi[1]) * L * W
+    assert force == pytest.approx(expected, rel=0.02)
+    assert abs(sim.probes["bar.Fp_x"][late].mean()) < 0.01 * abs(expected)  # nothing sideways
+    assert np.all(sim.probes["bar.Fv_y"] == 0.0)  # free-slip walls: no viscous load
+
+
+@pytest.mark.parametrize("method", ["iisph", "dfsph", "wcsph"])
+def test_the_force_on_an_obstacle_is_the_reaction_of_what_the_fluid_felt(method):
+    """Without gravity and viscosity, a block of water thrown at a box (touching nothing else)
+    changes its momentum by exactly what the box pushed it with, wall friction included: the
+    force probe's pressure and viscous parts are minus that change, step by step (but in the few
+    steps where the last line put particles back)."""
+    scene = Scene(spacing=0.05, tank=Box((0.0, 0.0, 0.0), (1.6, 1.0, 1.0)), name="throw")
+    scene.add_fluid_box((0.3, 0.3, 0.3), (0.6, 0.6, 0.6))
+    scene.add_obstacle(Box((0.75, 0.25, 0.25), (1.0, 0.65, 0.75), name="box", sampling="faces"))
+    scene.add_probe(Probe("F", "force", obstacle="box"))
+    ph = scene.physics
+    ph.method, ph.gravity, ph.viscosity, ph.boundary_viscosity = method, (0.0, 0.0, 0.0), 0.0, 0.02
+    sim = Simulation(scene, "cpu")
+    sim.state.v.assign(np.tile(np.float32([2.0, 0.0, 0.0]), (sim.state.capacity, 1)))
+    m, h = sim.model.mass, scene.spacing
+    hits = 0
+    while True:
+        x = sim.positions
+        if np.any(x < 2 * h) or np.any(x > np.array([1.6, 1.0, 1.0]) - 2 * h):
+            break  # the splash reaches the tank's walls, which push too
+        before = m * sim.velocities.astype(np.float64).sum(axis=0)
+        rec = sim.step()
+        change = (m * sim.velocities.astype(np.float64).sum(axis=0) - before) / rec["dt"]
+        if rec["wall_corrections"] or rec["obstacle_corrections"]:
+            continue  # the last line moved particles: what it took is not a force
+        s = sim.probes.array()[-1]
+        push = s[1:4] + s[4:7]  # pressure and viscous parts on the box
+        assert np.allclose(change, -push, rtol=1e-3, atol=1e-3 * max(1.0, np.abs(push).max())), (rec["t"], change, push)
+        hits += np.abs(s[1]) > 1.0 and np.abs(s[4]) > 0.0
+    assert hits > 10 and sim.time > 0.15  # the block struck the box, its pressure and friction both measured
+    assert sum(bool(s["obstacle_corrections"]) for s in sim.stats) < 0.1 * len(sim.stats)
+
+
+def test_sampling_inside_a_graph_allocates_nothing(tmp_path, monkeypatch):
+    """The probes' launches sit in the loop over steps and in a capture_if of their own: on CUDA a
+    conditional body may not allocate, so (as tests/test_graph.py does for the step) any
+    allocation while one is being recorded fails here, on the CPU."""
+    import warp as wp
+
+    depth, calls = [0], []
+
+    def conditional(real):
+        def wrapped(condition, *args, **kwargs):
+            depth[0] += 1
+            try:
+                return real(condition, *args, **kwargs)
+            finally:
+                depth[0] -= 1
+
+        return wrapped
+
+    def forbidden(name, real):
+        def wrapped(*args, **kwargs):
+            if launch._recording and depth[0]:
+                calls.append(name)
+                raise RuntimeError(f"{name} inside a conditional graph body")
+            return real(*args, **kwargs)
+
+        return wrapped
+
+    monkeypatch.setattr(wp, "capture_while", conditional(wp.capture_while))
+    monkeypatch.setattr(wp, "capture_if", conditional(wp.capture_if))
+    for name in ("empty", "zeros", "full", "empty_like", "zeros_like", "full_like", "clone"):
+        monkeypatch.setattr(wp, name, forbidden(f"wp.{name}", getattr(wp, name)))
+    sim = Simulation(load_scene(scene_file(tmp_path), ["physics.boundary_viscosity=0.01"]), "cpu", graph=True)
+    sim.advance(0.1)
+    assert sim.graph.captures == 1 and sim.graph.replays >= 1 and not calls
+    assert len(sim.probes) == sim.step_count

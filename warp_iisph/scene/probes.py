@@ -1,0 +1,156 @@
+"""Probes: the sensors a scene places (``[[probes]]``), as plain data validated once.
+
+- ``kind = "pressure"``: the pressure a flush-mounted sensor at ``position`` on a wall reads; the
+  wall's ``normal`` points into the liquid.
+- ``kind = "level"``: the height of the water column above ``bottom`` at the gauge's horizontal
+  ``position = [x, z]``.
+- ``kind = "force"``: the force and moment the liquid exerts on the obstacle named ``obstacle``
+  (its name, or its index in ``obstacles``), the moment about ``point`` (default: the centre of
+  the obstacle's bounds), pressure and viscous parts apart.
+
+How each is measured is the device's business (:mod:`warp_iisph.sph.probes`); what a probe writes
+is :func:`probe_columns`. No Warp here.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Optional, Union
+
+import numpy as np
+
+from .checks import Record, floats, in_range, position, vec3
+
+PROBE_KINDS = ("pressure", "level", "force")
+# the keys each kind takes besides name and kind
+KIND_KEYS = {"pressure": ("position", "normal"), "level": ("position", "bottom"), "force": ("obstacle", "point")}
+REQUIRED = {"pressure": ("position", "normal"), "level": ("position",), "force": ("obstacle",)}
+# a probe's name heads columns of probes.csv: letters, digits, _ - . only
+NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+# a force probe's columns, after its name: the pressure and viscous parts of the force and moment
+FORCE_PARTS = ("Fp", "Fv", "Mp", "Mv")
+
+
+@dataclass
+class Probe(Record):
+    """One sensor (see the module). ``position``: a point (m) for a pressure probe, ``[x, z]``
+    (m) for a level gauge; ``bottom``: the height (m) a gauge measures from (default: the tank's
+    floor); ``obstacle``: a name or an index; ``point``: the moment's centre (m)."""
+
+    name: str
+    kind: str
+    position: Optional[tuple] = None
+    normal: Optional[tuple] = None
+    bottom: Optional[float] = None
+    obstacle: Optional[Union[str, int]] = None
+    point: Optional[tuple] = None
+
+    def validate(self, where: str, tank_bounds, obstacles: list) -> None:
+        """Check every value against the scene's tank and obstacles, and normalise it."""
+        if not isinstance(self.name, str) or not NAME.match(self.name):
+            raise ValueError(
+                f"{where}.name = {self.name!r}: must be 1-64 letters, digits, '_', '-' or '.' (it heads a column)"
+            )
+        if self.kind not in PROBE_KINDS:
+            raise ValueError(f"{where}.kind = {self.kind!r}: must be one of {', '.join(PROBE_KINDS)}")
+        allowed = KIND_KEYS[self.kind]
+        for key in ("position", "normal", "bottom", "obstacle", "point"):
+            if getattr(self, key) is not None and key not in allowed:
+                raise ValueError(
+                    f"{where}.{key}: not a key of a {self.kind} probe; it takes {', '.join(('name', 'kind') + allowed)}"
+                )
+        for key in REQUIRED[self.kind]:
+            if getattr(self, key) is None:
+                raise ValueError(f"{where}.{key}: required for kind = {self.kind!r}")
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in tank_bounds)
+        if self.kind == "pressure":
+            p = position(self.position, f"{where}.position")
+            if np.any(p < lo) or np.any(p > hi):
+                raise ValueError(
+                    f"{where}.position = {list(floats(p))}: must lie inside the tank {floats(lo)}..{floats(hi)}"
+                )
+            n = vec3(self.normal, f"{where}.normal")
+            length = float(np.linalg.norm(n))
+            if not length > 0.0:
+                raise ValueError(
+                    f"{where}.normal = {self.normal!r}: must be non-zero (the wall's normal, into the liquid)"
+                )
+            self.position, self.normal = floats(p), floats(n / length)
+        elif self.kind == "level":
+            xz = _pair(self.position, f"{where}.position")
+            if not (lo[0] <= xz[0] <= hi[0] and lo[2] <= xz[1] <= hi[2]):
+                raise ValueError(
+                    f"{where}.position = {list(xz)}: [x, z] must lie inside the tank's "
+                    f"[{lo[0]:g}, {hi[0]:g}] x [{lo[2]:g}, {hi[2]:g}]"
+                )
+            self.position = xz
+            self.bottom = in_range(
+                lo[1] if self.bottom is None else self.bottom,
+                f"{where}.bottom",
+                lo[1],
+                hi[1],
+                "m, a height in the tank",
+            )
+            if self.bottom >= hi[1]:
+                raise ValueError(f"{where}.bottom = {self.bottom!r}: must lie below the tank's top {hi[1]:g}")
+        else:
+            k = obstacle_index(self.obstacle, obstacles, f"{where}.obstacle")
+            if self.point is None:
+                o_lo, o_hi = obstacles[k].bounds
+                self.point = floats(0.5 * (o_lo + o_hi))
+            else:
+                self.point = floats(position(self.point, f"{where}.point"))
+
+
+def _pair(value, name: str) -> tuple:
+    try:
+        if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, str)) for c in value):
+            raise TypeError
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {value!r}: must be two numbers [x, z]") from None
+    if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} = {value!r}: must be two finite numbers [x, z]")
+    return floats(arr)
+
+
+def obstacle_index(ref, obstacles: list, name: str) -> int:
+    """The index in ``obstacles`` of the obstacle ``ref`` names (its ``name``, or its index)."""
+    names = [getattr(o, "name", None) for o in obstacles]
+    if isinstance(ref, str):
+        if ref in names:
+            return names.index(ref)
+        known = ", ".join(repr(n) for n in names if n) or "none has a name"
+        raise ValueError(f"{name} = {ref!r}: no obstacle has that name (named: {known})")
+    if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool) and 0 <= ref < len(obstacles):
+        return int(ref)
+    raise ValueError(
+        f"{name} = {ref!r}: must be an obstacle's name or its index in [0, {len(obstacles) - 1}]"
+        if obstacles
+        else f"{name} = {ref!r}: the scene has no obstacles"
+    )
+
+
+def validate_probes(probes: list, tank_bounds, obstacles: list) -> None:
+    """Every probe checked (``ValueError`` naming ``probes[k].key``), names unique."""
+    seen = set()
+    for k, p in enumerate(probes):
+        where = f"probes[{k}]"
+        if not isinstance(p, Probe):
+            raise ValueError(f"{where} = {p!r}: must be a probe")
+        p.validate(where, tank_bounds, obstacles)
+        if p.name in seen:
+            raise ValueError(f"{where}.name = {p.name!r}: another probe has that name")
+        seen.add(p.name)
+
+
+def probe_columns(probe: Probe) -> list[tuple[str, str]]:
+    """The columns a probe writes, as (name, unit): one for a pressure probe (Pa) or a level
+    gauge (m); for a force probe ``NAME.Fp_x`` .. ``NAME.Mv_z``: the pressure (p) and viscous (v)
+    parts of the force (N) and of the moment about its point (N m), component by component."""
+    if probe.kind == "pressure":
+        return [(probe.name, "Pa")]
+    if probe.kind == "level":
+        return [(probe.name, "m")]
+    return [(f"{probe.name}.{part}_{axis}", "N" if part[0] == "F" else "N m") for part in FORCE_PARTS for axis in "xyz"]

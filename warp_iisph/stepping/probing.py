@@ -1,0 +1,256 @@
+"""Sampling a scene's probes inside the loop over steps: the schedule, the device reads and a log
+of samples beside the time loop's step log, all preallocated and decided on the device, so the
+sampling sits in a captured graph as the steps do.
+
+A step ends with :meth:`ProbeSampler.sample`: whether a sample is due (every step, or the first
+step ending at or after each multiple of ``output.probe_interval``), and if so every probe's
+reading in the step's row of the log (row = the time loop's slot; its first column is the time,
+or -1 where the step took no sample). The host reads the rows the loop filled
+(:meth:`ProbeSampler.rows`) into :class:`ProbeSamples`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ..scene.probes import obstacle_index, probe_columns
+from ..sph.loads import ObstacleLoads
+from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
+
+# a step ending this close (a fraction of the interval) before a multiple of it reaches it
+SCHEDULE_SLACK = wp.constant(wp.float64(1.0e-9))
+
+
+@wp.kernel
+def sample_due(
+    time: wp.array(dtype=wp.float64),
+    dt: wp.array(dtype=wp.float64),
+    interval: wp.float64,
+    slot: wp.array(dtype=wp.int32),
+    due: wp.array(dtype=wp.int32),
+    log: wp.array2d(dtype=wp.float64),
+):
+    """Whether the step from ``time`` to ``time + dt`` samples: every step, or where it reaches
+    a multiple of the interval it had not reached at its start (nothing to keep between steps,
+    so a resumed run or a redone replay samples as the run that never stopped); the row's time."""
+    t0 = time[0]
+    t = t0 + dt[0]
+    d = int(1)
+    if interval > wp.float64(0.0):
+        slack = wp.float64(SCHEDULE_SLACK)
+        d = wp.where(wp.floor(t / interval + slack) > wp.floor(t0 / interval + slack), 1, 0)
+    due[0] = d
+    log[slot[0], 0] = wp.where(d != 0, t, wp.float64(-1.0))
+
+
+@wp.kernel
+def force_columns(
+    totals: wp.array2d(dtype=wp.float64),
+    slot_of_probe: wp.array(dtype=wp.int32),
+    shift: wp.array(dtype=wp.vec3d),
+    slot: wp.array(dtype=wp.int32),
+    column: int,
+    log: wp.array2d(dtype=wp.float64),
+):
+    """Force probe k's twelve columns: its obstacle's totals, the moments moved from the
+    obstacle's reference point to the probe's (``shift`` = reference - point: M' = M + shift x F)."""
+    k = wp.tid()
+    s = slot_of_probe[k]
+    row = slot[0]
+    base = column + 12 * k
+    d = shift[k]
+    for part in range(2):
+        f = wp.vec3d(totals[s, 3 * part], totals[s, 3 * part + 1], totals[s, 3 * part + 2])
+        m = wp.vec3d(totals[s, 6 + 3 * part], totals[s, 7 + 3 * part], totals[s, 8 + 3 * part]) + wp.cross(d, f)
+        for a in range(3):
+            log[row, base + 3 * part + a] = f[a]
+            log[row, base + 6 + 3 * part + a] = m[a]
+
+
+class ProbeSampler:
+    """The device side of a scene's probes on ``model`` (see the module); ``capacity`` rows, one
+    per step of a loop (the time loop's log capacity). Columns: ``t`` then :attr:`columns`, the
+    probes' own in scene order within each kind: pressure probes, level gauges, force probes."""
+
+    def __init__(self, scene, model, capacity: int):
+        self.model = model
+        dev = model.device
+        h, H = model.spacing, model.support_radius
+        self.interval = float(scene.output.probe_interval)
+        self.pressure = [p for p in scene.probes if p.kind == "pressure"]
+        self.levels = [p for p in scene.probes if p.kind == "level"]
+        self.forces = [p for p in scene.probes if p.kind == "force"]
+        self.probes = self.pressure + self.levels + self.forces
+        self.columns = [c for p in self.probes for c in probe_columns(p)]
+        self.log = wp.zeros((int(capacity), 1 + len(self.columns)), dtype=wp.float64, device=dev)
+        self.due = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.gravity = wp.vec3(*model.physics.gravity)
+        # a sensor reads half a spacing into the liquid, where the first layer of particles sits
+        moved = [np.add(p.position, 0.5 * h * np.asarray(p.normal)) for p in self.pressure]
+        self.points = wp.array(np.array(moved, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=dev)
+        top = float(model.domain_upper[1])
+        self.dy = 0.5 * h
+        self.samples = max(1, int(np.ceil(max(top - min((g.bottom for g in self.levels), default=top), 0.0) / self.dy)))
+        self.gauges = wp.array(
+            np.array([(g.position[0], g.bottom, g.position[1]) for g in self.levels], dtype=np.float32).reshape(-1, 3),
+            dtype=wp.vec3,
+            device=dev,
+        )
+        self.phi = wp.zeros(max(1, len(self.levels) * self.samples), dtype=wp.float64, device=dev)
+        index = {p.name: obstacle_index(p.obstacle, scene.obstacles, p.name) for p in self.forces}
+        obstacles = list(dict.fromkeys(index.values()))  # each measured obstacle once
+        refs = {}  # an obstacle's moments are summed about its first probe's point
+        for p in self.forces:
+            refs.setdefault(index[p.name], p.point)
+        self.loads = ObstacleLoads(model, obstacles, [refs[k] for k in obstacles]) if self.forces else None
+        self.slot_of_probe = wp.array(
+            np.array([obstacles.index(index[p.name]) for p in self.forces], dtype=np.int32),
+            dtype=wp.int32,
+            device=dev,
+        )
+        self.shift = wp.array(
+            np.array([np.subtract(refs[index[p.name]], p.point) for p in self.forces], dtype=np.float64).reshape(-1, 3),
+            dtype=wp.vec3d,
+            device=dev,
+        )
+        self.H, self.h = H, h
+
+    def __bool__(self) -> bool:
+        return bool(self.probes)
+
+    def before_step(self, state) -> None:
+        """What a force probe needs from the step's start (after the reorder)."""
+        if self.loads is not None:
+            self.loads.keep_start(state)
+
+    def sample(self, state, solver, time: wp.array, dt: wp.array, max_speed2: wp.array, slot: wp.array) -> None:
+        """At a step's end, before the clock moves: the row ``slot`` of the log."""
+        wp.launch(
+            sample_due,
+            dim=1,
+            inputs=[time, dt, wp.float64(self.interval), slot, self.due, self.log],
+            device=self.model.device,
+        )
+        wp.capture_if(self.due, lambda: self.read(state, solver, dt, max_speed2, slot))
+
+    def read(self, state, solver, dt: wp.array, max_speed2: wp.array, slot: wp.array) -> None:
+        """Every probe's reading into the log's row ``slot``."""
+        model, dev = self.model, self.model.device
+        grid = solver.search.grid.grid
+        around = Reach()
+        around.H, around.h, around.dt, around.max_speed2 = self.H, self.h, dt, max_speed2
+        column = 1
+        if self.pressure:
+            wp.launch(
+                pressure_probes,
+                dim=len(self.pressure),
+                inputs=[
+                    grid,
+                    state.x,
+                    state.p,
+                    state.rho,
+                    self.points,
+                    self.gravity,
+                    model.mass,
+                    around,
+                    slot,
+                    column,
+                    self.log,
+                ],
+                device=dev,
+            )
+            column += len(self.pressure)
+        if self.levels:
+            wp.launch(
+                occupancy,
+                dim=(len(self.levels), self.samples),
+                inputs=[
+                    grid,
+                    state.x,
+                    self.gauges,
+                    self.samples,
+                    self.dy,
+                    model.mass / model.physics.rho0,
+                    around,
+                    self.phi,
+                ],
+                device=dev,
+            )
+            wp.launch(
+                gauge_levels,
+                dim=len(self.levels),
+                inputs=[self.phi, self.samples, self.dy, self.H, slot, column, self.log],
+                device=dev,
+            )
+            column += len(self.levels)
+        if self.forces:
+            self.loads.compute(state, solver)
+            wp.launch(
+                force_columns,
+                dim=len(self.forces),
+                inputs=[self.loads.totals, self.slot_of_probe, self.shift, slot, column, self.log],
+                device=dev,
+            )
+
+    def rows(self, k: int) -> np.ndarray:
+        """The samples among the first ``k`` rows of the log: (samples, 1 + columns)."""
+        rows = self.log.numpy()[:k]
+        return rows[rows[:, 0] >= 0.0].copy()
+
+
+class ProbeSamples:
+    """A run's probe samples on the host: ``time`` (s) and one array per column (``names``,
+    ``units``), by name: ``sim.probes["P1"]``; the last ``history`` samples (``None``: all).
+    ``listen(fn)`` calls ``fn(rows)`` with every batch of new rows (time first) as they arrive, as
+    a run's writer does."""
+
+    def __init__(self, columns: list[tuple[str, str]], history: int | None = None):
+        self.names = [n for n, _ in columns]
+        self.units = [u for _, u in columns]
+        self.history = history
+        self._chunks: list[np.ndarray] = []
+        self._listeners = []
+        self._array = None
+
+    def __len__(self) -> int:
+        return int(sum(len(c) for c in self._chunks))
+
+    def __bool__(self) -> bool:
+        return bool(self.names)
+
+    def add(self, rows: np.ndarray) -> None:
+        if len(rows):
+            self._chunks.append(rows)
+            self._array = None
+            if self.history is not None and len(self) > self.history:
+                self._chunks = [self.array()[-max(1, int(self.history)) :].copy()]
+                self._array = None
+            for fn in self._listeners:
+                fn(rows)
+
+    def listen(self, fn) -> None:
+        self._listeners.append(fn)
+
+    def array(self) -> np.ndarray:
+        """Every sample so far: (samples, 1 + columns), time first."""
+        if self._array is None:
+            self._array = (
+                np.concatenate(self._chunks) if self._chunks else np.zeros((0, 1 + len(self.names)), dtype=np.float64)
+            )
+            self._chunks = [self._array] if len(self._array) else []
+        return self._array
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.array()[:, 0]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self.names:
+            raise KeyError(f"{name!r}: no such probe column ({', '.join(self.names)})")
+        return self.array()[:, 1 + self.names.index(name)]
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """``{"t": times, name: values, ...}``."""
+        a = self.array()
+        return {"t": a[:, 0], **{n: a[:, 1 + k] for k, n in enumerate(self.names)}}

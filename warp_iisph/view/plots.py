@@ -1,0 +1,52 @@
+"""Charts of a run's probes (``warp-iisph plot RUN_DIR``): every probe over time, from
+``probes.csv``, one panel per quantity (pressure, level, force, moment), in a PNG."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..run.folder import RunError, RunFolder
+from ..run.probe_file import read_probes
+
+# the panels, by unit: what each holds
+PANELS = {"Pa": "pressure (kPa)", "m": "water level (m)", "N": "force (N)", "N m": "moment (N m)"}
+
+
+def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
+    """Draw every probe of the run in ``run_dir`` over time into ``out`` (default
+    ``RUN_DIR/probes.png``); returns the path. Pressures in kPa; a force probe's components
+    ``x``, ``y``, ``z``, pressure parts solid and viscous parts dashed."""
+    run = RunFolder.existing(run_dir)
+    if not run.probes.is_file():
+        raise RunError(f"{run.probes}: no probe samples (the scene has no [[probes]], or no step was taken)")
+    names, units, rows = read_probes(run.probes)
+    if len(rows) == 0:
+        raise RunError(f"{run.probes}: holds no sample yet")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [u for u in PANELS if u in units]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(9, 2.8 * len(panels)), sharex=True, squeeze=False)
+    t = rows[:, 0]
+    for ax, unit in zip(axes[:, 0], panels):
+        for k, (name, u) in enumerate(zip(names, units)):
+            if u != unit:
+                continue
+            y = rows[:, 1 + k] / (1e3 if unit == "Pa" else 1.0)
+            viscous = ".Fv_" in name or ".Mv_" in name
+            if viscous and not y.any():
+                continue  # free-slip walls: no viscous load to draw
+            ax.plot(t, y, "--" if viscous else "-", lw=0.9, label=name)
+        ax.set_ylabel(PANELS[unit])
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=4, loc="upper right")
+    axes[-1, 0].set_xlabel("t (s)")
+    rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
+    axes[0, 0].set_title(f"{run.path.name}: {len(t)} samples, {rate:.0f} per second")
+    fig.tight_layout()
+    out = Path(out) if out is not None else run.path / "probes.png"
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
