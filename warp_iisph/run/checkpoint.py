@@ -23,12 +23,13 @@ from .. import __version__
 from ..scene import scene_fingerprint
 from ..scene.checks import MAX_PARTICLES
 from ..scene.settings import METHODS, MIN_STEP
+from ..setup.model import PARTICLE_FIELDS
 from .atomic import staged_write
 from .folder import RunError, RunFolder
 
 FORMAT = 2  # what a checkpoint holds (1: before it said whose it is)
 OWNER_KEYS = ("run_id", "fingerprint", "format", "warp_iisph")
-STATE_KEYS = ("x", "v", "rho", "p", "id", "max_speed2", "sub_left", "sub_done", "time", "step_count", "method")
+STATE_KEYS = (*PARTICLE_FIELDS, "max_speed2", "sub_left", "sub_done", "time", "step_count", "method")
 KEYS = (*STATE_KEYS, "next_id", "frame", *OWNER_KEYS)
 
 

@@ -31,7 +31,7 @@ from ..engine.timing import StageTimes
 from ..scene import MeshShape, Scene, obstacles_mesh, scene_to_dict
 from ..scene.checks import in_range
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
-from ..setup.model import id_order
+from ..setup.model import PARTICLE_FIELDS, id_order
 from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owner, stage_checkpoint
 from .folder import (
     MESHES,
@@ -258,13 +258,12 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
         if scene.output.particles:
             with times("export"):  # the main thread only downloads; the writer orders by id
                 frame_file = run.particle_frame(k)
-                raw = {name: sim.state.host(name) for name in ("x", "v", "rho", "p", "id")}
+                raw = {name: sim.state.host(name) for name in PARTICLE_FIELDS}
 
             def particles():
                 order = id_order(raw["id"])
-                write_particles(
-                    frame_file, *(raw[name][order] for name in ("x", "v", "rho", "p")), ids=raw["id"][order]
-                )
+                x, v, rho, p, ids = (raw[name][order] for name in PARTICLE_FIELDS)
+                write_particles(frame_file, x, v, rho, p, ids=ids)
 
             files.append(particles)
         if mesher is not None:

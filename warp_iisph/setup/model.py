@@ -88,6 +88,11 @@ def id_order(ids: np.ndarray) -> np.ndarray:
     return np.argsort(ids, kind="stable")
 
 
+# every State's per-particle fields, in the order its arrays are declared: what reordering moves,
+# checkpoints keep and a particle frame is made of (the one list; a solver's own fields are ``carried``)
+PARTICLE_FIELDS = ("x", "v", "rho", "p", "id")
+
+
 @dataclass
 class State:
     """Per-particle fluid data: position ``x``, velocity ``v``, density ``rho``, pressure ``p``
@@ -150,12 +155,16 @@ class State:
         graphs point at)."""
         n = self.n
         scratch = self._scratch
-        for src in [getattr(self, name) for name in ("x", "v", "rho", "p", "id")] + list(self.carried.values()):
+        for src in [*self.fields().values(), *self.carried.values()]:
             tmp = scratch.get(src.dtype)
             if tmp is None:
                 tmp = scratch[src.dtype] = wp.empty_like(src)
             launch_particles(_GATHER[src.dtype], n, [order, src, tmp], src.device)
             wp.copy(src, tmp)
+
+    def fields(self) -> dict[str, wp.array]:
+        """The :data:`PARTICLE_FIELDS` by name (each ``capacity`` long)."""
+        return {name: getattr(self, name) for name in PARTICLE_FIELDS}
 
     def numpy_by_id(self, name: str) -> np.ndarray:
         """Host copy of a per-particle array of the liquid, in the order of the particles' ids."""

@@ -179,7 +179,7 @@ class Simulation:
         A simulation restored from it continues bitwise as this one would."""
         s = self.state
         # copies: on the CPU .numpy() is a view of the live arrays
-        out = {name: getattr(s, name).numpy()[: s.n].copy() for name in ("x", "v", "rho", "p", "id")}
+        out = {name: array.numpy()[: s.n].copy() for name, array in s.fields().items()}
         out.update({f"carried_{name}": array.numpy()[: s.n].copy() for name, array in s.carried.items()})
         out.update(
             max_speed2=self.loop.max_speed2.numpy().copy(),
@@ -203,8 +203,8 @@ class Simulation:
             raise ValueError(
                 f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}"
             )
-        for name in ("x", "v", "rho", "p", "id"):
-            getattr(s, name)[:n].assign(checkpoint[name])
+        for name, array in s.fields().items():
+            array[:n].assign(checkpoint[name])
         for name, array in s.carried.items():
             key = f"carried_{name}"
             if key not in checkpoint:
