@@ -217,3 +217,32 @@ def _overlap(a, b) -> bool:
         return np.vstack([np.asarray(m.vertices)[:: max(1, len(m.vertices) // 200)], m.centroid])
 
     return bool(np.any(contains(b, points(a))) or np.any(contains(a, points(b))))
+
+
+def quaternion_matrix(q) -> np.ndarray:
+    """The rotation of a unit quaternion ``(x, y, z, w)`` (Warp's order)."""
+    x, y, z, w = (float(c) for c in q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def bodies_mesh(bodies: list, positions=None, orientations=None):
+    """The bodies as one ``trimesh.Trimesh`` (side by side, not merged), each with its centre of
+    mass at ``positions[k]`` and turned by ``orientations[k]`` (unit quaternions x, y, z, w) from
+    where the scene places it (default: as placed); ``None`` for none."""
+    import trimesh
+
+    meshes = []
+    for k, b in enumerate(bodies):
+        m = b.mesh().copy()
+        if positions is not None:
+            com = b.mass_properties()[1]
+            R = quaternion_matrix(orientations[k])
+            m.vertices = (np.asarray(m.vertices) - com) @ R.T + np.asarray(positions[k], np.float64)
+        meshes.append(m)
+    return trimesh.util.concatenate(meshes) if meshes else None

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..scene.bodies import quaternion_matrix
 from .bodies import Poses
 from .contacts import FACES, ContactSet, Motion, pool_contacts, resolve, sample_gaps
 from .containment import Solids
@@ -276,7 +277,7 @@ class RigidBodies:
         free = self.constants.angular_free.numpy().reshape(-1, 3)
         spin = []
         for f in range(self.n):
-            R = _matrix(out["orientation"][f])
+            R = quaternion_matrix(out["orientation"][f])
             spin.append(free[f] * (R @ np.linalg.inv(inertia[f]) @ R.T @ out["momentum"][f]))
         out["spin"] = np.array(spin).reshape(-1, 3)
         return out
@@ -285,18 +286,6 @@ class RigidBodies:
         """Set the state from ``values`` (name -> array), as :meth:`host` gives them (less ``spin``)."""
         for name in self.fields():
             getattr(self.state, name).assign(np.asarray(values[name], np.float64).reshape(self.n, -1))
-
-
-def _matrix(q) -> np.ndarray:
-    """The rotation of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def _contact_set(bodies, first, keyed, spacing, gravity, box, partners, device) -> ContactSet:

@@ -246,7 +246,7 @@ class WallForces:
         self.walls = getattr(walls, "walls", walls)  # a WallPressures holds its Walls; DFSPH keeps Walls itself
         self._pushes = None
         if r.n and model.physics.boundary_viscosity > 0.0:
-            solver.viscous.on_substep = self._friction  # the friction's sub-steps, as the solver takes them
+            solver.viscous.observers.append(self._friction)  # the friction's sub-steps, as the solver takes them
 
     def _push(self, state) -> Push:
         """The :class:`Push` of ``state`` (made once: the state's arrays keep their memory)."""
