@@ -96,7 +96,7 @@ def _fields(cls, skip=()) -> list:
 
 def scene_keys() -> set:
     """Every key a scene file takes, as docs/scenes.md writes it: ``physics.eta``,
-    ``emitters[k].speed``, ``obstacles[k].motion.times``."""
+    ``emitters[k].speed``, ``obstacles[k].motion.times``, ``bodies[k].density``."""
     keys = set(_fields(sc.Scene)) | set(getattr(scene_file, "TOP_KEYS", ()))
     for table, cls in (("physics", sc.Physics), ("output", sc.Output), ("surface", sc.SurfaceSettings)):
         keys |= {f"{table}.{f}" for f in _fields(cls)}
@@ -109,6 +109,8 @@ def scene_keys() -> set:
     # set by the loader, and only obstacles move
     places = {"tank": (sc.Box, sc.MeshShape), "fluids[k]": (sc.Box, sc.Sphere)}
     places["obstacles[k]"] = (sc.Box, sc.Sphere, sc.MeshShape)
+    places["bodies[k]"] = (sc.Box, sc.Sphere, sc.MeshShape)
+    keys |= {f"bodies[k].{f}" for f in _fields(sc.Body, skip=("shape",))}
     for where, classes in places.items():
         keys.add(f"{where}.shape")
         only_obstacles = () if where == "obstacles[k]" else ("name", "sampling")  # the file refuses them elsewhere

@@ -159,14 +159,19 @@ def test_nothing_in_a_conditional_body_allocates(monkeypatch, method, warm_start
     monkeypatch.setattr(wp.HashGrid, "build", forbidden("HashGrid.build", wp.HashGrid.build))
     for name in ("empty", "zeros", "full", "empty_like", "zeros_like", "full_like", "clone"):  # any allocation
         monkeypatch.setattr(wp, name, forbidden(f"wp.{name}", getattr(wp, name)))
-    # a scene with walls and an obstacle near the fluid: fluid, wall and reorder paths all recorded
+    # a scene with walls, an obstacle and a free body (its loads with wall friction, its contacts
+    # with the floor) near the fluid: fluid, wall, body and reorder paths all recorded
     from warp_iisph import Box
 
-    scene = scenes.martin_moyce(spacing=0.02, a=0.2, depth=0.1, method=method, warm_start=warm_start)
+    scene = scenes.martin_moyce(
+        spacing=0.02, a=0.2, depth=0.1, method=method, warm_start=warm_start, boundary_viscosity=0.003
+    )
     scene.add_obstacle(Box((0.3, 0.0, 0.0), (0.35, 0.1, 0.1)))
+    scene.add_body(Box((0.21, 0.0, 0.02), (0.27, 0.06, 0.08)), density=700.0)
     sim = Simulation(scene, "cpu", graph=True)
     sim.advance(0.05)
     assert sim.graph.captures == 1 and sim.graph.replays >= 1 and not calls
+    assert np.linalg.norm(sim.bodies["velocity"][0]) > 0  # the body moved: its update was recorded
     assert max(s["iterations"] for s in sim.stats) >= 2
 
 

@@ -8,7 +8,7 @@ warp-iisph that wrote it. A resume refuses, in one line naming the file, a check
 run, of a scene whose geometry or meshes changed, of another format or version, one with keys
 missing or of the wrong shape, and values that make no sense (a time that is not its frame's,
 more frames than the run was asked for, fewer steps than frames, non-finite particles, ids
-repeated or beyond the next one).
+repeated or beyond the next one, free bodies' state missing or not one finite row per body).
 """
 
 from __future__ import annotations
@@ -31,6 +31,17 @@ FORMAT = 2  # what a checkpoint holds (1: before it said whose it is)
 OWNER_KEYS = ("run_id", "fingerprint", "format", "warp_iisph")
 STATE_KEYS = (*PARTICLE_FIELDS, "max_speed2", "sub_left", "sub_done", "time", "step_count", "method")
 KEYS = (*STATE_KEYS, "next_id", "frame", *OWNER_KEYS)
+# a scene with free bodies: their state (Simulation.checkpoint), by key and width
+BODY_KEYS = {
+    "bodies_position": 3,
+    "bodies_orientation": 4,
+    "bodies_velocity": 3,
+    "bodies_momentum": 3,
+    "bodies_acceleration": 3,
+    "bodies_angular_acceleration": 3,
+    "bodies_coupled": 3,
+    "bodies_coupled_angular": 3,
+}
 
 
 def owner(run_id: str, scene) -> dict:
@@ -119,6 +130,13 @@ def _check_values(state: dict, fps: float, duration: float, scene) -> None:
         raise ValueError("max_speed2 and sub_left must be >= 0")
     if np.any(_array(state, "sub_done", (1,), integer=True) < 0):
         raise ValueError("sub_done must be >= 0")
+    if scene.bodies:  # the free bodies' state: one row per body, finite, unit quaternions
+        for key, width in BODY_KEYS.items():
+            if key not in state:
+                raise ValueError(f"has no {key} (the free bodies' state)")
+            _array(state, key, (len(scene.bodies), width))
+        if np.any(np.abs(np.linalg.norm(state["bodies_orientation"], axis=1) - 1.0) > 1e-6):
+            raise ValueError("bodies_orientation holds quaternions that are not of unit length")
     if scene.emitters or scene.sinks:
         for key in ("flows_next_time", "flows_next_check", "flows_counts"):
             if key not in state:

@@ -6,7 +6,8 @@ RUN/particles/frame_00000.ply   particle frames (.vtu    RUN/stats.jsonl  one re
                                 with output.format vtu)  RUN/run.json     scene, device, totals, how it ended
 RUN/mesh/frame_00000.obj        surface meshes (.ply     RUN/run.usdc     the whole run as one USD stage
                                 with surface.format ply)
-RUN/obstacles.obj               the obstacles (at t = 0; RUN/obstacles/frame_00000.obj ... when some move)
+RUN/obstacles.obj               the obstacles and bodies (at t = 0; RUN/obstacles/frame_00000.obj ... when some move)
+RUN/bodies.csv                  the free bodies' poses and motion, one row per frame
 RUN/checkpoint.npz              the state at the last checkpoint
 RUN/preview.mp4, frames/, video.mp4, blender_scene.py: views
 ```
@@ -34,7 +35,8 @@ STATS = "stats.jsonl"
 PROBES = "probes.csv"  # the probes' samples (time, one column per probe)
 RECORD = "run.json"
 OBSTACLES = "obstacles.obj"
-OBSTACLE_FRAMES = "obstacles"  # with moving obstacles: obstacles/frame_00000.obj, all of them at each frame
+OBSTACLE_FRAMES = "obstacles"  # with moving obstacles or bodies: obstacles/frame_00000.obj, all of them at each frame
+BODIES = "bodies.csv"  # with free bodies: their poses at each frame
 CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, to resume from
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
@@ -48,7 +50,7 @@ MAX_FPS = 10_000.0  # output.fps's limit, and a video's
 RECORD_TABLES = ("scene", "output", "totals", "particles", "versions")
 RECORD_TEXTS = ("run_id", "device", "ended")
 SCENE_TABLES = ("tank", "camera", "surface", "physics", "output")
-SCENE_LISTS = ("fluids", "obstacles", "emitters", "sinks")
+SCENE_LISTS = ("fluids", "obstacles", "emitters", "sinks", "bodies")
 
 
 class RunError(ValueError):
@@ -167,6 +169,10 @@ class RunFolder:
         return self.path / OBSTACLES
 
     @property
+    def bodies(self) -> Path:
+        return self.path / BODIES
+
+    @property
     def checkpoint(self) -> Path:
         return self.path / CHECKPOINT
 
@@ -179,7 +185,7 @@ class RunFolder:
         """Whether ``path`` is one of the run's own files (its record, step records, checkpoint,
         obstacles) or lies in a folder of its frames: what a view's --out must never replace."""
         root, target = Path(os.path.realpath(self.path)), Path(os.path.realpath(path))
-        if target.parent == root and target.name in (RECORD, STATS, CHECKPOINT, OBSTACLES):
+        if target.parent == root and target.name in (RECORD, STATS, CHECKPOINT, OBSTACLES, BODIES):
             return True
         return any(root / d == target or root / d in target.parents for d in DATA_FOLDERS)
 

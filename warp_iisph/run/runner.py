@@ -28,7 +28,7 @@ from .. import __version__
 from ..engine import signals
 from ..engine.signals import Terminated
 from ..engine.timing import StageTimes
-from ..scene import MeshShape, Scene, obstacles_mesh, scene_to_dict
+from ..scene import MeshShape, Scene, scene_to_dict
 from ..scene.checks import in_range
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from ..setup.model import PARTICLE_FIELDS, id_order
@@ -36,7 +36,6 @@ from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owne
 from .folder import (
     MESHES,
     OBSTACLE_FRAMES,
-    OBSTACLES,
     PARTICLES,
     RunError,
     RunFolder,
@@ -44,13 +43,14 @@ from .folder import (
     frame_index,
     new_run_id,
 )
-from .formats import StatsWriter, read_stats, write_obj, write_particles
+from .formats import StatsWriter, read_stats, write_particles
 from .frame_queue import FrameQueue
 from .lock import FolderLock
 from .meshing import FrameMesher, mesh_settings
 from .probe_file import open_probe_file
 from .progress import frame_bar
 from .replace import OutputExistsError, commit, discard, prepare, recover, resolved, stage
+from .solids import SolidFiles
 
 __all__ = ["OutputExistsError", "Terminated", "load_checkpoint", "resumed_scene", "run_scene"]
 
@@ -100,7 +100,8 @@ def plan_frames(scene: Scene, duration=None, fps=None) -> FramePlan:
 
 def scene_inputs(scene: Scene) -> list[Path]:
     """The files a run of ``scene`` reads besides its scene file: its meshes."""
-    return [Path(s.base_dir) / s.path for s in [scene.tank, *scene.obstacles] if isinstance(s, MeshShape)]
+    shapes = [scene.tank, *scene.obstacles, *(b.shape for b in scene.bodies)]
+    return [Path(s.base_dir) / s.path for s in shapes if isinstance(s, MeshShape)]
 
 
 def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict, dict, FolderLock]:
@@ -160,7 +161,7 @@ def run_scene(
 ) -> dict:
     """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
     says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json``, for a scene
-    with obstacles ``obstacles.obj`` and for one with probes ``probes.csv``.
+    with obstacles or bodies the files of :mod:`.solids` and for one with probes ``probes.csv``.
     Returns the run record (``ended`` says how it ended). Frame files are written on a background
     thread while the next frame simulates (``background_output=False``: inline). With ``resume``,
     ``out`` is a run stopped (or diverged, then fixed) after a checkpoint: it continues from there,
@@ -242,15 +243,13 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
     }
     if resume:
         record["resumed"] = before.get("resumed", []) + [{"frame": first - 1, "t": sim.time, "step": sim.step_count}]
-        if "obstacles" in before:
-            record["obstacles"] = before["obstacles"]
+        record.update({k: before[k] for k in ("obstacles", "bodies") if k in before})
     # seconds per stage on the main thread; ``export`` is what output cost it: the host copies
     # plus the waits for the writer thread (whose own work overlaps the simulation)
     times = StageTimes()
     owner_keys = owner(record["run_id"], scene)
     written = [0]  # frames whose files are all on disk
-    moving_obstacles = any(o.motion is not None for o in scene.obstacles)
-    mesher = queue = stats = probe_file = None
+    mesher = queue = stats = solids = probe_file = None
     placed = resume  # whether the run folder is in its place (a new one moves there with frame 0)
 
     def write_frame(k: int) -> None:
@@ -269,9 +268,7 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
         if mesher is not None:
             mesh, obj = mesher.mesh(sim.state.x[: sim.n_particles]), run.mesh_frame(k)
             files.append(lambda: mesher.export(mesh, obj))
-        if moving_obstacles:  # where every obstacle is at this frame, for the viewers
-            solid, path = obstacles_mesh(scene.obstacles, k / plan.fps), run.obstacle_frame(k)
-            files.append(lambda: write_obj(path, np.asarray(solid.vertices), np.asarray(solid.faces)))
+        files += solids.jobs(k, sim)  # where every obstacle and body is at this frame, for the viewers
         every = scene.output.checkpoint_every
         if every and (k % every == 0 or k == plan.frames - 1):
             state = {**sim.checkpoint(), "frame": np.int64(k), **owner_keys}
@@ -319,16 +316,15 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
             for r in kept:
                 totals.add(r)
             stats = StatsWriter(run.stats, keep=kept)
+            solids = SolidFiles(run, scene, plan.fps, keep_until=sim.time)
             probe_file = open_probe_file(run.probes, sim, keep_until=sim.time)
             written[0] = first
             update_record()
         else:
             stats = StatsWriter(run.stats)
+            solids = SolidFiles(run, scene, plan.fps)
             probe_file = open_probe_file(run.probes, sim)
-            if scene.obstacles:  # one file for the viewers and Blender (at t = 0; per frame as well when some move)
-                mesh = obstacles_mesh(scene.obstacles)
-                write_obj(run.obstacles, np.asarray(mesh.vertices), np.asarray(mesh.faces))
-                record["obstacles"] = OBSTACLES
+            record.update(solids.start())  # one file for the viewers and Blender (at t = 0)
             if mesher is not None:
                 run.write_provenance(MESHES, record["run_id"], mesh_settings(scene.surface, scene.spacing))
             write_frame(0)
@@ -373,9 +369,9 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
             except Exception as e:
                 if ended == "completed":
                     ended, message = "failed", f"writing the run to {run.path}: {_failure(e)}"
-        for f in (stats, probe_file):
-            if f is not None:
-                _close_quietly(f.close)
+        for writer in (stats, solids, probe_file):
+            if writer is not None:
+                _close_quietly(writer.close)
     if not placed:  # the new run never got its first frame in place: the old folder stays as it was
         record.update(ended=ended if ended != "completed" else "failed", message=message or "no frame was written")
         record["totals"] = totals.record(sim, 0, time.perf_counter() - t_start)

@@ -1,6 +1,7 @@
 """What the user describes: shapes, settings and the scene (validated once), scene files, bundled scenes."""
 
 from . import cases
+from .bodies import Body
 from .checks import SceneFileError
 from .description import Scene
 from .file import load_scene, scene_fingerprint, scene_from_dict, scene_to_dict
@@ -11,6 +12,7 @@ from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, MeshShape, Sphere, obstacles_mesh, shape_mesh
 
 __all__ = [
+    "Body",
     "Box",
     "Camera",
     "Emitter",

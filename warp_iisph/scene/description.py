@@ -1,7 +1,8 @@
 """Scene: a tank, fluid blocks, obstacles and settings, as plain Python data validated once.
 
 A scene is a tank (a closed box, or a closed triangle mesh used as a container), fluid blocks
-(boxes and spheres), obstacles (boxes, spheres, triangle meshes), physics parameters and output
+(boxes and spheres), obstacles (boxes, spheres, triangle meshes), free bodies the liquid moves
+(:mod:`.bodies`), physics parameters and output
 settings, all in SI units with y up. ``spacing`` is the particle diameter ``h``; the kernel support radius is
 ``2 h`` and each fluid particle weighs ``rho0 * h^3``. Validation raises ``ValueError`` naming
 the field and its allowed range. No Warp here.
@@ -16,6 +17,7 @@ from typing import Optional, Union
 
 import numpy as np
 
+from .bodies import Body, check_bodies
 from .checks import MAX_ITEMS, MAX_PARTICLES, Record, floats, folder_name, freeze, positive
 from .flows import Emitter, Sink
 from .probes import validate_probes
@@ -49,6 +51,7 @@ class Scene(Record):
     max_particles: Optional[int] = (
         None  # fluid particles at most (with emitters); None: what they emit over output.duration
     )
+    bodies: list = field(default_factory=list)
 
     def add_fluid_box(self, lower, upper) -> "Scene":
         self.fluids.append(Box(tuple(lower), tuple(upper)))
@@ -60,6 +63,12 @@ class Scene(Record):
 
     def add_obstacle(self, shape: Obstacle) -> "Scene":
         self.obstacles.append(shape)
+        return self
+
+    def add_body(self, shape, **keys) -> "Scene":
+        """A free rigid body of ``shape`` (a Box, Sphere or closed MeshShape) with ``density`` or
+        ``mass`` and the optional keys of :class:`~warp_iisph.scene.bodies.Body`."""
+        self.bodies.append(shape if isinstance(shape, Body) else Body(shape, **keys))
         return self
 
     def add_emitter(self, emitter: Emitter) -> "Scene":
@@ -91,7 +100,7 @@ class Scene(Record):
         tlo, thi = self.tank.bounds
         if np.any((thi - tlo) < self.spacing):
             raise ValueError(f"tank: every side must be at least spacing = {self.spacing} m long")
-        for key in ("fluids", "obstacles", "emitters", "sinks", "probes"):
+        for key in ("fluids", "obstacles", "emitters", "sinks", "probes", "bodies"):
             items = getattr(self, key)
             if not isinstance(items, (list, tuple)) or len(items) > MAX_ITEMS:
                 raise ValueError(f"{key}: must be a list of at most {MAX_ITEMS} items")
@@ -132,6 +141,7 @@ class Scene(Record):
                 )
         _check_obstacle_names(self.obstacles)
         validate_probes(self.probes, self.tank.bounds, self.obstacles)
+        check_bodies(self.bodies, self.obstacles, self.tank, self.spacing)
         for k, e in enumerate(self.emitters):
             name = f"emitters[{k}]"
             if not isinstance(e, Emitter):
@@ -184,6 +194,9 @@ class Scene(Record):
         for k, o in enumerate(self.obstacles):
             if np.any(contains(o, rim)):
                 raise ValueError(f"{name}: the nozzle at {list(e.center)} lies inside obstacles[{k}]; move it out")
+        for k, b in enumerate(self.bodies):
+            if np.any(contains(b.shape, rim)):
+                raise ValueError(f"{name}: the nozzle at {list(e.center)} lies inside bodies[{k}]; move it out")
 
     def frozen_copy(self) -> "Scene":
         """A validated deep copy of this scene that refuses changes (``AttributeError``): what a
@@ -191,7 +204,7 @@ class Scene(Record):
         run unvalidated. Meshes already read are shared, not copied."""
         self.validate()
         memo = {}
-        for shape in [self.tank, *self.obstacles]:
+        for shape in [self.tank, *self.obstacles, *(b.shape for b in self.bodies)]:
             loaded = getattr(shape, "_loaded", None)
             if loaded is not None:
                 memo[id(loaded[1])] = loaded[1]
@@ -212,7 +225,7 @@ class Scene(Record):
             fluid += float(np.prod((hi - lo) / h)) if isinstance(f, Box) else 4.0 / 3.0 * np.pi * (f.radius / h) ** 3
         fluid = max(fluid, self.capacity_estimate(h, fluid)) if self.emitters else fluid
         walls = 0.0
-        for shape in [self.tank, *self.obstacles]:
+        for shape in [self.tank, *self.obstacles, *(b.shape for b in self.bodies)]:
             if isinstance(shape, Box):
                 e = (shape.bounds[1] - shape.bounds[0]) / h
                 walls += 2.0 * float(e[0] * e[1] + e[1] * e[2] + e[0] * e[2])

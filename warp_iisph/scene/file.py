@@ -13,6 +13,7 @@ import json
 import sys
 from pathlib import Path
 
+from .bodies import Body
 from .checks import SceneFileError, folder_name
 from .description import Scene
 from .flows import Emitter, Sink
@@ -40,6 +41,7 @@ TOP_KEYS = {
     "sinks",
     "probes",
     "max_particles",
+    "bodies",
 }
 SHAPE_KEYS = {
     "box": {"lower", "upper"},
@@ -116,6 +118,16 @@ def _shape(table, where: str, allowed: tuple, base_dir: Path, movable: bool = Fa
     return MeshShape(**args, base_dir=str(base_dir))
 
 
+BODY_KEYS = {f.name for f in dataclasses.fields(Body)} - {"shape"}
+
+
+def _body(table, where: str, base_dir: Path) -> Body:
+    """A ``[[bodies]]`` table: a shape's keys (as an obstacle's, without motion) and the body's."""
+    _check_keys(table, {"shape"} | set().union(*SHAPE_KEYS.values()) | BODY_KEYS, where)
+    shape = _shape({k: v for k, v in table.items() if k not in BODY_KEYS}, where, ("box", "sphere", "mesh"), base_dir)
+    return Body(shape, **{k: v for k, v in table.items() if k in BODY_KEYS})
+
+
 def _record(cls, table, where: str):
     """A table as a ``cls`` record: unknown keys and missing required ones name the key."""
     _check_keys(table, _fields(cls), where)
@@ -145,12 +157,14 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
     emitters = data.get("emitters", [])
     sinks = data.get("sinks", [])
     probes = data.get("probes", [])
+    bodies = data.get("bodies", [])
     for key, value in (
         ("fluids", fluids),
         ("obstacles", obstacles),
         ("emitters", emitters),
         ("sinks", sinks),
         ("probes", probes),
+        ("bodies", bodies),
     ):
         if not isinstance(value, list):
             raise ValueError(f"{key}: must be an array of tables ([[{key}]])")
@@ -178,6 +192,7 @@ def scene_from_dict(data: dict, base_dir: Path = Path("."), default_name: str = 
         sinks=[_record(Sink, s, f"sinks[{k}]") for k, s in enumerate(sinks)],
         probes=[_record(Probe, p, f"probes[{k}]") for k, p in enumerate(probes)],
         max_particles=data.get("max_particles"),
+        bodies=[_body(b, f"bodies[{k}]", base_dir) for k, b in enumerate(bodies)],
     )
     return scene.validate()
 
@@ -230,11 +245,21 @@ def scene_to_dict(scene: Scene) -> dict:
         "sinks": [_settings_table(s) for s in scene.sinks],
         **({"probes": [_settings_table(p) for p in scene.probes]} if scene.probes else {}),
         **({"max_particles": scene.max_particles} if scene.max_particles is not None else {}),
+        **({"bodies": [_body_table(b) for b in scene.bodies]} if scene.bodies else {}),
     }
 
 
+def _body_table(body: Body) -> dict:
+    table = _shape_table(body.shape)
+    for key in sorted(BODY_KEYS):
+        value = getattr(body, key)
+        if value is not None:
+            table[key] = list(value) if isinstance(value, (tuple, list)) else value
+    return table
+
+
 # what a resumed run keeps: its particles (--set may change physics, output, surface and camera)
-GEOMETRY_KEYS = ("spacing", "tank", "fluids", "obstacles", "emitters", "sinks", "max_particles")
+GEOMETRY_KEYS = ("spacing", "tank", "fluids", "obstacles", "emitters", "sinks", "max_particles", "bodies")
 
 
 def scene_fingerprint(scene: Scene) -> dict:
@@ -242,9 +267,13 @@ def scene_fingerprint(scene: Scene) -> dict:
     included) and of each mesh file's contents, by key (``tank``, ``obstacles[0]``), so that a
     resume can say what changed."""
     table = scene_to_dict(scene)
-    geometry = json.dumps({k: table.get(k) for k in GEOMETRY_KEYS}, sort_keys=True, separators=(",", ":"))
+    # a scene without bodies hashes as it did before they existed
+    parts = {k: table.get(k) for k in GEOMETRY_KEYS if k in table or k != "bodies"}
+    geometry = json.dumps(parts, sort_keys=True, separators=(",", ":"))
     meshes = {}
-    for key, shape in [("tank", scene.tank), *((f"obstacles[{k}]", o) for k, o in enumerate(scene.obstacles))]:
+    shapes = [("tank", scene.tank), *((f"obstacles[{k}]", o) for k, o in enumerate(scene.obstacles))]
+    shapes += [(f"bodies[{k}]", b.shape) for k, b in enumerate(scene.bodies)]
+    for key, shape in shapes:
         if isinstance(shape, MeshShape):
             path = Path(shape.base_dir) / shape.path
             try:

@@ -1,4 +1,6 @@
-"""A validated scene turned into particles on a device: fluid, walls, obstacles, boundary psi."""
+"""A validated scene turned into particles on a device: fluid, walls, obstacles, free bodies,
+boundary psi. Boundary particles are ordered still ones (cell-sorted), then the keyframed
+obstacles', then each free body's (contiguous: its range for the force sums)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,8 @@ from ..scene import Box, Scene, shape_mesh
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
 from ..sph.neighbors import FIRST_STRIDE, LIST_ENTRIES_LIMIT, cell_order, make_grid
+from ..sph.rigid import RigidBodies
+from .bodies import sample_body
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
 from .rasterize import clear_fluid, sample_mesh
@@ -27,32 +31,43 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
     ph = scene.physics
     meshes = _shape_meshes(scene)
     _check_memory(*(int(c) for c in scene.particle_estimate()), device)  # before sampling allocates anything
-    xf, xb, bodies, owner = sample_scene(scene, device, meshes)
+    free = [sample_body(b, h, ph.rho0, device) for b in scene.bodies]
+    xf, xb, bodies, owner = sample_scene(scene, device, meshes, free)
     if len(xf) == 0 and not scene.emitters:
         raise ValueError(f"fluids: no particle fits at spacing = {h} m; make the blocks larger or the spacing smaller")
-    n_moving = sum(len(rest) for _, rest in bodies)
+    n_moving = sum(len(rest) for _, rest in bodies) + sum(len(f["rest"]) for f in free)
     _check_memory(len(xf), len(xb) + n_moving, device)
     H = 2.0 * h
     xb_dev, owner = _cell_sorted(xb, H, device, owner)
     psi = compute_boundary_psi(xb_dev, h, ph.rho0, device)
-    moving = None
-    if bodies:
+    moving = rigid = None
+    if bodies or free:
         # a body's psi comes from its own particles (rigid: it never changes); the walls keep theirs
-        rest = np.concatenate([r for _, r in bodies])
-        body_of = np.concatenate([np.full(len(r), k) for k, (_, r) in enumerate(bodies)])
+        rests = [r for _, r in bodies] + [f["rest"] for f in free]
+        rest = np.concatenate(rests)
+        body_of = np.concatenate([np.full(len(r), k) for k, r in enumerate(rests)])
         psis = [psi.numpy()[: len(xb)]] + [
             compute_boundary_psi(
                 wp.array(r.astype(np.float32), dtype=wp.vec3, device=device), h, ph.rho0, device
             ).numpy()[: len(r)]
-            for _, r in bodies
+            for r in rests
         ]
-        at_start = np.concatenate([_placed(m, r, 0.0) for m, r in bodies])
+        at_start = np.concatenate([_placed(m, r, 0.0) for m, r in bodies] + [f["rest"] + f["com"] for f in free])
         xb_dev = wp.array(np.concatenate([xb_dev.numpy(), at_start]).astype(np.float32), dtype=wp.vec3, device=device)
         psi = wp.array(np.concatenate(psis).astype(np.float32), dtype=float, device=device)
-        moving = MovingBodies([m for m, _ in bodies], rest, body_of, len(xb), device)
-        movers = [k for k, o in enumerate(scene.obstacles) if o.motion is not None]
+        moving = MovingBodies([m for m, _ in bodies], rest, body_of, len(xb), device, n_free=len(free))
+        # a moving obstacle's particles belong to it; a free body's to no obstacle (-1)
+        movers = [k for k, o in enumerate(scene.obstacles) if o.motion is not None] + [-1] * len(free)
         owner = np.concatenate([owner, np.asarray(movers, dtype=np.int32)[body_of]])
-    if scene.obstacles or not isinstance(scene.tank, Box):
+    containment = _containment(scene, meshes, h, moving, free, device)
+    if free:
+        counts = [len(f["rest"]) for f in free]
+        first = len(xb) + sum(len(r) for _, r in bodies) + np.concatenate([[0], np.cumsum(counts)[:-1]])
+        for f, b in zip(free, scene.bodies):
+            f["name"] = b.name
+        box = _tank_faces(scene)
+        rigid = RigidBodies(free, first.tolist(), len(bodies), ph.gravity, h, box, containment.solids.count, device)
+    if scene.obstacles or scene.bodies or not isinstance(scene.tank, Box):
         # Rasterised meshes are not a calibrated wall: fluid sampled where they make it denser
         # than rest is left out rather than kicked away in the first step.
         xf = xf[~overcompressed(xf, xb_dev, psi, h, ph.rho0, INITIAL_COMPRESSION, device)]
@@ -75,7 +90,8 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         boundary_a=wp.zeros(max(xb_dev.shape[0], 1), dtype=wp.vec3, device=device),
         boundary_owner=wp.array((owner if len(owner) else np.full(1, -1)).astype(np.int32), device=device),
         bodies=moving,
-        containment=_containment(scene, meshes, h, moving, device),
+        rigid=rigid,
+        containment=containment,
         domain_lower=lo - margin,
         domain_upper=hi + margin,
         capacity=capacity,
@@ -95,9 +111,10 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
     return model, state
 
 
-def _containment(scene: Scene, meshes: dict, h: float, moving, device) -> Containment:
-    """The walls fluid may never cross: the box tank's faces, or the container mesh, and every
-    closed obstacle (open ``shell`` meshes have no inside to keep fluid out of)."""
+def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, device) -> Containment:
+    """The walls fluid may never cross: the box tank's faces, or the container mesh, every closed
+    obstacle (open ``shell`` meshes have no inside to keep fluid out of) and every free body (its
+    mesh from its centre of mass, in its pose)."""
     solids = []
     if not isinstance(scene.tank, Box):
         m = meshes[id(scene.tank)]
@@ -110,13 +127,21 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, device) -> Contai
             k, body = body, body + 1
         if m.is_watertight and not getattr(o, "shell", False):
             solids.append((m.vertices, m.faces, k, False))
+    for f in free:
+        solids.append((f["vertices"], f["faces"], body, False))
+        body += 1
     # a box tank's wall is its inner layer of boundary particles, h/2 beyond the faces (the fluid's
     # first layer rests h/2 inside them): a particle past that layer has gone through the wall
     box = None
     if isinstance(scene.tank, Box):
         lo, hi = scene.tank.bounds
         box = (lo - 0.5 * h, hi + 0.5 * h)
-    return Containment(device, box, solids, h, moving.keys if moving is not None else None)
+    return Containment(device, box, solids, h, moving)
+
+
+def _tank_faces(scene: Scene):
+    """A box tank's faces (lower, upper), which free bodies rest against; None for a mesh tank."""
+    return scene.tank.bounds if isinstance(scene.tank, Box) else None
 
 
 def _shape_meshes(scene: Scene) -> dict:
@@ -131,19 +156,22 @@ def _placed(motion, points: np.ndarray, time: float) -> np.ndarray:
     return points @ m[:3, :3].T + m[:3, 3]
 
 
-def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
+def sample_scene(
+    scene: Scene, device, meshes: dict, free: list = ()
+) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
     """Fluid particles, the static boundary particles (tank and still obstacles) and, per moving
     obstacle, its motion and its boundary particles where the scene places it (``meshes``: the
-    shapes' meshes, from :func:`_shape_meshes`), and which shape each static boundary particle
-    belongs to (its obstacle's index, -1 for the tank). A scene without obstacles and with a box
-    tank costs no mesh work; fluid overlapping an obstacle (where it is at t = 0) or outside a mesh
-    container is dropped."""
+    shapes' meshes, from :func:`_shape_meshes`; ``free``: the free bodies as :func:`sample_body`
+    samples them), and which shape each static boundary particle belongs to (its obstacle's index,
+    -1 for the tank). A scene without obstacles and bodies and with a box tank costs no mesh work;
+    fluid overlapping an obstacle or a body (where it is at t = 0) or outside a mesh container is
+    dropped."""
     h = scene.spacing
     box_tank = isinstance(scene.tank, Box)
     xf = sample_fluid(scene.fluids, scene.tank if box_tank else None, h)
     walls = [sample_tank_walls(scene.tank, h)] if box_tank else []
     shapes = ([] if box_tank else [scene.tank]) + list(scene.obstacles)
-    if not shapes:
+    if not shapes and not free:
         return xf, walls[0], [], np.full(len(walls[0]), -1, dtype=np.int32)
     trimeshes = [meshes[id(s)] for s in shapes]
     sampled = [
@@ -155,11 +183,13 @@ def sample_scene(scene: Scene, device, meshes: dict) -> tuple[np.ndarray, np.nda
     labels = ([] if box_tank else [-1]) + list(range(len(scene.obstacles)))
     # where everything is at t = 0: moving bodies as their first keyframe places them
     start = [_placed(o.motion, x, 0.0) if getattr(o, "motion", None) else x for x, o in zip(sampled, shapes)]
+    start += [f["rest"] + f["com"] for f in free]
     solids = [
         (_placed(o.motion, np.asarray(m.vertices), 0.0) if getattr(o, "motion", None) else m.vertices, m.faces)
         for m, o in zip(trimeshes, shapes)
         if o is not scene.tank and m.is_watertight and not getattr(o, "shell", False)
     ]
+    solids += [(f["vertices"] + f["com"], f["faces"]) for f in free]
     containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
     xf = clear_fluid(xf, np.concatenate(start), solids, h, containers, device)
     still = walls + [x for x, o in zip(sampled, shapes) if not getattr(o, "motion", None)]

@@ -12,6 +12,7 @@ from ..engine.launch import launch_particles
 from ..scene import Physics
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
+from ..sph.rigid import RigidBodies
 
 
 @dataclass
@@ -37,7 +38,8 @@ class Model:
     boundary_v: wp.array = None  # zero for still walls; moving obstacles' particles carry their velocity
     boundary_a: wp.array = None  # and their acceleration (the walls' extrapolated pressure uses it)
     boundary_owner: wp.array = None  # each boundary particle's obstacle (its index in the scene), -1: the tank
-    bodies: Optional[MovingBodies] = None  # the moving obstacles: the last boundary particles
+    bodies: Optional[MovingBodies] = None  # the moving obstacles and free bodies: the last boundary particles
+    rigid: Optional[RigidBodies] = None  # the free bodies' dynamics (their particles are the last ones)
     containment: Optional[Containment] = None  # the walls no particle may be beyond after a step
     capacity: int = 0  # fluid particles the arrays hold at most (more than n_fluid with emitters)
 

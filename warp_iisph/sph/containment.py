@@ -6,8 +6,11 @@ step's statistics. The pressure solver is meant to do
 nearly all of this work: the count says how much it left.
 
 Obstacles are queried as ``wp.Mesh`` signed distances, in their own frame (a moving body's
-transform at the step's end), only for particles that had wall neighbours at the step's start
-(others cannot reach a wall within a CFL-limited step).
+pose at the step's end), only for particles that had wall neighbours at the step's start
+(others cannot reach a wall within a CFL-limited step). A free body is also met along the way:
+a particle whose path over the step (from ``x - dt v``, in the body's frame at the step's start,
+to ``x``, in its frame at the end) enters the body's surface is put back where it entered, so that
+a body thinner than a step's relative motion is not crossed either.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .bodies import BodyKeys, body_transform
+from .bodies import MovingBodies, Poses
 from .neighbors import NeighborList
 
 # A particle put back lands this far (a fraction of the spacing) on the fluid's side of the surface.
@@ -26,7 +29,7 @@ CLEARANCE = 1.0e-3
 class Solids:
     """Closed surfaces fluid may not cross: ``meshes[k]`` (its ``wp.Mesh`` id, in the frame of
     moving body ``body[k]``, -1 for a still one); ``container[k]`` is 1 where the fluid belongs
-    inside (a mesh tank), 0 where it belongs outside (an obstacle)."""
+    inside (a mesh tank), 0 where it belongs outside (an obstacle or a body)."""
 
     meshes: wp.array(dtype=wp.uint64)
     body: wp.array(dtype=wp.int32)
@@ -53,21 +56,38 @@ def clamp_to_box(x: wp.vec3, v: wp.vec3, lo: wp.vec3, hi: wp.vec3):
     return x, v, moved
 
 
+@wp.func
+def entered(mesh: wp.uint64, a: wp.vec3, e: wp.vec3):
+    """Whether the path from ``a`` to ``e`` (outside at ``a``) enters the closed ``mesh``, and where."""
+    d = e - a
+    length = wp.length(d)
+    hit = int(0)
+    c = e
+    n = wp.vec3(0.0)
+    if length > 0.0:
+        q = wp.mesh_query_ray(mesh, a, d / length, length)
+        if q.result:
+            if wp.dot(q.normal, d) < 0.0:
+                hit = 1
+                c = a + q.t * (d / length)
+                n = wp.normalize(q.normal)
+    return hit, c, n
+
+
 @wp.kernel
 def contain(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     nb: NeighborList,
     solids: Solids,
-    keys: BodyKeys,
-    time: wp.array(dtype=wp.float64),
+    poses: Poses,
     dt: wp.array(dtype=wp.float64),
     reach: float,
     clearance: float,
     corrections: wp.array(dtype=wp.int32),
 ):
-    """corrections[0]: particles put back inside the tank; corrections[1]: out of obstacles.
-    Atomics: one launch, never split."""
+    """corrections[0]: particles put back inside the tank; corrections[1]: out of obstacles and
+    bodies. Atomics: one launch, never split."""
     i = wp.tid()
     x_i = x[i]
     v_i = v[i]
@@ -76,32 +96,40 @@ def contain(
         if moved != 0:
             wp.atomic_add(corrections, 0, 1)
     if nb.count[i] > 0:
-        t_end = time[0] + dt[0]
+        h = float(dt[0])
         for k in range(solids.count):
             b = solids.body[k]
             frame = wp.transform_identity()
             if b >= 0:
-                frame = body_transform(keys, b, t_end)
+                frame = poses.end[b]
             p = wp.transform_point(wp.transform_inverse(frame), x_i)
             q = wp.mesh_query_point_sign_normal(solids.meshes[k], p, reach)
+            escaped = int(0)
+            c = p
+            n = wp.vec3(0.0)
             if q.result:
-                escaped = q.sign < 0.0
+                inside = q.sign < 0.0
                 if solids.container[k] != 0:
-                    escaped = q.sign >= 0.0
-                if escaped:
+                    inside = q.sign >= 0.0
+                if inside:
+                    escaped = 1
                     c = wp.mesh_eval_position(solids.meshes[k], q.face, q.u, q.v)
                     n = wp.normalize(c - p)  # towards the fluid's side
-                    x_new = wp.transform_point(frame, c + clearance * n)
-                    n_world = wp.transform_vector(frame, n)
-                    v_wall = wp.vec3(0.0)
-                    if b >= 0:
-                        before = body_transform(keys, b, t_end - dt[0])
-                        v_wall = (x_new - wp.transform_point(before, c)) / float(dt[0])
-                    vn = wp.dot(v_i - v_wall, n_world)
-                    if vn < 0.0:
-                        v_i = v_i - vn * n_world
-                    x_i = x_new
-                    wp.atomic_add(corrections, 1, 1)
+            if escaped == 0 and b >= 0:
+                if poses.free[b] != 0:  # through a free body within the step
+                    a = wp.transform_point(wp.transform_inverse(poses.start[b]), x_i - h * v_i)
+                    escaped, c, n = entered(solids.meshes[k], a, p)
+            if escaped != 0:
+                x_new = wp.transform_point(frame, c + clearance * n)
+                n_world = wp.transform_vector(frame, n)
+                v_wall = wp.vec3(0.0)
+                if b >= 0:
+                    v_wall = (x_new - wp.transform_point(poses.start[b], c)) / h
+                vn = wp.dot(v_i - v_wall, n_world)
+                if vn < 0.0:
+                    v_i = v_i - vn * n_world
+                x_i = x_new
+                wp.atomic_add(corrections, 1, 1)
     x[i] = x_i
     v[i] = v_i
 
@@ -110,7 +138,7 @@ class Containment:
     """The walls a step's particles are held within: a box tank's faces and the closed meshes
     (obstacles, a mesh container). Built once per model."""
 
-    def __init__(self, device, box=None, meshes=(), spacing: float = 1.0, keys: BodyKeys | None = None):
+    def __init__(self, device, box=None, meshes=(), spacing: float = 1.0, bodies: MovingBodies | None = None):
         """``box``: (lower, upper) of a box tank, or None; ``meshes``: (vertices, faces, body,
         container) per closed surface (vertices where the scene places the shape)."""
         self.device = device
@@ -133,10 +161,10 @@ class Containment:
         lo, hi = box if box is not None else (np.zeros(3), np.zeros(3))
         s.box_lower, s.box_upper = wp.vec3(*np.asarray(lo, float)), wp.vec3(*np.asarray(hi, float))
         self.solids = s
-        self.keys = keys if keys is not None else _no_keys(device)
+        self.poses = bodies.poses if bodies is not None else MovingBodies([], np.zeros((0, 3)), [], 0, device).poses
         self.corrections = wp.zeros(2, dtype=wp.int32, device=device)
 
-    def apply(self, x: wp.array, v: wp.array, nb: NeighborList, n: int, time: wp.array, dt: wp.array) -> None:
+    def apply(self, x: wp.array, v: wp.array, nb: NeighborList, n: int, dt: wp.array) -> None:
         """Put the ``n`` particles back within the walls, counting into ``corrections`` (zeroed here)."""
         self.corrections.zero_()
         if n:
@@ -149,22 +177,10 @@ class Containment:
                     v,
                     nb,
                     self.solids,
-                    self.keys,
-                    time,
+                    self.poses,
                     dt,
                     2.0 * self.spacing,
                     CLEARANCE * self.spacing,
                     self.corrections,
                 ],
             )
-
-
-def _no_keys(device) -> BodyKeys:
-    k = BodyKeys()
-    k.first = wp.zeros(1, dtype=wp.int32, device=device)
-    k.smooth = wp.zeros(1, dtype=wp.int32, device=device)
-    k.pivot = wp.zeros(1, dtype=wp.vec3, device=device)
-    k.times = wp.zeros(1, dtype=wp.float64, device=device)
-    for name in ("translate", "rotate", "slope_translate", "slope_rotate"):
-        setattr(k, name, wp.zeros(1, dtype=wp.vec3, device=device))
-    return k

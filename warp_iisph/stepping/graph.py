@@ -33,9 +33,10 @@ class LoopGraph:
 
     def _sources(self) -> list:
         """What a replay changes and a redo restores: the particles (with the solver's warm
-        starts) and the last step's top speed."""
+        starts), the last step's top speed and the free bodies' state."""
         s = self.loop.state
-        return [s.x, s.v, s.rho, s.p, s.id, *s.carried.values(), self.loop.max_speed2]
+        bodies = self.loop.bodies.arrays() if self.loop.bodies is not None else []
+        return [s.x, s.v, s.rho, s.p, s.id, *s.carried.values(), self.loop.max_speed2, *bodies]
 
     def _generations(self) -> tuple:
         """What a recorded graph depends on: the neighbour storage, and the particle count (an

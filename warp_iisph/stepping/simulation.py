@@ -191,6 +191,8 @@ class Simulation:
             next_id=np.int64(s.next_id),
             **self.flows.checkpoint(),
         )
+        if self.model.rigid is not None:  # the free bodies' state, float64 as the device holds it
+            out.update({f"bodies_{k}": v for k, v in self.model.rigid.host().items() if k != "spin"})
         return out
 
     def restore(self, checkpoint: dict) -> None:
@@ -210,6 +212,15 @@ class Simulation:
             if key not in checkpoint:
                 raise ValueError(f"checkpoint: has no {name} (the {self.physics.method} solver's warm start)")
             array[:n].assign(checkpoint[key])
+        rigid = self.model.rigid
+        if rigid is not None:
+            missing = [k for k in rigid.fields() if f"bodies_{k}" not in checkpoint]
+            if missing:
+                raise ValueError(f"checkpoint: has no bodies_{missing[0]} (the free bodies' state)")
+            shapes = {k: np.shape(checkpoint[f"bodies_{k}"]) for k in rigid.fields()}
+            if any(shape[0] != rigid.n for shape in shapes.values()):
+                raise ValueError(f"checkpoint: holds other bodies than the scene's {rigid.n}; its geometry changed")
+            rigid.assign({k: checkpoint[f"bodies_{k}"] for k in rigid.fields()})
         s.count = n
         s.next_id = int(checkpoint.get("next_id", n))
         self.flows.restore(checkpoint)
@@ -240,3 +251,11 @@ class Simulation:
     @property
     def boundary_positions(self) -> np.ndarray:
         return self.model.boundary_x.numpy()
+
+    @property
+    def bodies(self) -> dict:
+        """The free bodies now: ``position`` (centre of mass, m), ``orientation`` (unit quaternion
+        x, y, z, w), ``velocity`` (m/s), ``spin`` (angular velocity, rad/s), ``momentum``
+        (angular, kg m^2/s), ``acceleration``, ``angular_acceleration``: arrays of one row per
+        body (none without bodies)."""
+        return self.model.rigid.host() if self.model.rigid is not None else {}

@@ -2,8 +2,9 @@
 count, the step's dt, a log of step statistics) and its rules (the step's length,
 :mod:`.step_length`; the reorder schedule; the divergence checks), all kernels.
 
-One step is :meth:`TimeLoop.step_body`: choose dt, reorder by cell when due, the solver's step,
-record the statistics and decide whether another step follows. The plain path launches it from a
+One step is :meth:`TimeLoop.step_body`: choose dt, place the moving bodies, reorder by cell when
+due, the solver's step, the free bodies' update (:mod:`.bodies`), record the statistics and
+decide whether another step follows. The plain path launches it from a
 Python loop, timing each stage and growing neighbour storage before it overflows; a graph
 (:mod:`.graph`) records :meth:`TimeLoop.loop_body`, the same body inside ``wp.capture_while``,
 and replays it. Nothing in the body allocates or reads back, so it may sit inside a CUDA graph's
@@ -19,6 +20,7 @@ import warp as wp
 from ..engine.reduce import max_into
 from ..engine.timing import StageTimes
 from ..sph.solvers import STAGES
+from .bodies import BodySteps
 from .step_length import Clock, StepRule, Substeps, choose_dt
 
 LOG_FIELDS = (
@@ -34,6 +36,8 @@ LOG_FIELDS = (
     "t",
     "substeps",
 )
+# the fields of LOG_FIELDS that are counts
+COUNT_FIELDS = ("iterations", "escaped", "non_finite", "wall_corrections", "obstacle_corrections", "substeps")
 # particles are reordered by grid cell every this many steps (1 = every step)
 REORDER_INTERVAL = 10
 
@@ -186,6 +190,7 @@ class TimeLoop:
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
         self.rule, self.clock, self.substeps, self.statistics = self._structs()
         self.probes = None  # a scene's probes (.probing.ProbeSampler), sampled at the end of a step
+        self.bodies = BodySteps(model, solver) if model.bodies is not None else None
 
     def _structs(self) -> tuple[StepRule, Clock, Substeps, StepStatistics]:
         """The kernels' views of the loop's settings and device state (the same arrays)."""
@@ -231,8 +236,8 @@ class TimeLoop:
         wp.launch(
             choose_dt, dim=1, device=dev, inputs=[self.rule, self.clock, self.substeps, self.max_speed2, solver.dt]
         )
-        if model.bodies is not None:  # moving obstacles where they are at the step's start
-            model.bodies.place(model.boundary_x, model.boundary_v, model.boundary_a, self.time, self.dt64)
+        if self.bodies is not None:  # moving bodies where they are at the step's start
+            self.bodies.place(self.time, self.dt64)
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
             wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x, state.n)))
@@ -241,23 +246,14 @@ class TimeLoop:
         solver.launch_step(model, state, timer, sync=sync)
         search = solver.search
         with timer("integration") if timer else nullcontext():
-            # the last line: nothing beyond a wall, every correction counted; then the checks
-            model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.time, self.dt64)
             self.max_speed2.zero_()
+            if self.bodies is not None:  # loads, gravity and contacts move the free bodies (their speed counts)
+                self.bodies.move(state, self.dt64, self.max_speed2)
+            # the last line: nothing beyond a wall, every correction counted; then the checks
+            model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.dt64)
             self.counts.zero_()
-            wp.launch(
-                check_state,
-                dim=state.n,
-                device=dev,
-                inputs=[
-                    state.x,
-                    state.v,
-                    wp.vec3(*model.domain_lower),
-                    wp.vec3(*model.domain_upper),
-                    self.speed2,
-                    self.counts,
-                ],
-            )
+            lo, hi = wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper)
+            wp.launch(check_state, dim=state.n, device=dev, inputs=[state.x, state.v, lo, hi, self.speed2, self.counts])
             max_into(self.speed2, state.n, self.max_speed2)
         if self.probes:
             self.probes.sample(state, solver, self.time, self.dt64, self.max_speed2, self.slot)
@@ -303,15 +299,7 @@ class TimeLoop:
         out = []
         for row in rows:
             rec = dict(zip(self.fields, (float(v) for v in row)))
-            for key in (
-                "iterations",
-                "escaped",
-                "non_finite",
-                "wall_corrections",
-                "obstacle_corrections",
-                "substeps",
-                *counts,
-            ):
+            for key in (*COUNT_FIELDS, *counts):
                 rec[key] = int(rec[key])
             out.append(rec)
         return out

@@ -191,13 +191,20 @@ class ViscousSubsteps:
         terms.limit = min(self.limit, 1.0e30)  # float32 for the kernels
         terms.most = self.most
         self.terms = terms
+        # each called as observer(k, state, v_in) with each sub-step's input velocities before it is
+        # taken (0: the step's own): sums of the wall friction (sph/wall_forces.py)
+        self.observers = []
 
     def run(self, model, state, nf, nb, dt_step: wp.array, v_adv: wp.array) -> None:
         """Sub-steps 1 .. most - 1 on ``v_adv`` (which holds sub-step 0's result and ends with the last)."""
+        for observe in self.observers:
+            observe(0, state, state.v)
         if self.most == 1:
             return
         src, dst = v_adv, self.scratch
         for k in range(1, self.most):
+            for observe in self.observers:
+                observe(k, state, src)
             launch_particles(
                 viscous_substep, state.n, [k, state.x, src, state.rho, nf, nb, self.terms, dt_step, dst], model.device
             )

@@ -1,0 +1,248 @@
+"""Free rigid bodies: shapes the liquid moves and that push back (their keys, validated once, and
+their mass properties).
+
+A body is a box, a sphere or a closed mesh, placed as an obstacle would be. Its mass is given as
+a ``density`` (uniform) or a ``mass``; its centre of mass and inertia tensor (about that centre,
+in the world's axes as the scene places the shape) come from the shape at uniform density unless
+given: a ``center_of_mass`` alone moves the uniform body's inertia to that point (parallel axes),
+as ballast would. It starts with ``velocity`` (m/s) and ``angular_velocity`` (rad/s, about its
+centre of mass); ``fixed_axes`` holds translations (``x``, ``y``, ``z``) or rotations (``rx``,
+``ry``, ``rz``, about world axes through the centre of mass) still. ``restitution`` and
+``friction`` are its contact's (against the tank, obstacles and other bodies).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Union
+
+import numpy as np
+
+from .checks import MAX_COORDINATE, Record, floats, in_range, position, vec3
+from .shapes import Box, MeshShape, Sphere, contains, shape_mesh
+
+AXES = ("x", "y", "z", "rx", "ry", "rz")
+# Densities (kg/m^3) and masses (kg) a body may have: from expanded polystyrene to osmium, and
+# a few grams to a small ship.
+DENSITY_RANGE = (1.0, 1.0e5)
+MASS_RANGE = (1.0e-6, 1.0e9)
+MAX_SPEED = 100.0  # m/s: the fastest a body may start
+MAX_SPIN = 1000.0  # rad/s
+
+
+@dataclass
+class Body(Record):
+    """A free rigid body: ``shape`` (a :class:`Box`, :class:`Sphere` or closed :class:`MeshShape`)
+    with ``density`` (kg/m^3) or ``mass`` (kg), and the optional keys of the module's docstring.
+
+    Example::
+
+        scene.add_body(Box((0.4, 0.2, 0.1), (0.6, 0.3, 0.3)), density=500.0, fixed_axes=["x", "z"])
+    """
+
+    shape: Union[Box, Sphere, MeshShape]
+    density: Optional[float] = None
+    mass: Optional[float] = None
+    center_of_mass: Optional[tuple] = None
+    inertia: Optional[tuple] = None  # [Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m^2)
+    velocity: tuple = (0.0, 0.0, 0.0)
+    angular_velocity: tuple = (0.0, 0.0, 0.0)
+    fixed_axes: list = field(default_factory=list)
+    restitution: float = 0.0
+    friction: float = 0.5
+    name: Optional[str] = None
+
+    def validate(self, name: str) -> None:
+        if not isinstance(self.shape, (Box, Sphere, MeshShape)):
+            raise ValueError(f"{name}.shape = {self.shape!r}: must be a box, a sphere or a mesh")
+        if getattr(self.shape, "motion", None) is not None:
+            raise ValueError(f"{name}.motion: a body is moved by the liquid; give an obstacle the keyframes")
+        self.shape.validate(name)
+        if isinstance(self.shape, MeshShape):
+            if self.shape.shell:
+                raise ValueError(f"{name}.shell: a body must be closed; an open mesh has no volume to float")
+            if not self.shape.load().is_watertight:
+                raise ValueError(f"{name}.path = {self.shape.path!r}: a body's mesh must be closed (watertight)")
+        if (self.density is None) == (self.mass is None):
+            raise ValueError(f"{name}: give exactly one of density (kg/m^3) and mass (kg)")
+        if self.density is not None:
+            self.density = in_range(self.density, f"{name}.density", *DENSITY_RANGE, "kg/m^3")
+        else:
+            self.mass = in_range(self.mass, f"{name}.mass", *MASS_RANGE, "kg")
+        lo, hi = self.shape.bounds
+        if self.center_of_mass is not None:
+            c = position(self.center_of_mass, f"{name}.center_of_mass")
+            if np.any(c < lo) or np.any(c > hi):
+                raise ValueError(
+                    f"{name}.center_of_mass = {list(floats(c))}: must lie within the body's bounds "
+                    f"{floats(lo)}..{floats(hi)}"
+                )
+            self.center_of_mass = floats(c)
+        if self.inertia is not None:
+            self.inertia = _inertia(self.inertia, f"{name}.inertia")
+        self.velocity = floats(_bounded(self.velocity, f"{name}.velocity", MAX_SPEED, "m/s"))
+        self.angular_velocity = floats(_bounded(self.angular_velocity, f"{name}.angular_velocity", MAX_SPIN, "rad/s"))
+        axes = self.fixed_axes
+        if not isinstance(axes, (list, tuple)) or any(a not in AXES for a in axes) or len(set(axes)) != len(axes):
+            raise ValueError(f"{name}.fixed_axes = {axes!r}: must be a list of distinct names among {', '.join(AXES)}")
+        self.fixed_axes = [a for a in AXES if a in axes]
+        self.restitution = in_range(self.restitution, f"{name}.restitution", 0.0, 1.0, "kept share of the speed")
+        self.friction = in_range(self.friction, f"{name}.friction", 0.0, 10.0, "Coulomb's coefficient")
+        if self.name is not None and (not isinstance(self.name, str) or not self.name.isidentifier()):
+            raise ValueError(f"{name}.name = {self.name!r}: must be a plain name (letters, digits, _), bodies.csv's")
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.shape.bounds
+
+    def mesh(self):
+        """The body's surface as a ``trimesh.Trimesh``, where the scene places it."""
+        return shape_mesh(self.shape)
+
+    def mass_properties(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """``(mass kg, centre of mass m, inertia tensor kg m^2)``: the inertia about the centre of
+        mass, in the world's axes as the scene places the body."""
+        volume, centroid, unit = _uniform(self.shape)
+        mass = self.mass if self.mass is not None else self.density * volume
+        inertia = mass * unit
+        com = centroid
+        if self.center_of_mass is not None:  # the uniform body's inertia moved to the given centre
+            com = np.asarray(self.center_of_mass, dtype=np.float64)
+            d = com - centroid
+            inertia = inertia + mass * (np.dot(d, d) * np.eye(3) - np.outer(d, d))
+        if self.inertia is not None:
+            inertia = _tensor(self.inertia)
+        return float(mass), com, inertia
+
+
+def _uniform(shape) -> tuple[float, np.ndarray, np.ndarray]:
+    """Volume, centroid and inertia per unit mass about the centroid of a uniform ``shape``."""
+    if isinstance(shape, Box):
+        lo, hi = shape.bounds
+        e = hi - lo
+        return (
+            float(np.prod(e)),
+            0.5 * (lo + hi),
+            np.diag([e[1] ** 2 + e[2] ** 2, e[0] ** 2 + e[2] ** 2, e[0] ** 2 + e[1] ** 2]) / 12.0,
+        )
+    if isinstance(shape, Sphere):
+        r = shape.radius
+        return 4.0 / 3.0 * np.pi * r**3, np.asarray(shape.center, dtype=np.float64), np.eye(3) * (0.4 * r * r)
+    m = shape.load()
+    volume = float(m.volume)
+    inertia = np.asarray(m.moment_inertia, dtype=np.float64) / (m.density * volume)
+    return volume, np.asarray(m.center_mass, dtype=np.float64), inertia
+
+
+def _bounded(value, name: str, most: float, unit: str) -> np.ndarray:
+    v = vec3(value, name)
+    if float(np.linalg.norm(v)) > most:
+        raise ValueError(f"{name} = {list(value)}: must be at most {most:g} {unit} in magnitude")
+    return v
+
+
+def _inertia(value, name: str) -> tuple:
+    """Three principal moments or six components, a symmetric positive-definite tensor whose
+    moments meet the triangle inequality (a real body's)."""
+    try:
+        if isinstance(value, (str, bytes)) or any(isinstance(c, (bool, str)) for c in value):
+            raise TypeError
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"{name} = {value!r}: must be [Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m^2)"
+        ) from None
+    if arr.shape not in ((3,), (6,)) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} = {value!r}: must be [Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m^2)")
+    moments = np.linalg.eigvalsh(_tensor(arr))
+    if moments[0] <= 0.0 or moments[0] + moments[1] < moments[2] * (1.0 - 1.0e-9):
+        raise ValueError(
+            f"{name} = {list(arr)}: must be positive definite with principal moments meeting "
+            "I1 + I2 >= I3 (a rigid body's)"
+        )
+    return floats(arr)
+
+
+def _tensor(inertia) -> np.ndarray:
+    a = np.asarray(inertia, dtype=np.float64)
+    if a.shape == (3,):
+        return np.diag(a)
+    xx, yy, zz, xy, xz, yz = a
+    return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+
+
+def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
+    """Bodies lie inside the tank, span at least two spacings, and overlap no obstacle and no
+    other body where the scene places them (``ValueError`` naming the first that does)."""
+    tlo, thi = tank.bounds
+    for k, b in enumerate(bodies):
+        name = f"bodies[{k}]"
+        if not isinstance(b, Body):
+            raise ValueError(f"{name} = {b!r}: must be a Body")
+        b.validate(name)
+        lo, hi = b.bounds
+        if np.any(lo < tlo) or np.any(hi > thi):
+            raise ValueError(
+                f"{name}: {floats(lo)}..{floats(hi)} must lie inside the tank {floats(tlo)}..{floats(thi)}"
+            )
+        if float(np.max(hi - lo)) < 2.0 * spacing:
+            raise ValueError(
+                f"{name}: smaller than two spacings ({2.0 * spacing:g} m) on every side; the liquid cannot see it"
+            )
+        if np.any(np.abs(lo) > MAX_COORDINATE) or np.any(np.abs(hi) > MAX_COORDINATE):
+            raise ValueError(f"{name}: must lie within {MAX_COORDINATE:g} m of the origin")
+    shapes = [(f"bodies[{k}]", b.shape) for k, b in enumerate(bodies)]
+    others = [(f"obstacles[{k}]", o) for k, o in enumerate(obstacles) if o.motion is None]
+    for i, (name, a) in enumerate(shapes):
+        for other, b in shapes[i + 1 :] + others:
+            if _overlap(a, b):
+                raise ValueError(f"{name} and {other} overlap where the scene places them; move one")
+
+
+def _overlap(a, b) -> bool:
+    """Whether two shapes share a volume: their boxes overlap and a vertex (or centre) of one
+    lies inside the other."""
+    alo, ahi = a.bounds
+    blo, bhi = b.bounds
+    if not np.all(np.minimum(ahi, bhi) - np.maximum(alo, blo) > 1e-9):
+        return False
+
+    def points(s):
+        if isinstance(s, Box):
+            lo, hi = s.bounds
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            shrink = 1e-6 * (hi - lo)  # corners touching a face do not overlap
+            return np.vstack([np.clip(corners, lo + shrink, hi - shrink), 0.5 * (lo + hi)])
+        m = shape_mesh(s)
+        return np.vstack([np.asarray(m.vertices)[:: max(1, len(m.vertices) // 200)], m.centroid])
+
+    return bool(np.any(contains(b, points(a))) or np.any(contains(a, points(b))))
+
+
+def quaternion_matrix(q) -> np.ndarray:
+    """The rotation of a unit quaternion ``(x, y, z, w)`` (Warp's order)."""
+    x, y, z, w = (float(c) for c in q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def bodies_mesh(bodies: list, positions=None, orientations=None):
+    """The bodies as one ``trimesh.Trimesh`` (side by side, not merged), each with its centre of
+    mass at ``positions[k]`` and turned by ``orientations[k]`` (unit quaternions x, y, z, w) from
+    where the scene places it (default: as placed); ``None`` for none."""
+    import trimesh
+
+    meshes = []
+    for k, b in enumerate(bodies):
+        m = b.mesh().copy()
+        if positions is not None:
+            com = b.mass_properties()[1]
+            R = quaternion_matrix(orientations[k])
+            m.vertices = (np.asarray(m.vertices) - com) @ R.T + np.asarray(positions[k], np.float64)
+        meshes.append(m)
+    return trimesh.util.concatenate(meshes) if meshes else None
