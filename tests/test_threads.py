@@ -18,7 +18,7 @@ USERS = [
     "warp_iisph.sph.solvers.iisph",
     "warp_iisph.sph.solvers.wcsph",
     "warp_iisph.sph.solvers.dfsph",
-    "warp_iisph.sph.loads",
+    "warp_iisph.sph.wall_forces",
     "warp_iisph.surface.field",
     "warp_iisph.surface.marching",
     "warp_iisph.surface.smoothing",

@@ -1,6 +1,7 @@
-"""The force and moment the liquid exerts on walls: for each range of boundary particles (a body, an
-obstacle, the tank), the exact reaction of the pressure and friction terms the step applied to
-fluid particles from those boundary particles, with its moment about a point per range.
+"""The force and moment the liquid exerts on walls: for each group of boundary particles (a body, an
+obstacle), the exact reaction of the pressure and friction terms the step applied to fluid
+particles from those boundary particles, with its moment about a point per group. The one sum
+behind a free body's coupling (:mod:`.rigid`) and a force probe (:mod:`..stepping.probing`).
 
 A fluid particle i with boundary neighbour b was pushed in the step by
 
@@ -16,16 +17,17 @@ A fluid particle i with boundary neighbour b was pushed in the step by
 The wall takes ``-F_ib`` at ``x_b``. Each pair's term is computed from what the step kept (its
 neighbour lists with ``grad W``, ``W`` and the walls' heads, the final pressures or stiffnesses)
 in the solver's float32 arithmetic and summed in float64, in a fixed order: one thread per block
-of :data:`BLOCK` fluid particles, in index and list order, then one thread per range and
+of :data:`BLOCK` fluid particles, in index and list order, then one thread per group and
 component over the blocks in order. So the sums are the same bits on the plain path, split over
 CPU threads or replayed in a graph, and they never allocate (graph-safe).
 
 Usage::
 
-    forces = WallForces(model, solver, ranges=[(first, count), ...], reference=points)  # vec3d per range
+    forces = WallForces(model, solver, labels, reference=points)  # a group per boundary particle, vec3d per group
+    forces = WallForces.of_ranges(model, solver, [(first, count), ...], reference=points)
     forces.compute(state)          # after the solver's step (the friction is gathered during it)
-    forces.totals                  # (ranges, 12) float64: pressure force, friction force, their moments
-    forces.wetted                  # (ranges,) int32: its particles with a fluid neighbour in the step
+    forces.totals                  # (groups, 12) float64: pressure force, friction force, their moments
+    forces.wetted                  # (groups,) int32: its particles with a fluid neighbour in the step
 """
 
 from __future__ import annotations
@@ -39,20 +41,21 @@ from .solvers.forces import ViscousTerms, viscous_pair, viscous_substep_count
 from .wall_pressure import Walls, smoothed_pressure
 
 BLOCK = wp.constant(256)  # fluid particles per thread of the first pass
-COMPONENTS = 12  # per range: pressure force, friction force, pressure moment, friction moment (x, y, z each)
+COMPONENTS = 12  # per group: pressure force, friction force, pressure moment, friction moment (x, y, z each)
 PRESSURE_FORCE, FRICTION_FORCE, PRESSURE_MOMENT, FRICTION_MOMENT = 0, 3, 6, 9
 
 
 @wp.struct
-class Ranges:
-    """Boundary particles ``first[r] .. first[r] + count[r] - 1`` make range r; ``lowest`` is the
-    smallest ``first`` (a neighbour below it is in no range)."""
+class Groups:
+    """Which boundary particles are summed together: ``of[b]`` is boundary particle b's group (-1:
+    none); group r's particles lie within ``first[r] .. first[r] + count[r] - 1`` (a body's are
+    exactly that range; an obstacle's, sorted by cell among the walls', are spread within it)."""
 
+    of: wp.array(dtype=wp.int32)
     first: wp.array(dtype=wp.int32)
     count: wp.array(dtype=wp.int32)
-    reference: wp.array(dtype=wp.vec3d)  # the point each range's moment is taken about (m)
+    reference: wp.array(dtype=wp.vec3d)  # the point each group's moment is taken about (m)
     n: int
-    lowest: int
 
 
 @wp.struct
@@ -68,18 +71,6 @@ class Push:
 
 
 @wp.func
-def range_of(ranges: Ranges, b: int) -> int:
-    """The range boundary particle b lies in, -1 for none."""
-    if b < ranges.lowest:
-        return -1
-    for r in range(ranges.n):
-        first = ranges.first[r]
-        if b >= first and b < first + ranges.count[r]:
-            return r
-    return -1
-
-
-@wp.func
 def add_load(row: wp.array2d(dtype=wp.float64), blk: int, col: int, f: wp.vec3d, arm: wp.vec3d):
     """``f`` at col..col+2 of a block's row and its moment ``arm x f`` at col+3..col+5."""
     m = wp.cross(arm, f)
@@ -92,7 +83,7 @@ def add_load(row: wp.array2d(dtype=wp.float64), blk: int, col: int, f: wp.vec3d,
 def pressure_loads(
     offset: int,
     n: int,
-    ranges: Ranges,
+    groups: Groups,
     push: Push,
     walls: Walls,
     xb: wp.array(dtype=wp.vec3),
@@ -102,16 +93,16 @@ def pressure_loads(
     partial: wp.array2d(dtype=wp.float64),
     wet: wp.array(dtype=wp.int32),
 ):
-    """One block's pressure loads on every range, in index and list order; ``wet[b]`` set for
-    every boundary particle of a range that has a fluid neighbour (the same value from any thread)."""
+    """One block's pressure loads on every group, in index and list order; ``wet[b]`` set for
+    every boundary particle of a group that has a fluid neighbour (the same value from any thread)."""
     blk = wp.tid() + offset
-    for c in range(ranges.n * 6):
+    for c in range(groups.n * 6):
         partial[blk, c] = wp.float64(0.0)
     p = push.p
     for i in range(blk * BLOCK, wp.min(blk * BLOCK + BLOCK, n)):
         touches = int(0)
         for m in range(nb.count[i]):
-            if range_of(ranges, nb.index[entry(nb, i, m)]) >= 0:
+            if groups.of[nb.index[entry(nb, i, m)]] >= 0:
                 touches = 1
         if touches == 0:
             continue
@@ -132,7 +123,7 @@ def pressure_loads(
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
             b = nb.index[k]
-            r = range_of(ranges, b)
+            r = groups.of[b]
             if r < 0:
                 continue
             wet[b] = 1
@@ -140,7 +131,7 @@ def pressure_loads(
             if extrapolated:
                 p_b = wp.max(p_c + nb.head[k], 0.0)
             term = walls.psi[b] * (own + walls.pressure_factor * p_b) * nb.grad_W[k]  # the fluid's a_i -= term
-            add_load(partial, blk, r * 6, wp.float64(mass) * wp.vec3d(term), wp.vec3d(xb[b]) - ranges.reference[r])
+            add_load(partial, blk, r * 6, wp.float64(mass) * wp.vec3d(term), wp.vec3d(xb[b]) - groups.reference[r])
 
 
 @wp.kernel
@@ -148,7 +139,7 @@ def friction_loads(
     offset: int,
     n: int,
     k_sub: int,
-    ranges: Ranges,
+    groups: Groups,
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
@@ -161,7 +152,7 @@ def friction_loads(
     the sub-steps this step takes), added to those of the earlier sub-steps (sub-step 0 starts)."""
     blk = wp.tid() + offset
     if k_sub == 0:
-        for c in range(ranges.n * 6):
+        for c in range(groups.n * 6):
             partial[blk, c] = wp.float64(0.0)
     subs = viscous_substep_count(dt_step[0], terms.limit, terms.most)
     if k_sub >= subs:
@@ -173,21 +164,22 @@ def friction_loads(
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
             b = nb.index[k]
-            r = range_of(ranges, b)
+            r = groups.of[b]
             if r < 0:
                 continue
             f = (terms.psi[b] / rho[i]) * viscous_pair(v_i - terms.vb[b], x_i - terms.xb[b], terms.h, nb.grad_W[k])
-            add_load(partial, blk, r * 6, scale * wp.vec3d(f), wp.vec3d(terms.xb[b]) - ranges.reference[r])
+            add_load(partial, blk, r * 6, scale * wp.vec3d(f), wp.vec3d(terms.xb[b]) - groups.reference[r])
 
 
 @wp.kernel
-def count_wet(ranges: Ranges, wet: wp.array(dtype=wp.int32), wetted: wp.array(dtype=wp.int32)):
-    """Range r's boundary particles with a fluid neighbour this step."""
+def count_wet(groups: Groups, wet: wp.array(dtype=wp.int32), wetted: wp.array(dtype=wp.int32)):
+    """Group r's boundary particles with a fluid neighbour this step."""
     r = wp.tid()
-    first = ranges.first[r]
+    first = groups.first[r]
     n = int(0)
-    for b in range(first, first + ranges.count[r]):
-        n += wet[b]
+    for b in range(first, first + groups.count[r]):
+        if groups.of[b] == r:
+            n += wet[b]
     wetted[r] = n
 
 
@@ -198,7 +190,7 @@ def total_loads(
     friction: wp.array2d(dtype=wp.float64),
     totals: wp.array2d(dtype=wp.float64),
 ):
-    """Range r's component c, the blocks' values summed in block order."""
+    """Group r's component c, the blocks' values summed in block order."""
     r, c = wp.tid()
     part = pressure
     if c == 3 or c == 4 or c == 5 or c >= 9:
@@ -213,40 +205,55 @@ def total_loads(
 
 
 class WallForces:
-    """Forces and moments of the liquid on ranges of boundary particles of ``model`` stepped by
-    ``solver``: ``ranges`` as ``(first, count)`` boundary indices, ``reference`` a device array of
-    one ``wp.vec3d`` per range (read when the loads are summed; the caller may change its values
-    between steps). ``totals[r]`` holds, after :meth:`compute`, range r's pressure force (N) at
+    """Forces and moments of the liquid on groups of boundary particles of ``model`` stepped by
+    ``solver``: ``groups`` as one label per boundary particle (its group, -1 for none; use
+    :meth:`of_ranges` for ``(first, count)`` ranges), ``reference`` a device array of one
+    ``wp.vec3d`` per group (read when the loads are summed; the caller may change its values
+    between steps). ``totals[r]`` holds, after :meth:`compute`, group r's pressure force (N) at
     columns 0-2, friction force 3-5, pressure moment about ``reference[r]`` (N m) 6-8 and friction
     moment 9-11, the averages over the step just taken; ``wetted[r]`` how many of its particles
     had a fluid neighbour."""
 
-    def __init__(self, model, solver, ranges: list, reference: wp.array | None = None):
+    def __init__(self, model, solver, groups: np.ndarray, reference: wp.array | None = None):
         dev = model.device
         self.device = dev
         self.model, self.solver = model, solver
-        r = Ranges()
-        rows = np.asarray(ranges, dtype=np.int32).reshape(-1, 2)
-        r.first = wp.array(rows[:, 0] if len(rows) else np.zeros(1, np.int32), dtype=wp.int32, device=dev)
-        r.count = wp.array(rows[:, 1] if len(rows) else np.zeros(1, np.int32), dtype=wp.int32, device=dev)
-        r.n = len(rows)
-        r.lowest = int(rows[:, 0].min()) if len(rows) else 0
+        labels = np.asarray(groups, dtype=np.int32).reshape(-1)
+        n = int(labels.max(initial=-1)) + 1
+        first, count = np.zeros(max(n, 1), np.int32), np.zeros(max(n, 1), np.int32)
+        for r in range(n):
+            where = np.flatnonzero(labels == r)
+            if len(where):
+                first[r], count[r] = where[0], where[-1] + 1 - where[0]
+        g = Groups()
+        g.of = wp.array(labels if len(labels) else np.full(1, -1, np.int32), dtype=wp.int32, device=dev)
+        g.first = wp.array(first, dtype=wp.int32, device=dev)
+        g.count = wp.array(count, dtype=wp.int32, device=dev)
+        g.n = n
         if reference is None:
-            reference = wp.zeros(max(r.n, 1), dtype=wp.vec3d, device=dev)
-        r.reference = reference
-        self.ranges = r
+            reference = wp.zeros(max(n, 1), dtype=wp.vec3d, device=dev)
+        g.reference = reference
+        self.groups = g
         self.blocks = max(1, -(-model.capacity // int(BLOCK)))
-        width = max(r.n * 6, 1)
+        width = max(n * 6, 1)
         self.pressure_part = wp.zeros((self.blocks, width), dtype=wp.float64, device=dev)
         self.friction_part = wp.zeros((self.blocks, width), dtype=wp.float64, device=dev)
-        self.totals = wp.zeros((max(r.n, 1), COMPONENTS), dtype=wp.float64, device=dev)
+        self.totals = wp.zeros((max(n, 1), COMPONENTS), dtype=wp.float64, device=dev)
         self.wet = wp.zeros(max(model.n_boundary, 1), dtype=wp.int32, device=dev)
-        self.wetted = wp.zeros(max(r.n, 1), dtype=wp.int32, device=dev)  # per range: particles the liquid touched
+        self.wetted = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)  # per group: particles the liquid touched
         walls = solver.walls
         self.walls = getattr(walls, "walls", walls)  # a WallPressures holds its Walls; DFSPH keeps Walls itself
         self._pushes = None
-        if r.n and model.physics.boundary_viscosity > 0.0:
+        if n and model.physics.boundary_viscosity > 0.0:
             solver.viscous.observers.append(self._friction)  # the friction's sub-steps, as the solver takes them
+
+    @classmethod
+    def of_ranges(cls, model, solver, ranges: list, reference: wp.array | None = None) -> WallForces:
+        """Groups that are ranges of boundary particles, ``(first, count)`` each (a body's)."""
+        labels = np.full(model.n_boundary, -1, dtype=np.int32)
+        for r, (first, count) in enumerate(ranges):
+            labels[first : first + count] = r
+        return cls(model, solver, labels, reference)
 
     def _push(self, state) -> Push:
         """The :class:`Push` of ``state`` (made once: the state's arrays keep their memory)."""
@@ -264,19 +271,19 @@ class WallForces:
         """The friction loads of viscous sub-step ``k`` on the velocities ``v_in`` it starts from."""
         blocks = -(-state.n // int(BLOCK))
         terms, nb = self.solver.viscous.terms, self.solver.search.boundary.lists
-        args = [state.n, k, self.ranges, state.x, v_in, state.rho, nb, terms, self.solver.dt, self.friction_part]
+        args = [state.n, k, self.groups, state.x, v_in, state.rho, nb, terms, self.solver.dt, self.friction_part]
         launch_particles(friction_loads, blocks, args, self.device, min_chunk=1)
 
     def compute(self, state) -> None:
         """The step's loads into ``totals``: the pressure's from the step's final pressures (the
         friction's were gathered during the step)."""
-        if self.ranges.n == 0 or state.n == 0:
+        if self.groups.n == 0 or state.n == 0:
             return
         search = self.solver.search
         blocks = -(-state.n // int(BLOCK))
         args = [
             state.n,
-            self.ranges,
+            self.groups,
             self._push(state),
             self.walls,
             self.model.boundary_x,
@@ -286,10 +293,10 @@ class WallForces:
         ]
         self.wet.zero_()
         launch_particles(pressure_loads, blocks, [*args, self.pressure_part, self.wet], self.device, min_chunk=1)
-        wp.launch(count_wet, dim=self.ranges.n, inputs=[self.ranges, self.wet, self.wetted], device=self.device)
+        wp.launch(count_wet, dim=self.groups.n, inputs=[self.groups, self.wet, self.wetted], device=self.device)
         wp.launch(
             total_loads,
-            dim=(self.ranges.n, COMPONENTS),
+            dim=(self.groups.n, COMPONENTS),
             inputs=[blocks, self.pressure_part, self.friction_part, self.totals],
             device=self.device,
         )

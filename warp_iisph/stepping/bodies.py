@@ -23,7 +23,7 @@ class BodySteps:
         self.loads = None
         if self.rigid is not None and self.rigid.n:
             ranges = list(zip(self.rigid.first, self.rigid.counts))
-            self.loads = WallForces(model, solver, ranges, self.rigid.state.position)
+            self.loads = WallForces.of_ranges(model, solver, ranges, self.rigid.state.position)
 
     def place(self, time, dt) -> None:
         """The bodies where they are at the step's start (``time``, ``dt``: device scalars)."""

@@ -15,8 +15,8 @@ import numpy as np
 import warp as wp
 
 from ..scene.probes import obstacle_index, probe_columns
-from ..sph.loads import ObstacleLoads
 from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
+from ..sph.wall_forces import WallForces
 
 # a step ending this close (a fraction of the interval) before a multiple of it reaches it
 SCHEDULE_SLACK = wp.constant(wp.float64(1.0e-9))
@@ -73,7 +73,7 @@ class ProbeSampler:
     per step of a loop (the time loop's log capacity). Columns: ``t`` then :attr:`columns`, the
     probes' own in scene order within each kind: pressure probes, level gauges, force probes."""
 
-    def __init__(self, scene, model, capacity: int):
+    def __init__(self, scene, model, solver, capacity: int):
         self.model = model
         dev = model.device
         h, H = model.spacing, model.support_radius
@@ -103,7 +103,14 @@ class ProbeSampler:
         refs = {}  # an obstacle's moments are summed about its first probe's point
         for p in self.forces:
             refs.setdefault(index[p.name], p.point)
-        self.loads = ObstacleLoads(model, obstacles, [refs[k] for k in obstacles]) if self.forces else None
+        self.loads = None
+        if self.forces:  # each measured obstacle's boundary particles a group of the wall-force sums
+            owner = model.boundary_owner.numpy()[: model.n_boundary]
+            group = np.full(len(owner), -1, dtype=np.int32)
+            for g, k in enumerate(obstacles):
+                group[owner == k] = g
+            points = np.array([refs[k] for k in obstacles], dtype=np.float64).reshape(-1, 3)
+            self.loads = WallForces(model, solver, group, wp.array(points, dtype=wp.vec3d, device=dev))
         self.slot_of_probe = wp.array(
             np.array([obstacles.index(index[p.name]) for p in self.forces], dtype=np.int32),
             dtype=wp.int32,
@@ -118,11 +125,6 @@ class ProbeSampler:
 
     def __bool__(self) -> bool:
         return bool(self.probes)
-
-    def before_step(self, state) -> None:
-        """What a force probe needs from the step's start (after the reorder)."""
-        if self.loads is not None:
-            self.loads.keep_start(state)
 
     def sample(self, state, solver, time: wp.array, dt: wp.array, max_speed2: wp.array, slot: wp.array) -> None:
         """At a step's end, before the clock moves: the row ``slot`` of the log."""
@@ -185,7 +187,7 @@ class ProbeSampler:
             )
             column += len(self.levels)
         if self.forces:
-            self.loads.compute(state, solver)
+            self.loads.compute(state)
             wp.launch(
                 force_columns,
                 dim=len(self.forces),

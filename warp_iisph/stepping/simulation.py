@@ -84,7 +84,9 @@ class Simulation:
         self.flows = Flows(self.scene, self.state, self.device)
         self.flows.emit(self.time)  # the layers due at the start are there from the start
         self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)
-        self.loop.probes = ProbeSampler(self.scene, self.model, self.loop.capacity) if self.scene.probes else None
+        self.loop.probes = (
+            ProbeSampler(self.scene, self.model, self.solver, self.loop.capacity) if self.scene.probes else None
+        )
         # the probes' samples, as NumPy arrays by column name (empty for a scene without probes)
         self.probes = ProbeSamples(self.loop.probes.columns if self.loop.probes else [], probe_history)
         # graph=True replays the recorded loop over steps (see .graph); the plain path launches the

@@ -241,8 +241,6 @@ class TimeLoop:
         wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
             wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x, state.n)))
-        if self.probes:
-            self.probes.before_step(state)
         solver.launch_step(model, state, timer, sync=sync)
         search = solver.search
         with timer("integration") if timer else nullcontext():
