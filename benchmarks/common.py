@@ -14,7 +14,7 @@ from pathlib import Path
 import warp as wp
 
 from warp_iisph.engine.devices import device_name
-from warp_iisph.run.runner import versions
+from warp_iisph.run.run_record import versions
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

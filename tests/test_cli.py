@@ -130,16 +130,16 @@ def test_background_output_writes_the_same_files(tmp_path):
 
 
 def test_a_failed_write_is_one_line_and_keeps_earlier_frames(tmp_path, monkeypatch, capsys):
-    import warp_iisph.run.runner as runner
+    import warp_iisph.run.formats as formats
 
-    real = runner.write_particles
+    real = formats.write_particles
 
     def fail_third(path, *args, **kw):
         if path.name == "frame_00002.ply":
             raise OSError(28, "No space left on device", str(path))
         real(path, *args, **kw)
 
-    monkeypatch.setattr(runner, "write_particles", fail_third)
+    monkeypatch.setattr(formats, "write_particles", fail_third)
     out = tmp_path / "run"
     code = main(
         [

@@ -325,16 +325,16 @@ def test_ctrl_c_during_start_up_is_one_line_and_keeps_the_old_run(old_run):
 
 def test_a_failed_write_keeps_earlier_frames_and_a_readable_record(tmp_path, monkeypatch):
     """A full disk at frame 3 (a mocked write): the run ends 'failed', frames 0-2 and the record stay."""
-    import warp_iisph.run.runner as runner
+    import warp_iisph.run.formats as formats
 
-    real = runner.write_particles
+    real = formats.write_particles
 
     def write(path, *a, **k):
         if path.name == "frame_00003.ply":
             raise OSError(28, "No space left on device", str(path))
         return real(path, *a, **k)
 
-    monkeypatch.setattr(runner, "write_particles", write)
+    monkeypatch.setattr(formats, "write_particles", write)
     out = tmp_path / "run"
     record = run_scene(scenes.martin_moyce(spacing=0.04), out, duration=0.2, fps=30, progress=False)
     assert record["ended"] == "failed" and "No space left" in record["message"]

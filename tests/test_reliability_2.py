@@ -383,8 +383,8 @@ def test_a_start_killed_before_its_first_frame_leaves_nothing_behind(tmp_path):
     code, err = child(
         f"""
         import os, sys
-        import warp_iisph.run.runner as runner
-        runner.write_particles = lambda *a, **k: os._exit(9)
+        import warp_iisph.run.formats as formats
+        formats.write_particles = lambda *a, **k: os._exit(9)
         from warp_iisph.cli import main
         sys.exit(main(["run", {str(scene)!r}, "--out", {str(out)!r}, "--duration", "0.1", "--no-progress"]))
         """

@@ -17,22 +17,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import platform
-import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
-from .. import __version__
 from ..engine import signals
 from ..engine.signals import Terminated
-from ..engine.timing import StageTimes
-from ..scene import MeshShape, Scene, scene_to_dict
+from ..scene import MeshShape, Scene
 from ..scene.checks import in_range
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
-from ..setup.model import PARTICLE_FIELDS, id_order
-from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owner, stage_checkpoint
+from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owner
 from .folder import (
     MESHES,
     OBSTACLE_FRAMES,
@@ -41,29 +34,19 @@ from .folder import (
     RunFolder,
     frame_files,
     frame_index,
-    new_run_id,
 )
-from .formats import StatsWriter, read_stats, write_particles
+from .formats import StatsWriter, read_stats
 from .frame_queue import FrameQueue
+from .frame_writer import FrameWriter
 from .lock import FolderLock
 from .meshing import FrameMesher, mesh_settings
 from .probe_file import open_probe_file
 from .progress import frame_bar
 from .replace import OutputExistsError, commit, discard, prepare, recover, resolved, stage
+from .run_record import RunRecord
 from .solids import SolidFiles
 
 __all__ = ["OutputExistsError", "Terminated", "load_checkpoint", "resumed_scene", "run_scene"]
-
-
-def versions() -> dict:
-    import warp as wp
-
-    return {
-        "warp_iisph": __version__,
-        "warp": wp.__version__,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-    }
 
 
 @dataclasses.dataclass
@@ -215,121 +198,44 @@ def run_scene(
 def _simulate(scene, sim, run, plan, first, t_start, background_output, progress, graph, before, place) -> dict:
     """The run itself, from frame ``first`` (0, or the one after a resumed run's checkpoint, whose
     record is ``before``); ``place`` moves a new run's folder into its place once its first frame
-    is on disk. Returns the record, whose ``ended`` says how it ended; every ending is written to
-    ``run.json`` (except where the run never got in place, and the old folder stays as it was)."""
+    is on disk. Returns the run record, whose ``ended`` says how it ended; every ending is written
+    to ``run.json`` (except where the run never got in place, and the old folder stays as it was)."""
     from ..stepping import DivergenceError
 
     resume = before is not None
-    totals = StepTotals(sim.physics)
-    record = {
-        "run_id": before["run_id"] if resume else new_run_id(),
-        "ended": "running",
-        "message": "",
-        "scene": scene_to_dict(scene),
-        "device": str(sim.device),
-        "graph": graph,
-        "versions": versions(),
-        "command": " ".join(sys.argv),
-        "particles": {"fluid": sim.n_particles, "boundary": sim.model.n_boundary, "capacity": sim.model.capacity},
-        "duration": plan.duration,
-        "requested_duration": plan.requested,
-        "fps": plan.fps,
-        "output": {
-            "particles": scene.output.particles,
-            "format": scene.output.format,
-            "mesh": scene.output.mesh,
-            "background": background_output,
-        },
-    }
-    if resume:
-        record["resumed"] = before.get("resumed", []) + [{"frame": first - 1, "t": sim.time, "step": sim.step_count}]
-        record.update({k: before[k] for k in ("obstacles", "bodies") if k in before})
-    # seconds per stage on the main thread; ``export`` is what output cost it: the host copies
-    # plus the waits for the writer thread (whose own work overlaps the simulation)
-    times = StageTimes()
-    owner_keys = owner(record["run_id"], scene)
-    written = [0]  # frames whose files are all on disk
-    mesher = queue = stats = solids = probe_file = None
+    record = RunRecord(scene, sim, run, plan, graph, background_output, before, first)
+    record.started = t_start
+    mesher = queue = frames = None
+    logs = []  # the files that grow step by step or frame by frame: stats.jsonl, the solids', probes.csv
     placed = resume  # whether the run folder is in its place (a new one moves there with frame 0)
-
-    def write_frame(k: int) -> None:
-        files, then, staged = [], [], []  # written side by side; then what must appear after them
-        if scene.output.particles:
-            with times("export"):  # the main thread only downloads; the writer orders by id
-                frame_file = run.particle_frame(k)
-                raw = {name: sim.state.host(name) for name in PARTICLE_FIELDS}
-
-            def particles():
-                order = id_order(raw["id"])
-                x, v, rho, p, ids = (raw[name][order] for name in PARTICLE_FIELDS)
-                write_particles(frame_file, x, v, rho, p, ids=ids)
-
-            files.append(particles)
-        if mesher is not None:
-            mesh, obj = mesher.mesh(sim.state.x[: sim.n_particles]), run.mesh_frame(k)
-            files.append(lambda: mesher.export(mesh, obj))
-        files += solids.jobs(k, sim)  # where every obstacle and body is at this frame, for the viewers
-        every = scene.output.checkpoint_every
-        if every and (k % every == 0 or k == plan.frames - 1):
-            state = {**sim.checkpoint(), "frame": np.int64(k), **owner_keys}
-            files.append(lambda: staged.append(stage_checkpoint(run, state)))
-            then.append(lambda: staged[0].commit())  # renamed in after the frame's files: never ahead of them
-
-        def job():
-            try:
-                queue.together(files)
-                for j in then:
-                    j()
-            except BaseException:
-                for f in staged:  # a frame that failed leaves no checkpoint half-way
-                    f.discard()
-                raise
-            written[0] = k + 1
-
-        queue.submit(job)
-
-    def update_record(ended: str | None = None, message: str = "") -> None:
-        if ended is not None:
-            record.update(ended=ended, message=message)
-        record.update(
-            totals=totals.record(sim, written[0], time.perf_counter() - t_start),
-            stage_seconds=_stage_seconds(times, mesher, queue),
-        )
-        record["output"].update(writer_seconds=queue.busy, waited_seconds=queue.blocked)
-        run.write_record(record)
-
     bar = frame_bar(plan.frames, progress)
     ended, message = "completed", ""
     try:
         mesher = FrameMesher(scene.spacing, scene.surface, sim.device) if scene.output.mesh else None
         queue = FrameQueue(background=background_output)
-
-        def on_step(rec: dict) -> None:
-            stats.write(rec)
-            totals.add(rec)
-            times.merge({k: v / 1e3 for k, v in rec["ms"].items()})
-
-        if resume:  # what the stopped run wrote after its checkpoint goes; the rest is this run's start
-            for old in _frames_after(run, first - 1) + run.temporary_files():  # and what a killed run staged
-                old.unlink()
-            kept = [r for r in read_stats(run.stats) if r["step"] <= sim.step_count] if run.stats.exists() else []
-            for r in kept:
-                totals.add(r)
-            stats = StatsWriter(run.stats, keep=kept)
-            solids = SolidFiles(run, scene, plan.fps, keep_until=sim.time)
-            probe_file = open_probe_file(run.probes, sim, keep_until=sim.time)
-            written[0] = first
-            update_record()
+        if resume:
+            steps, solids, probes = _continue_logs(run, sim, scene, plan, first, record)
         else:
-            stats = StatsWriter(run.stats)
-            solids = SolidFiles(run, scene, plan.fps)
-            probe_file = open_probe_file(run.probes, sim)
-            record.update(solids.start())  # one file for the viewers and Blender (at t = 0)
+            steps, solids = StatsWriter(run.stats), SolidFiles(run, scene, plan.fps)
+            probes = open_probe_file(run.probes, sim)
+        logs += [steps, solids, probes]
+        owner_keys = owner(record.run_id, scene)
+        frames = FrameWriter(sim, run, scene, plan.frames, queue, mesher, solids, owner_keys, record.times)
+
+        def on_step(step: dict) -> None:
+            steps.write(step)
+            record.add_step(step)
+
+        if resume:
+            frames.written = first
+            record.write(frames.written, mesher, queue)
+        else:
+            record.data.update(solids.start())  # one file for the viewers and Blender (at t = 0)
             if mesher is not None:
-                run.write_provenance(MESHES, record["run_id"], mesh_settings(scene.surface, scene.spacing))
-            write_frame(0)
+                run.write_provenance(MESHES, record.run_id, mesh_settings(scene.surface, scene.spacing))
+            frames.write(0)
             queue.wait()
-            update_record()
+            record.write(frames.written, mesher, queue)
             with signals.held():  # a Ctrl-C now is raised once the run is in place and knows it
                 run.path = place()  # the new run is on disk: it takes its place (and the old one's)
                 placed = True
@@ -338,11 +244,11 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
         for k in range(first, plan.frames):
             steps_before, wall_before = sim.step_count, time.perf_counter()
             sim.advance(k / plan.fps - sim.time, callback=on_step)
-            write_frame(k)
-            stats.flush()
-            if probe_file is not None:
-                probe_file.flush()
-            update_record()
+            frames.write(k)
+            for log in (steps, probes):
+                if log is not None:
+                    log.flush()
+            record.write(frames.written, mesher, queue)
             rate = (sim.step_count - steps_before) / max(time.perf_counter() - wall_before, 1e-9)
             last = sim.stats[-1] if sim.stats else {}
             bar.set_postfix_str(f"t={sim.time:.3f}s {rate:.1f} steps/s err={100 * last.get('density_error', 0):.3f}%")
@@ -369,23 +275,34 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
             except Exception as e:
                 if ended == "completed":
                     ended, message = "failed", f"writing the run to {run.path}: {_failure(e)}"
-        for writer in (stats, solids, probe_file):
-            if writer is not None:
-                _close_quietly(writer.close)
+        for log in logs:
+            if log is not None:
+                _close_quietly(log.close)
+    written = frames.written if frames is not None else 0
     if not placed:  # the new run never got its first frame in place: the old folder stays as it was
-        record.update(ended=ended if ended != "completed" else "failed", message=message or "no frame was written")
-        record["totals"] = totals.record(sim, 0, time.perf_counter() - t_start)
-        return record
+        record.end(ended if ended != "completed" else "failed", message or "no frame was written")
+        return record.refresh(0)
+    record.end(ended, message)
     try:
-        update_record(ended, message)
+        record.write(written, mesher, queue)
     except OSError as e:  # the disk is full: the record written at the last frame stays
-        record.update(
-            ended=ended if ended != "completed" else "failed",
-            message=f"{message}; run.json could not be updated ({e})"
-            if message
-            else f"run.json could not be updated ({e})",
-        )
-    return record
+        note = f"run.json could not be updated ({e})"
+        record.end(ended if ended != "completed" else "failed", f"{message}; {note}" if message else note)
+    return record.data
+
+
+def _continue_logs(run: RunFolder, sim, scene, plan, first: int, record: RunRecord) -> tuple:
+    """A resumed run's growing files, cut back to its checkpoint (frame ``first - 1``): what the
+    stopped run wrote after it goes, and what a killed run staged; the step records up to its step
+    stay (and go into the totals), the solids' and the probes' rows up to its time."""
+    for old in _frames_after(run, first - 1) + run.temporary_files():
+        old.unlink()
+    kept = [r for r in read_stats(run.stats) if r["step"] <= sim.step_count] if run.stats.exists() else []
+    for r in kept:
+        record.totals.add(r)
+    steps = StatsWriter(run.stats, keep=kept)
+    solids = SolidFiles(run, scene, plan.fps, keep_until=sim.time)
+    return steps, solids, open_probe_file(run.probes, sim, keep_until=sim.time)
 
 
 def _close_quietly(close) -> None:
@@ -433,73 +350,3 @@ def _frames_after(run: RunFolder, k: int) -> list[Path]:
     return [
         f for kind, kinds in exts.items() for e in kinds for f in frame_files(run.path / kind, e) if frame_index(f) > k
     ]
-
-
-class StepTotals:
-    """Sums over a run's step records, kept as they come (the records themselves go to disk)."""
-
-    def __init__(self, physics):
-        self.physics = physics
-        self.steps = 0
-        self.sums = {"iterations": 0.0, "density_error": 0.0, "compression": 0.0}
-        self.corrections = {"wall_corrections": 0, "obstacle_corrections": 0}
-        self.corrected_steps = 0
-        self.substeps = 0  # steps that were pieces of a fixed dt cut into substeps
-        self.most_substeps = 1
-        self.unconverged = 0
-        self.worst_unconverged = 0.0
-
-    def add(self, rec: dict) -> None:
-        ph = self.physics
-        self.steps += 1
-        for k in self.sums:
-            self.sums[k] += rec[k]
-        for k in self.corrections:
-            self.corrections[k] += rec.get(k, 0)
-        self.corrected_steps += int(any(rec.get(k, 0) for k in self.corrections))
-        pieces = rec.get("substeps", 1)
-        self.substeps += int(pieces > 1)
-        self.most_substeps = max(self.most_substeps, pieces)
-        if ph.method in ("iisph", "dfsph") and rec["iterations"] >= ph.max_iterations and rec["density_error"] > ph.eta:
-            self.unconverged += 1
-            self.worst_unconverged = max(self.worst_unconverged, rec["density_error"])
-
-    def record(self, sim, frames: int, wall: float) -> dict:
-        n = max(self.steps, 1)
-        return {
-            "steps": sim.step_count,
-            "simulated_time": sim.time,
-            "frames": frames,
-            "particles": sim.n_particles,
-            **(
-                {
-                    "emitted": sim.flows.emitted,
-                    "removed": sim.flows.removed,
-                    "not_emitted": sim.flows.refused,
-                    "blocked": sim.flows.blocked,
-                }
-                if sim.flows
-                else {}
-            ),
-            "wall_seconds": wall,
-            "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
-            "mean_iterations": self.sums["iterations"] / n,
-            "mean_density_error": self.sums["density_error"] / n,
-            "mean_compression": self.sums["compression"] / n,
-            **self.corrections,
-            "corrected_steps": self.corrected_steps,
-            "substeps": self.substeps,
-            "most_substeps": self.most_substeps,
-            "unconverged_steps": self.unconverged,
-            "worst_unconverged_error": self.worst_unconverged,
-        }
-
-
-def _stage_seconds(times: StageTimes, mesher, queue: FrameQueue) -> dict:
-    """The main thread's seconds per stage: the steps', the meshing's and the waits for output."""
-    total = StageTimes()
-    total.merge(times.seconds)
-    if mesher is not None:
-        total.merge({k: v for k, v in mesher.times.seconds.items() if k != "export"})
-    total.add("export", queue.blocked)
-    return total.seconds

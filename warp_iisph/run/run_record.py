@@ -1,0 +1,160 @@
+"""``run.json``: a run's record (scene, device, versions, the frame plan, how it ended) and its
+totals over the step records, rewritten at every frame and however the run ends."""
+
+from __future__ import annotations
+
+import platform
+import sys
+import time
+
+import numpy as np
+
+from .. import __version__
+from ..engine.timing import StageTimes
+from ..scene import scene_to_dict
+from .folder import new_run_id
+from .frame_queue import FrameQueue
+
+
+def versions() -> dict:
+    import warp as wp
+
+    return {
+        "warp_iisph": __version__,
+        "warp": wp.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+    }
+
+
+class RunRecord:
+    """The record of a run of ``scene`` by ``sim`` into ``run`` (a resumed run's record ``before``
+    goes on: its id, its list of resumptions): :attr:`data` is what ``run.json`` holds,
+    :attr:`totals` the sums over the step records, :attr:`times` the main thread's seconds per
+    stage; :meth:`write` brings them up to date on disk."""
+
+    def __init__(self, scene, sim, run, plan, graph: bool, background: bool, before: dict | None, first: int):
+        self.sim, self.run = sim, run
+        self.started = time.perf_counter()
+        self.totals = StepTotals(sim.physics)
+        # seconds per stage on the main thread; ``export`` is what output cost it: the host copies
+        # plus the waits for the writer thread (whose own work overlaps the simulation)
+        self.times = StageTimes()
+        self.data = {
+            "run_id": before["run_id"] if before is not None else new_run_id(),
+            "ended": "running",
+            "message": "",
+            "scene": scene_to_dict(scene),
+            "device": str(sim.device),
+            "graph": graph,
+            "versions": versions(),
+            "command": " ".join(sys.argv),
+            "particles": {"fluid": sim.n_particles, "boundary": sim.model.n_boundary, "capacity": sim.model.capacity},
+            "duration": plan.duration,
+            "requested_duration": plan.requested,
+            "fps": plan.fps,
+            "output": {
+                "particles": scene.output.particles,
+                "format": scene.output.format,
+                "mesh": scene.output.mesh,
+                "background": background,
+            },
+        }
+        if before is not None:
+            resumption = {"frame": first - 1, "t": sim.time, "step": sim.step_count}
+            self.data["resumed"] = before.get("resumed", []) + [resumption]
+            self.data.update({k: before[k] for k in ("obstacles", "bodies") if k in before})
+
+    @property
+    def run_id(self) -> str:
+        return self.data["run_id"]
+
+    def add_step(self, step: dict) -> None:
+        """One step's record (a line of ``stats.jsonl``) into the totals and the stage times."""
+        self.totals.add(step)
+        self.times.merge({k: v / 1e3 for k, v in step.get("ms", {}).items()})
+
+    def end(self, ended: str, message: str) -> None:
+        self.data.update(ended=ended, message=message)
+
+    def refresh(self, frames: int, mesher=None, queue: FrameQueue | None = None) -> dict:
+        """The totals and stage seconds as they are now (``frames``: frames whose files are on disk)."""
+        self.data["totals"] = self.totals.record(self.sim, frames, time.perf_counter() - self.started)
+        if queue is not None:
+            self.data["stage_seconds"] = _stage_seconds(self.times, mesher, queue)
+            self.data["output"].update(writer_seconds=queue.busy, waited_seconds=queue.blocked)
+        return self.data
+
+    def write(self, frames: int, mesher, queue: FrameQueue) -> None:
+        """``run.json`` brought up to date (atomically, :meth:`.folder.RunFolder.write_record`)."""
+        self.run.write_record(self.refresh(frames, mesher, queue))
+
+
+class StepTotals:
+    """Sums over a run's step records, kept as they come (the records themselves go to disk)."""
+
+    def __init__(self, physics):
+        self.physics = physics
+        self.steps = 0
+        self.sums = {"iterations": 0.0, "density_error": 0.0, "compression": 0.0}
+        self.corrections = {"wall_corrections": 0, "obstacle_corrections": 0}
+        self.corrected_steps = 0
+        self.substeps = 0  # steps that were pieces of a fixed dt cut into substeps
+        self.most_substeps = 1
+        self.unconverged = 0
+        self.worst_unconverged = 0.0
+
+    def add(self, rec: dict) -> None:
+        ph = self.physics
+        self.steps += 1
+        for k in self.sums:
+            self.sums[k] += rec[k]
+        for k in self.corrections:
+            self.corrections[k] += rec.get(k, 0)
+        self.corrected_steps += int(any(rec.get(k, 0) for k in self.corrections))
+        pieces = rec.get("substeps", 1)
+        self.substeps += int(pieces > 1)
+        self.most_substeps = max(self.most_substeps, pieces)
+        if ph.method in ("iisph", "dfsph") and rec["iterations"] >= ph.max_iterations and rec["density_error"] > ph.eta:
+            self.unconverged += 1
+            self.worst_unconverged = max(self.worst_unconverged, rec["density_error"])
+
+    def record(self, sim, frames: int, wall: float) -> dict:
+        n = max(self.steps, 1)
+        return {
+            "steps": sim.step_count,
+            "simulated_time": sim.time,
+            "frames": frames,
+            "particles": sim.n_particles,
+            **(
+                {
+                    "emitted": sim.flows.emitted,
+                    "removed": sim.flows.removed,
+                    "not_emitted": sim.flows.refused,
+                    "blocked": sim.flows.blocked,
+                }
+                if sim.flows
+                else {}
+            ),
+            "wall_seconds": wall,
+            "wall_seconds_per_simulated_second": wall / sim.time if sim.time > 0 else None,
+            "mean_iterations": self.sums["iterations"] / n,
+            "mean_density_error": self.sums["density_error"] / n,
+            "mean_compression": self.sums["compression"] / n,
+            **self.corrections,
+            "corrected_steps": self.corrected_steps,
+            "substeps": self.substeps,
+            "most_substeps": self.most_substeps,
+            "unconverged_steps": self.unconverged,
+            "worst_unconverged_error": self.worst_unconverged,
+        }
+
+
+def _stage_seconds(times: StageTimes, mesher, queue: FrameQueue) -> dict:
+    """The main thread's seconds per stage: the steps', the meshing's and the waits for output."""
+    total = StageTimes()
+    total.merge(times.seconds)
+    if mesher is not None:
+        total.merge({k: v for k, v in mesher.times.seconds.items() if k != "export"})
+    total.add("export", queue.blocked)
+    return total.seconds
