@@ -71,7 +71,12 @@ def predict_advection_velocity(
 ):
     """``v_adv``, ``d_ii`` and, with extrapolated wall pressures, ``E_i = -dt^2 / rho0^2 sum_b
     psi_b grad W_ib`` over the walls whose pressure is positive at the step's start (judged from
-    p_i): how far i moves per unit of the pressure its walls push with."""
+    p_i): how far i moves per unit of the pressure its walls push with. Where the other walls lie
+    opposite those (a particle in a film between a body and the floor, its pressure zero at the
+    start: only the walls below count), they are counted too: they push as soon as p_i rises
+    above their small negative head, and one side's push alone drives i into the other side's
+    walls, a compression that cancelled ``a_ii`` in the diagonal (``a_diag / a_ii`` measured
+    0.03) and made the Jacobi step overshoot thirtyfold (docs/physics.md 4.6)."""
     i = wp.tid() + offset
     dt = fluid.dt[0]
     wall_weight = walls.pressure_factor
@@ -82,6 +87,7 @@ def predict_advection_velocity(
         d -= terms.mass * nf.grad_W[k]
     rho_i = rho[i]
     e = wp.vec3(0.0, 0.0, 0.0)
+    e_off = wp.vec3(0.0, 0.0, 0.0)  # the walls whose pressure is not positive at the start
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         b = nb.index[k]
@@ -90,6 +96,10 @@ def predict_advection_velocity(
         if wall_weight > 0.0:
             if p[i] + nb.head[k] > 0.0:
                 e += g
+            else:
+                e_off += g
+    if wp.dot(e, e_off) < 0.0:  # walls on opposite sides (a film): both push once p_i rises
+        e += e_off
     iisph.d_ii[i] = d * (dt * dt / (rho_i * rho_i))
     iisph.wall_push[i] = (-dt * dt * wall_weight) * e
 
