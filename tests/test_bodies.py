@@ -336,7 +336,7 @@ def test_momentum_balances_in_a_closed_tank():
     rig, loads = sim.loop.bodies.rigid, sim.loop.bodies.loads
     first, count = rig.first[0], rig.counts[0]
     assert first + count == sim.model.n_boundary  # the body's particles after the tank's
-    tank = WallForces(sim.model, sim.solver, [(0, first)])
+    tank = WallForces.of_ranges(sim.model, sim.solver, [(0, first)])
     m, M, g = float(sim.model.mass), float(rig.constants.mass.numpy()[0]), np.asarray(scene.physics.gravity)
     added = rig.constants.added_mass.numpy()[0]
     sim.advance(0.05)
