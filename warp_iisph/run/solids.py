@@ -11,15 +11,13 @@ appends to them.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from ..scene import obstacles_mesh
 from ..scene.bodies import bodies_mesh
-from .atomic import atomic_write
 from .folder import BODIES, OBSTACLES
-from .formats import FileFormatError, write_obj
+from .formats import write_obj
+from .time_series import TimeSeriesWriter, read_time_series
 
 # per body: (column suffix, unit) in the order of a row
 QUANTITIES = (
@@ -28,8 +26,6 @@ QUANTITIES = (
     *((f"velocity.{a}", "m/s") for a in "xyz"),
     *((f"angular_velocity.{a}", "rad/s") for a in "xyz"),
 )
-# a kept row's time may exceed the checkpoint's by this much (s): what the 12 digits written round
-KEEP_SLACK = 1.0e-9
 
 
 def body_names(scene) -> list[str]:
@@ -48,58 +44,23 @@ def row(t: float, bodies: dict) -> str:
     return ",".join(f"{v:.12g}" for v in values)
 
 
-class BodyWriter:
-    """Appends frame rows to ``bodies.csv``; with ``keep_until`` (a resumed run's time) the rows
-    an older run wrote up to that time are kept (the file replaced atomically), the rest dropped."""
+class BodyWriter(TimeSeriesWriter):
+    """Appends frame rows to ``bodies.csv`` (see :class:`.time_series.TimeSeriesWriter`), each
+    flushed with its frame."""
 
     def __init__(self, path, names: list[str], keep_until: float | None = None):
-        self.path = Path(path)
-        head = header(names)
-        kept = []
-        if keep_until is not None and self.path.is_file():
-            lines = self.path.read_text().splitlines()
-            if lines and lines[0] == head:
-                for line in lines[1:]:
-                    try:
-                        t = float(line.split(",", 1)[0])
-                    except ValueError:  # cut off mid-write
-                        break
-                    if line.count(",") != head.count(",") or t > keep_until + KEEP_SLACK:
-                        break
-                    kept.append(line)
-        text = "\n".join([head, *kept]) + "\n"
-        atomic_write(self.path, lambda tmp: Path(tmp).write_text(text))
-        self._f = open(self.path, "a")
+        super().__init__(path, header(names), keep_until)
 
     def write(self, line: str) -> None:
         self._f.write(line + "\n")
         self._f.flush()
 
-    def close(self) -> None:
-        self._f.close()
-
 
 def read_bodies(path) -> tuple[list[str], np.ndarray]:
     """``bodies.csv`` as (names, rows): rows an (frames, 1 + 13 bodies) array, time first, then per
     body the :data:`QUANTITIES`; an incomplete last row (a run cut off while writing it) is left out."""
-    path = Path(path)
-    lines = path.read_text().splitlines()
-    if not lines or not lines[0].startswith("t [s]"):
-        raise FileFormatError(f"{path}: not a bodies.csv (its first line must start with 't [s]')")
-    cells = lines[0].split(",")[1:]
-    names = list(dict.fromkeys(c.rsplit(".", 2)[0] for c in cells))
-    rows = []
-    for k, line in enumerate(lines[1:], 2):
-        try:
-            values = [float(v) for v in line.split(",")]
-        except ValueError:
-            values = []
-        if len(values) != len(cells) + 1:
-            if k == len(lines):
-                break
-            raise FileFormatError(f"{path}, line {k}: not a row of {len(cells) + 1} numbers")
-        rows.append(values)
-    return names, np.array(rows, dtype=np.float64).reshape(-1, len(cells) + 1)
+    cells, rows = read_time_series(path, "bodies.csv")
+    return list(dict.fromkeys(c.rsplit(".", 2)[0] for c in cells)), rows
 
 
 def solids_mesh(scene, time: float, bodies: dict | None = None):

@@ -1,0 +1,76 @@
+"""A run's CSV time series (``probes.csv``, ``bodies.csv``): a header ``t [s],...``, then one row of
+numbers per sample, the time first, 12 significant digits. Rows are appended as they come; a
+resumed run keeps the rows up to its checkpoint's time (as ``stats.jsonl`` keeps the steps up to
+it) and appends to them; a row cut off mid-write (a killed run) ends the file when it is read."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_write
+from .formats import FileFormatError
+
+# a kept row's time may exceed the checkpoint's by this much (s): what the 12 digits written round
+KEEP_SLACK = 1.0e-9
+
+
+def row(values) -> str:
+    return ",".join(f"{float(v):.12g}" for v in values)
+
+
+class TimeSeriesWriter:
+    """Appends rows under ``head`` to ``path``; with ``keep_until`` (a resumed run's time) the rows
+    an older run wrote up to that time under the same header are kept (the file replaced
+    atomically), the rest dropped."""
+
+    def __init__(self, path, head: str, keep_until: float | None = None):
+        self.path = Path(path)
+        kept = []
+        if keep_until is not None and self.path.is_file():
+            lines = self.path.read_text().splitlines()
+            if lines and lines[0] == head:
+                for line in lines[1:]:
+                    try:
+                        t = float(line.split(",", 1)[0])
+                    except ValueError:  # cut off mid-write
+                        break
+                    if line.count(",") != head.count(",") or t > keep_until + KEEP_SLACK:
+                        break
+                    kept.append(line)
+        text = "\n".join([head, *kept]) + "\n"
+        atomic_write(self.path, lambda tmp: Path(tmp).write_text(text))
+        self._f = open(self.path, "a")
+
+    def write_rows(self, rows) -> None:
+        self._f.write("".join(row(r) + "\n" for r in rows))
+
+    def flush(self) -> None:
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+
+def read_time_series(path, kind: str) -> tuple[list[str], np.ndarray]:
+    """A time series file as (its header's cells after the time, rows): rows an (n, 1 + columns)
+    array, time first; an incomplete last row is left out. ``kind`` names the file in errors."""
+    path = Path(path)
+    lines = path.read_text().splitlines()
+    if not lines or not lines[0].startswith("t [s]"):
+        raise FileFormatError(f"{path}: not a {kind} (its first line must start with 't [s]')")
+    cells = lines[0].split(",")[1:]
+    width = len(cells) + 1
+    rows = []
+    for k, line in enumerate(lines[1:], 2):
+        try:
+            values = [float(v) for v in line.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != width:
+            if k == len(lines):
+                break
+            raise FileFormatError(f"{path}, line {k}: not a row of {width} numbers")
+        rows.append(values)
+    return cells, np.asarray(rows, dtype=np.float64).reshape(-1, width)
