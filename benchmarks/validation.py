@@ -39,7 +39,8 @@ validation.png (Z against T beside the experiment, shifted and not; the slope pe
 experiment).
 
     python benchmarks/validation.py [--parts martin_moyce,rest,release,loads,spheric] [--nx 20,30,40]
-        [--finer 60] [--spheric 0.025,0.016667,0.0125] [--quick] [--peer] [--workers N | --scheduler ADDRESS]
+        [--finer 60] [--spheric 0.025,0.016667,0.0125] [--quick] [--peer [--peer-nx 20]]
+        [--workers N | --scheduler ADDRESS]
 
 --peer runs SPlisHSPlasH's IISPH (the `bench` extra, peer_splishsplash.py) on the same Martin &
 Moyce set-up at each nx, and on SPHERIC Test 2 at each spacing, in the same run: its front measured
@@ -438,6 +439,9 @@ def main():
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--peer", action="store_true", help="SPlisHSPlasH's IISPH on the same set-ups")
+    ap.add_argument(
+        "--peer-nx", default=None, help="with --peer: the Martin & Moyce resolutions it runs at (default: every --nx)"
+    )
     cluster_options(ap)
     args = ap.parse_args()
     check_cluster_options(ap, args)
@@ -465,7 +469,8 @@ def main():
     if "martin_moyce" in parts:
         for nx in nxs:
             add("ours", nx, functools.partial(martin_moyce, nx, t_max=t_max))
-        for nx in nxs if args.peer else ():
+        peer_nxs = [int(v) for v in args.peer_nx.split(",")] if args.peer_nx else nxs
+        for nx in peer_nxs if args.peer else ():  # the peer takes several times our time a run
             add("peer", nx, functools.partial(peer_martin_moyce, nx, t_max=t_max))
     if "rest" in parts:
         add("rest", None, functools.partial(resting_tank, **tank))
