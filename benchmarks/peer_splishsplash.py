@@ -23,7 +23,8 @@ any step.
 onto a box): the tank and water as ours, the box a static rigid body (its mesh 0.6 spacings inside
 the box's faces, where its boundary particles hold the water at the faces, as the tank's do) and,
 every 5 ms, the readings of our pressure sensors and level gauges taken from its particles
-(``warp_iisph.analysis.sensors``: the same definitions, in NumPy, its IISPH pressures) as ``probes``.
+(``warp_iisph.analysis.sensors``: the same definitions, in NumPy, its pressures converted to
+pascals by :func:`pressures`) as ``probes``.
 """
 
 import argparse
@@ -122,19 +123,33 @@ def run(
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
-def sensor_readings(sim, sensors, h) -> list:
-    """Our pressure sensors' and level gauges' readings from the peer's particles now (its IISPH
-    pressures), in the scene's order."""
+def pressures(sim, method: str, rho: np.ndarray, dt: float) -> np.ndarray:
+    """The peer's particle pressures (Pa) after a step of ``dt`` (s), from its solver's field (the
+    Python binding of 2.19 gives DFSPH no ``getSimulationData``)."""
+    fm = sim.getFluidModel(0)
+    n, rho0 = fm.numActiveParticles(), fm.getDensity0()
+    if method == "iisph":
+        # SPlisHSPlasH/IISPH/TimeStepIISPH.cpp (computePressureAccels: a_i = -sum V_j (p_i/rho_i'^2 +
+        # p_j/rho_j'^2) gradW, rho' = rho/rho0) solves for p = P/rho0: pascals are rho0 p
+        return rho0 * np.array(fm.getFieldBuffer("pressure"), dtype=np.float64).reshape(-1)[:n]
+    # SPlisHSPlasH/DFSPH/TimeStepDFSPH.cpp (computePressureAccel: a_i = -sum V_j (k_i + k_j) gradW;
+    # pressureSolve ends with k *= h^2) keeps k dt^2 with k = P rho0/rho^2: pascals are k rho^2/rho0
+    k = np.array(fm.getFieldBuffer("p / rho^2"), dtype=np.float64).reshape(-1)[:n] / dt**2
+    return k * rho**2 / rho0
+
+
+def sensor_readings(sim, sensors, h, method: str = "iisph", dt: float = 0.0) -> list:
+    """Our pressure sensors' and level gauges' readings from the peer's particles now (its
+    pressures, in pascals: :func:`pressures`), in the scene's order."""
     from scipy.spatial import cKDTree
 
     from warp_iisph.analysis.sensors import level_readings, pressure_readings
 
     fm = sim.getFluidModel(0)
     n = fm.numActiveParticles()
-    data = sim.getTimeStep().getSimulationData()
     x = np.array([fm.getPosition(i) for i in range(n)], dtype=np.float64)
-    p = np.array([data.getPressure(0, i) for i in range(n)], dtype=np.float64)
     rho = np.array([fm.getDensity(i) for i in range(n)], dtype=np.float64)
+    p = pressures(sim, method, rho, dt)
     tree = cKDTree(x)
     pressure = [s for s in sensors if s.kind == "pressure"]
     levels = [s for s in sensors if s.kind == "level"]
@@ -237,7 +252,8 @@ def main():
         t_now = sph.TimeManager.getCurrent().getTime()
         if sensors is not None and t_now >= state["next_probe"] - 1e-9:  # every 5 ms, as ours are charted
             state["next_probe"] += PROBE_INTERVAL
-            state["probes"].append([t_now, *sensor_readings(sim, sensors, h)])
+            dt = sph.TimeManager.getCurrent().getTimeStepSize()  # the step's (set before its solve)
+            state["probes"].append([t_now, *sensor_readings(sim, sensors, h, args.method, dt)])
         if state["steps"] % 20 == 0:
             fm = sim.getFluidModel(0)
             n = fm.numActiveParticles()
