@@ -369,3 +369,28 @@ def test_momentum_balances_in_a_closed_tank():
     bound = term * (np.abs(a_first) + np.abs(sim.bodies["coupled"][0])) + 1e-12
     assert np.all(np.abs(body - expected_body) <= bound), (body, expected_body, bound)
     assert np.all(np.abs(total - expected_total) <= 1e-3 * weight[1]), (total, expected_total, weight)
+
+
+def test_bodies_benchmark_quick_mode(tmp_path):
+    """benchmarks/bodies.py --quick: the flood (coarse, short) with free and with fixed bodies, and
+    the drafts, into its JSON and chart; the liquid is never found inside a body."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.run(
+        [sys.executable, str(root / "benchmarks" / "bodies.py"), "--quick", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads((tmp_path / "bodies_quick.json").read_text())
+    assert record["versions"]["warp"] and record["date"] and (tmp_path / "bodies_quick.png").stat().st_size > 10_000
+    runs = record["flood"]["runs"]
+    assert [r["variant"] for r in runs] == ["free", "fixed"]
+    assert all(r["inside_bodies_at_frames"] == 0 and not r["body_left_tank"] and r["steps"] > 0 for r in runs)
+    assert record["flood"]["summary"]["cost_ratio"] > 0
+    assert [(d["spacing"], d["density"]) for d in record["drafts"]] == [(0.04, 500.0), (0.04, 250.0)]

@@ -1,0 +1,311 @@
+"""Free bodies: what they cost, whether the liquid stays out of them, how deep they float.
+
+(a) The bundled ``flood`` scene at its defaults (three crates and a concrete block swept along a
+channel) with its free bodies, against the same scene with the bodies fixed where they start (the
+same boxes as still obstacles, sampled in layers inside their faces as a body is): wall seconds
+per simulated second, the median of interleaved repeats (free, fixed, free, fixed, ...). Each
+run also reports the containment's last-line corrections (``obstacle_corrections``: particles it
+put back out of an obstacle or a body; ``wall_corrections``: out of the tank), the fluid
+particles found inside a body at every frame (checked outside the timing, in each body's frame),
+and whether any body left the tank (a corner of its box beyond a face by more than a spacing).
+
+(b) Archimedes: the draft of a box of density 500 and one of 250 (0.16 x 0.08 x 0.16 m, in a
+0.4 m square pool 0.2 m deep, as tests/test_bodies.py's ``pool``) at spacings 0.02 and 0.01 m,
+the mean over t = 1.0 .. 1.6 s against the liquid's level by its rest volume, as % error against
+half and a quarter of the box's height.
+
+Writes benchmarks/results/bodies.json and .png.
+
+    python benchmarks/bodies.py [--repeats 3] [--spacings 0.02,0.01] [--quick] [--replot]
+"""
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+from common import RESULTS, header, pyplot, save, warm_up
+
+from warp_iisph import Box, Scene, Simulation
+from warp_iisph.engine.launch import get_threads
+from warp_iisph.scene import load_scene
+from warp_iisph.scene.bodies import quaternion_matrix
+
+
+def flood(variant: str, overrides: list) -> Scene:
+    """The flood scene; ``fixed``: its bodies replaced by still box obstacles of the same shapes."""
+    scene = load_scene("flood", overrides)
+    if variant == "fixed":
+        for body in scene.bodies:  # in layers inside its faces where it is thick enough (3 spacings)
+            thick = min(np.subtract(body.shape.upper, body.shape.lower)) >= 3 * scene.spacing
+            scene.add_obstacle(Box(body.shape.lower, body.shape.upper, sampling="faces" if thick else "cells"))
+        scene.bodies = []
+    return scene
+
+
+def inside_count(x: np.ndarray, boxes: list, poses: dict) -> int:
+    """Fluid particles strictly inside any of the boxes at their poses (``poses``: Simulation.bodies;
+    none for boxes that do not move)."""
+    n = 0
+    for k, (lo, hi) in enumerate(boxes):
+        half = 0.5 * (np.asarray(hi) - np.asarray(lo))
+        if poses:
+            centre, rot = poses["position"][k], quaternion_matrix(poses["orientation"][k])
+        else:
+            centre, rot = 0.5 * (np.asarray(hi) + np.asarray(lo)), np.eye(3)
+        local = (x - centre) @ rot
+        n += int(np.count_nonzero(np.all(np.abs(local) < half, axis=1)))
+    return n
+
+
+def outside_tank(boxes: list, poses: dict, lower, upper, margin: float) -> bool:
+    """Whether a corner of a body's box lies beyond a face of the tank by more than ``margin``."""
+    for k, (lo, hi) in enumerate(boxes):
+        half = 0.5 * (np.asarray(hi) - np.asarray(lo))
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        corners = poses["position"][k] + (signs * half) @ quaternion_matrix(poses["orientation"][k]).T
+        if np.any(corners < np.asarray(lower) - margin) or np.any(corners > np.asarray(upper) + margin):
+            return True
+    return False
+
+
+def run_flood(variant: str, overrides: list, duration) -> dict:
+    load = load_scene("flood", overrides)
+    boxes = [(b.shape.lower, b.shape.upper) for b in load.bodies]
+    scene = flood(variant, overrides)
+    duration = duration or scene.output.duration
+    sim = Simulation(scene, "cpu", history=1)
+    frame = 1.0 / scene.output.fps
+    counts = {"steps": 0, "obstacle_corrections": 0, "wall_corrections": 0, "corrected_steps": 0, "iterations": 0}
+
+    def on_step(r):
+        counts["steps"] += 1
+        counts["obstacle_corrections"] += r["obstacle_corrections"]
+        counts["wall_corrections"] += r["wall_corrections"]
+        counts["corrected_steps"] += bool(r["obstacle_corrections"] or r["wall_corrections"])
+        counts["iterations"] += r["iterations"]
+
+    wall, inside, inside_frames, left = 0.0, 0, 0, False
+    while sim.time < duration - 1e-9:
+        t0 = time.perf_counter()
+        sim.advance(min(frame, duration - sim.time), callback=on_step)
+        wall += time.perf_counter() - t0
+        poses = sim.bodies
+        k = inside_count(sim.positions, boxes, poses)
+        inside += k
+        inside_frames += bool(k)
+        if poses:
+            left |= outside_tank(boxes, poses, scene.tank.lower, scene.tank.upper, scene.spacing)
+    poses = sim.bodies
+    return {
+        "variant": variant,
+        "particles": sim.n_particles,
+        "boundary_particles": sim.model.n_boundary,
+        "spacing": scene.spacing,
+        "simulated_seconds": sim.time,
+        "wall_seconds": wall,
+        "wall_seconds_per_simulated_second": wall / sim.time,
+        **counts,
+        "mean_iterations": counts["iterations"] / counts["steps"],
+        "inside_bodies_at_frames": inside,
+        "frames_with_particles_inside": inside_frames,
+        "body_left_tank": left,
+        "final_positions": poses["position"].tolist() if poses else None,
+    }
+
+
+def pool(spacing: float, density: float) -> Scene:
+    """tests/test_bodies.py's pool: a 0.16 x 0.08 x 0.16 m box placed at its draft in a 0.4 m pool 0.2 m deep."""
+    scene = Scene(spacing=spacing, tank=Box((0, 0, 0), (0.4, 0.4, 0.4)), name="pool")
+    scene.add_fluid_box((0, 0, 0), (0.4, 0.2, 0.4))
+    draft = density / 1000.0 * 0.08
+    bottom = 0.2 - draft + draft * 0.16**2 / 0.4**2
+    scene.add_body(Box((0.12, bottom, 0.12), (0.28, bottom + 0.08, 0.28)), density=density)
+    return scene
+
+
+def run_draft(spacing: float, density: float, settle: float, end: float) -> dict:
+    """tests/test_bodies.py's settled_draft at ``spacing``: the mean draft over settle .. end."""
+    scene = pool(spacing, density)
+    sim = Simulation(scene, "cpu", history=1)
+    area, a_box, drafts, bottoms = 0.4 * 0.4, 0.16 * 0.16, [], []
+    t0 = time.perf_counter()
+    while sim.time < end - 1e-9:
+        sim.advance(0.05)
+        if sim.time > settle:
+            bottom = sim.bodies["position"][0][1] - 0.04
+            level = (sim.n_particles * spacing**3 - a_box * bottom) / (area - a_box)
+            drafts.append(level - bottom)
+            bottoms.append(bottom)
+    wall = time.perf_counter() - t0
+    target = density / 1000.0 * 0.08
+    draft = float(np.mean(drafts))
+    b = sim.bodies
+    return {
+        "spacing": spacing,
+        "density": density,
+        "particles": sim.n_particles,
+        "draft": draft,
+        "target": target,
+        "error_percent": 100.0 * (draft / target - 1.0),
+        "heave_ptp": float(np.ptp(bottoms)),
+        "tilt": float(np.abs(b["orientation"][0, :3]).max()),
+        "drift": float(np.abs(b["position"][0][[0, 2]] - 0.2).max()),
+        "wall_seconds": wall,
+    }
+
+
+def summarize(runs: list) -> dict:
+    """The medians of each variant's runs and their ratios: per simulated second (what a user
+    waits) and per step (the free bodies' own cost; their motion also changes the steps the CFL
+    rule takes)."""
+
+    def median(value, v):
+        return statistics.median(value(r) for r in runs if r["variant"] == v)
+
+    per_s = {v: median(lambda r: r["wall_seconds_per_simulated_second"], v) for v in ("free", "fixed")}
+    per_step = {v: median(lambda r: r["wall_seconds"] / r["steps"], v) for v in ("free", "fixed")}
+    return {
+        "particles": runs[0]["particles"],
+        "median_wall_seconds_per_simulated_second": per_s,
+        "cost_ratio": per_s["free"] / per_s["fixed"],
+        "median_ms_per_step": {v: 1e3 * t for v, t in per_step.items()},
+        "cost_ratio_per_step": per_step["free"] / per_step["fixed"],
+        **{
+            key: {v: [r[key] for r in runs if r["variant"] == v] for v in ("free", "fixed")}
+            for key in ("steps", "obstacle_corrections")
+        },
+    }
+
+
+def chart(record: dict, path) -> None:
+    plt = pyplot()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    runs = record["flood"]["runs"]
+    for i, variant in enumerate(("free", "fixed")):
+        ys = [r["wall_seconds_per_simulated_second"] for r in runs if r["variant"] == variant]
+        a.scatter([i] * len(ys), ys, color="C0" if variant == "free" else "C1", alpha=0.6)
+        a.bar(i, statistics.median(ys), width=0.5, color="C0" if variant == "free" else "C1", alpha=0.5)
+    s = record["flood"]["summary"]
+    a.set_xticks([0, 1], ["free bodies", "bodies fixed\n(still obstacles)"])
+    a.set_ylabel("wall s per simulated s (median, repeats as dots)")
+    a.set_title(
+        f"flood, {s['particles']} particles: free / fixed = {s['cost_ratio']:.2f} per simulated s, "
+        f"{s['cost_ratio_per_step']:.2f} per step",
+        fontsize=9,
+    )
+    for density, marker in ((500.0, "o"), (250.0, "s")):
+        rows = [r for r in record["drafts"] if r["density"] == density]
+        b.plot(
+            [r["spacing"] for r in rows],
+            [r["error_percent"] for r in rows],
+            marker=marker,
+            label=f"density {density:g}",
+        )
+    b.axhline(0.0, color="k", lw=0.8)
+    for y in (-2.0, 2.0):
+        b.axhline(y, color="grey", ls=":", lw=0.8)
+    b.set_xscale("log")
+    b.set_xlabel("spacing h (m)")
+    b.set_ylabel("draft error (%) vs half / quarter of the box height")
+    b.set_title("Archimedes: floating drafts (dotted: the issue's 2 %)", fontsize=10)
+    b.legend()
+    fig.suptitle(
+        f"{record['device_name']}, {record['threads']} threads, {record['date']} (shared machine: timings noisy)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3, help="interleaved runs of each flood variant")
+    ap.add_argument("--spacings", default="0.02,0.01", help="the drafts' spacings (m)")
+    ap.add_argument("--quick", action="store_true", help="a coarse, short flood once each and drafts at 0.04 m")
+    ap.add_argument("--replot", action="store_true", help="redraw the chart from the saved JSON")
+    ap.add_argument(
+        "--parts",
+        default="flood,drafts",
+        help="which parts to measure; a part left out keeps what the saved bodies.json holds (not with --quick)",
+    )
+    ap.add_argument("--out", default=str(RESULTS))
+    args = ap.parse_args()
+    if args.replot:  # the summary recomputed from the saved runs, the chart redrawn
+        record = json.loads((RESULTS / "bodies.json").read_text())
+        record["flood"]["summary"] = summarize(record["flood"]["runs"])
+        chart(record, save(record, args.out, "bodies", False))
+        return
+    if args.quick:
+        overrides, duration, repeats, spacings, settle, end = ["spacing=0.04"], 0.3, 1, [0.04], 0.3, 0.5
+    else:
+        overrides, duration, repeats, spacings, settle, end = (
+            [],
+            None,
+            args.repeats,
+            [float(s) for s in args.spacings.split(",")],
+            1.0,
+            1.6,
+        )
+    parts = set(args.parts.split(","))
+    warm_up()
+    record = header("bodies", threads=get_threads(), quick=args.quick, shared_machine=True)
+    saved = Path(args.out) / "bodies.json"
+    if parts != {"flood", "drafts"} and not args.quick:  # the other part's measurement, with its date
+        old = json.loads(saved.read_text())
+        for part in {"flood", "drafts"} - parts:
+            record[part] = old[part]
+            record[f"{part}_date"] = old.get(f"{part}_date", old["date"])
+            if part == "drafts":
+                record["settle"] = old["settle"]
+    if "flood" in parts:
+        measure_flood(record, overrides, duration, repeats)
+    if "drafts" in parts:
+        measure_drafts(record, spacings, settle, end)
+    chart(record, save(record, args.out, "bodies", args.quick))
+
+
+def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None:
+    runs = []
+    for i in range(repeats):
+        for variant in ("free", "fixed") if i % 2 == 0 else ("fixed", "free"):
+            r = run_flood(variant, overrides, duration)
+            runs.append(r)
+            print(
+                f"flood {variant:5s} #{i}: {r['particles']} particles, {r['steps']} steps, "
+                f"{r['wall_seconds_per_simulated_second']:.1f} wall s per s, corrections {r['obstacle_corrections']} "
+                f"(walls {r['wall_corrections']}), inside at frames {r['inside_bodies_at_frames']}, "
+                f"left the tank {r['body_left_tank']}",
+                flush=True,
+            )
+    summary = summarize(runs)
+    med = summary["median_wall_seconds_per_simulated_second"]
+    print(
+        f"flood: free / fixed = {summary['cost_ratio']:.3f} "
+        f"(medians {med['free']:.1f} and {med['fixed']:.1f} wall s per s), "
+        f"{summary['cost_ratio_per_step']:.3f} per step"
+    )
+    record["flood"] = {"overrides": overrides, "repeats": repeats, "runs": runs, "summary": summary}
+    record["flood_date"] = record["date"]
+
+
+def measure_drafts(record: dict, spacings: list, settle: float, end: float) -> None:
+    drafts = []
+    for h in spacings:
+        for density in (500.0, 250.0):
+            d = run_draft(h, density, settle, end)
+            drafts.append(d)
+            print(
+                f"draft h {h:g} density {density:g}: {d['draft']:.5f} m against {d['target']:.5f} "
+                f"({d['error_percent']:+.1f} %), {d['particles']} particles, {d['wall_seconds']:.0f} s",
+                flush=True,
+            )
+    record["drafts"] = drafts
+    record["drafts_date"] = record["date"]
+    record["settle"] = [settle, end]
+
+
+if __name__ == "__main__":
+    main()
