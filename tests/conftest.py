@@ -84,3 +84,42 @@ def obstacle_run(tmp_path_factory):
     record = run_scene(scene, out, duration=1 / 30, fps=30, progress=False)
     assert record["ended"] == "completed" and record["obstacles"] == "obstacles.obj"
     return out
+
+
+@pytest.fixture
+def conditional_body_allocations(monkeypatch) -> list:
+    """On CUDA a conditional body of a graph (capture_while, capture_if) may not allocate:
+    wp.utils.array_sum, array_scan, HashGrid.build and every array constructor fail there. On the
+    CPU they work, so this makes them fail while a conditional body is being recorded, and returns
+    the list of what was called there: the CPU catches a regression without a GPU."""
+    import warp_iisph.engine.launch as launch
+
+    depth, calls = [0], []
+
+    def conditional(real):
+        def wrapped(condition, *args, **kwargs):
+            depth[0] += 1
+            try:
+                return real(condition, *args, **kwargs)
+            finally:
+                depth[0] -= 1
+
+        return wrapped
+
+    def forbidden(name, real):
+        def wrapped(*args, **kwargs):
+            if launch._recording and depth[0]:
+                calls.append(name)
+                raise RuntimeError(f"{name} inside a conditional graph body: it allocates on CUDA")
+            return real(*args, **kwargs)
+
+        return wrapped
+
+    monkeypatch.setattr(wp, "capture_while", conditional(wp.capture_while))
+    monkeypatch.setattr(wp, "capture_if", conditional(wp.capture_if))
+    monkeypatch.setattr(wp.utils, "array_sum", forbidden("array_sum", wp.utils.array_sum))
+    monkeypatch.setattr(wp.utils, "array_scan", forbidden("array_scan", wp.utils.array_scan))
+    monkeypatch.setattr(wp.HashGrid, "build", forbidden("HashGrid.build", wp.HashGrid.build))
+    for name in ("empty", "zeros", "full", "empty_like", "zeros_like", "full_like", "clone"):  # any allocation
+        monkeypatch.setattr(wp, name, forbidden(f"wp.{name}", getattr(wp, name)))
+    return calls

@@ -317,37 +317,11 @@ def test_the_force_on_an_obstacle_is_the_reaction_of_what_the_fluid_felt(method)
     assert sum(bool(s["obstacle_corrections"]) for s in sim.stats) < 0.1 * len(sim.stats)
 
 
-def test_sampling_inside_a_graph_allocates_nothing(tmp_path, monkeypatch):
+def test_sampling_inside_a_graph_allocates_nothing(tmp_path, conditional_body_allocations):
     """The probes' launches sit in the loop over steps and in a capture_if of their own: on CUDA a
     conditional body may not allocate, so (as tests/test_graph.py does for the step) any
     allocation while one is being recorded fails here, on the CPU."""
-    import warp as wp
-
-    depth, calls = [0], []
-
-    def conditional(real):
-        def wrapped(condition, *args, **kwargs):
-            depth[0] += 1
-            try:
-                return real(condition, *args, **kwargs)
-            finally:
-                depth[0] -= 1
-
-        return wrapped
-
-    def forbidden(name, real):
-        def wrapped(*args, **kwargs):
-            if launch._recording and depth[0]:
-                calls.append(name)
-                raise RuntimeError(f"{name} inside a conditional graph body")
-            return real(*args, **kwargs)
-
-        return wrapped
-
-    monkeypatch.setattr(wp, "capture_while", conditional(wp.capture_while))
-    monkeypatch.setattr(wp, "capture_if", conditional(wp.capture_if))
-    for name in ("empty", "zeros", "full", "empty_like", "zeros_like", "full_like", "clone"):
-        monkeypatch.setattr(wp, name, forbidden(f"wp.{name}", getattr(wp, name)))
+    calls = conditional_body_allocations
     sim = Simulation(load_scene(scene_file(tmp_path), ["physics.boundary_viscosity=0.01"]), "cpu", graph=True)
     sim.advance(0.1)
     assert sim.graph.captures == 1 and sim.graph.replays >= 1 and not calls
