@@ -211,10 +211,12 @@ class WallForces:
     ``wp.vec3d`` per group (read when the loads are summed; the caller may change its values
     between steps). ``totals[r]`` holds, after :meth:`compute`, group r's pressure force (N) at
     columns 0-2, friction force 3-5, pressure moment about ``reference[r]`` (N m) 6-8 and friction
-    moment 9-11, the averages over the step just taken; ``wetted[r]`` how many of its particles
-    had a fluid neighbour."""
+    moment 9-11, the averages over the step just taken; with ``count_wetted`` (a body's ranges)
+    ``wetted[r]`` how many of its particles had a fluid neighbour."""
 
-    def __init__(self, model, solver, groups: np.ndarray, reference: wp.array | None = None):
+    def __init__(
+        self, model, solver, groups: np.ndarray, reference: wp.array | None = None, count_wetted: bool = False
+    ):
         dev = model.device
         self.device = dev
         self.model, self.solver = model, solver
@@ -241,6 +243,7 @@ class WallForces:
         self.totals = wp.zeros((max(n, 1), COMPONENTS), dtype=wp.float64, device=dev)
         self.wet = wp.zeros(max(model.n_boundary, 1), dtype=wp.int32, device=dev)
         self.wetted = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)  # per group: particles the liquid touched
+        self.count_wetted = count_wetted  # a body's contacts read it; a force probe does not
         walls = solver.walls
         self.walls = getattr(walls, "walls", walls)  # a WallPressures holds its Walls; DFSPH keeps Walls itself
         self._pushes = None
@@ -253,7 +256,7 @@ class WallForces:
         labels = np.full(model.n_boundary, -1, dtype=np.int32)
         for r, (first, count) in enumerate(ranges):
             labels[first : first + count] = r
-        return cls(model, solver, labels, reference)
+        return cls(model, solver, labels, reference, count_wetted=True)
 
     def _push(self, state) -> Push:
         """The :class:`Push` of ``state`` (made once: the state's arrays keep their memory)."""
@@ -293,7 +296,8 @@ class WallForces:
         ]
         self.wet.zero_()
         launch_particles(pressure_loads, blocks, [*args, self.pressure_part, self.wet], self.device, min_chunk=1)
-        wp.launch(count_wet, dim=self.groups.n, inputs=[self.groups, self.wet, self.wetted], device=self.device)
+        if self.count_wetted:
+            wp.launch(count_wet, dim=self.groups.n, inputs=[self.groups, self.wet, self.wetted], device=self.device)
         wp.launch(
             total_loads,
             dim=(self.groups.n, COMPONENTS),
