@@ -122,6 +122,7 @@ class ProbeSampler:
             device=dev,
         )
         self.H, self.h = H, h
+        self._around = None  # the Reach of the loop's dt and top speed, made once (see _reach)
 
     def __bool__(self) -> bool:
         return bool(self.probes)
@@ -136,12 +137,21 @@ class ProbeSampler:
         )
         wp.capture_if(self.due, lambda: self.read(state, solver, dt, max_speed2, slot))
 
+    def _reach(self, dt: wp.array, max_speed2: wp.array) -> Reach:
+        """The probes' :class:`Reach` around the loop's ``dt`` and top speed (the same arrays every
+        step: made on the first reading, again only if the arrays change)."""
+        key = (id(dt), id(max_speed2))
+        if self._around is None or self._around[0] != key:
+            around = Reach()
+            around.H, around.h, around.dt, around.max_speed2 = self.H, self.h, dt, max_speed2
+            self._around = (key, around)
+        return self._around[1]
+
     def read(self, state, solver, dt: wp.array, max_speed2: wp.array, slot: wp.array) -> None:
         """Every probe's reading into the log's row ``slot``."""
         model, dev = self.model, self.model.device
         grid = solver.search.grid.grid
-        around = Reach()
-        around.H, around.h, around.dt, around.max_speed2 = self.H, self.h, dt, max_speed2
+        around = self._reach(dt, max_speed2)
         column = 1
         if self.pressure:
             wp.launch(
