@@ -218,6 +218,20 @@ def test_a_sweep_on_two_workers_gives_the_runs_done_one_by_one(tmp_path, capsys)
             assert_same_run(out / f"physics.eta={eta},physics.cfl={cfl}", alone)
 
 
+def _running_callbacks(dask_worker) -> list[str]:
+    return sorted(name for name, callback in dask_worker.periodic_callbacks.items() if callback.is_running())
+
+
+def test_workers_run_without_dasks_profiler_and_one_task_each(scheduler):
+    from warp_iisph.run.cluster import PROFILER_CALLBACKS, SLOT, open_workers
+
+    with open_workers(scheduler=scheduler) as pool:
+        for running in pool.client.run(_running_callbacks).values():
+            assert "heartbeat" in running and not set(PROFILER_CALLBACKS) & set(running)
+        resources = pool.client.run(lambda dask_worker: dict(dask_worker.state.total_resources))
+        assert all(r == {SLOT: 1} for r in resources.values())
+
+
 def test_a_failing_variant_is_recorded_and_the_others_complete(tmp_path, scheduler, capsys):
     out = tmp_path / "sweep"
     code = main(

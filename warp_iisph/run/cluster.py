@@ -26,6 +26,7 @@ EXTRA = "pip install 'warp_iisph[cluster]'  (Dask distributed)"
 MAX_WORKERS = 1024
 CONNECT_TIMEOUT = "10s"
 SLOT = "warp_iisph"  # the Dask resource of which each worker has one and each task takes one
+PROFILER_CALLBACKS = ("profile", "profile-cycle")  # a Dask worker's periodic callbacks of its profiler
 STOP_WAIT = 60.0  # seconds a stopped sweep waits for its running variants to record how they ended
 
 
@@ -381,7 +382,10 @@ def open_workers(
 
 def _one_task_per_worker(client) -> None:
     """Give every worker (those to come too) one ``SLOT``: Dask would hand a worker of n threads
-    n tasks at once, of which all but one would wait for the process while other workers idle."""
+    n tasks at once, of which all but one would wait for the process while other workers idle.
+    And stop the worker's statistical profiler: it samples the task's thread every 10 ms, which
+    cost a run 6-10 % of its wall time here (benchmarks/cluster.py) for a profile of kernel
+    launches that says nothing."""
     from distributed import WorkerPlugin
 
     class OneTaskAtATime(WorkerPlugin):
@@ -389,6 +393,10 @@ def _one_task_per_worker(client) -> None:
 
         async def setup(self, worker):
             await worker.set_resources(**{SLOT: 1})
+            for callback in PROFILER_CALLBACKS:
+                sampler = worker.periodic_callbacks.pop(callback, None)
+                if sampler is not None:
+                    sampler.stop()
 
     client.register_plugin(OneTaskAtATime())
 
