@@ -10,7 +10,8 @@ pose at the step's end), only for particles that had wall neighbours at the step
 (others cannot reach a wall within a CFL-limited step). A free body is also met along the way:
 a particle whose path over the step (from ``x - dt v``, in the body's frame at the step's start,
 to ``x``, in its frame at the end) enters the body's surface is put back where it entered, so that
-a body thinner than a step's relative motion is not crossed either.
+a body thinner than a step's relative motion is not crossed either; its velocity is then the
+motion it kept over the step (as position-based dynamics sets it), less any part into the body.
 """
 
 from __future__ import annotations
@@ -105,6 +106,7 @@ def contain(
             p = wp.transform_point(wp.transform_inverse(frame), x_i)
             q = wp.mesh_query_point_sign_normal(solids.meshes[k], p, reach)
             escaped = int(0)
+            through = int(0)
             c = p
             n = wp.vec3(0.0)
             if q.result:
@@ -119,12 +121,18 @@ def contain(
                 if poses.free[b] != 0:  # through a free body within the step
                     a = wp.transform_point(wp.transform_inverse(poses.start[b]), x_i - h * v_i)
                     escaped, c, n = entered(solids.meshes[k], a, p)
+                    through = escaped
             if escaped != 0:
                 x_new = wp.transform_point(frame, c + clearance * n)
                 n_world = wp.transform_vector(frame, n)
                 v_wall = wp.vec3(0.0)
                 if b >= 0:
                     v_wall = (x_new - wp.transform_point(poses.start[b], c)) / h
+                if through != 0:
+                    # put back where its path entered: the motion past that point is undone, so the
+                    # velocity is the motion kept (else a particle pinned there keeps the velocity its
+                    # pressure gives it, step after step, and runs away where it stands)
+                    v_i = (x_new - (x_i - h * v_i)) / h
                 vn = wp.dot(v_i - v_wall, n_world)
                 if vn < 0.0:
                     v_i = v_i - vn * n_world
