@@ -589,7 +589,7 @@ def save_record(args, parts: list, done: dict, t_max: float):
             t_max=t_max,
             declared_offset=DECLARED_OFFSET,
             runs=runs,
-            peer_runs=done["peer"],
+            peer_runs=done["peer"] if args.peer else record.get("peer_runs", []),  # kept unless rerun
             self_convergence=self_convergence(runs, t_max),
         )
     if "rest" in parts:
