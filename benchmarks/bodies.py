@@ -213,7 +213,8 @@ def chart(record: dict, path) -> None:
     b.set_title("Archimedes: floating drafts (dotted: the issue's 2 %)", fontsize=10)
     b.legend()
     fig.suptitle(
-        f"{record['device_name']}, {record['threads']} threads, {record['date']} (shared machine: timings noisy)",
+        f"{record['device_name']}, {record['threads']} threads, {record['date']}"
+        + (" (shared machine: timings noisy)" if record.get("shared_machine") else ""),
         fontsize=9,
     )
     fig.tight_layout()
@@ -231,6 +232,7 @@ def main():
         default="flood,drafts",
         help="which parts to measure; a part left out keeps what the saved bodies.json holds (not with --quick)",
     )
+    ap.add_argument("--shared-machine", action="store_true", help="record that other jobs shared the machine")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
     if args.replot:  # the summary recomputed from the saved runs, the chart redrawn
@@ -251,7 +253,7 @@ def main():
         )
     parts = set(args.parts.split(","))
     warm_up()
-    record = header("bodies", threads=get_threads(), quick=args.quick, shared_machine=True)
+    record = header("bodies", threads=get_threads(), quick=args.quick, shared_machine=args.shared_machine)
     saved = Path(args.out) / "bodies.json"
     if parts != {"flood", "drafts"} and not args.quick:  # the other part's measurement, with its date
         old = json.loads(saved.read_text())

@@ -68,7 +68,7 @@ def test_flood_sweeps_its_bodies_and_the_liquid_stays_out_of_them():
     """The flood scene at its defaults, advanced frame by frame as `warp-iisph run` does, runs to
     its end: after every step no fluid particle is inside a body and every body is inside the
     tank; the crates float off the floor and the wave carries them and the heavy block
-    downstream. (benchmarks/bodies.py counts the containment's corrections: about 1,700
+    downstream. (benchmarks/bodies.py counts the containment's corrections: about 2,000
     particles put back out of the bodies and the post over the run.)"""
     scene = load_scene("flood")
     sim = Simulation(scene, "cpu", history=1)
