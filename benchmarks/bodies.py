@@ -1,4 +1,4 @@
-"""Free bodies: what they cost, whether the liquid stays out of them, how deep they float.
+"""Free bodies: what they cost, whether the liquid stays out of them, how deep they float, how they heave.
 
 (a) The bundled ``flood`` scene at its defaults (three crates and a concrete block swept along a
 channel) with its free bodies, against the same scene with the bodies fixed where they start (the
@@ -14,9 +14,18 @@ and whether any body left the tank (a corner of its box beyond a face by more th
 the mean over t = 1.0 .. 1.6 s against the liquid's level by its rest volume, as % error against
 half and a quarter of the box's height.
 
+(c) Heave: the density 500 box of (b) released 2 cm below where it was placed, its centre's height
+every 5 ms over 1.5 s, fitted with a damped cosine (period, damping ratio, equilibrium), at the
+spacings of (b). The undamped period it implies, ``T_d sqrt(1 - zeta^2)``, is set against
+``2 pi sqrt((M + M_a) / k)``: the hydrostatic stiffness ``k = rho g A_b / (1 - A_b / A_pool)`` (in a
+closed pool the level rises as the box sinks) and the added mass of a square flat plate of the
+box's side at a free surface, half of its value in unbounded fluid (DNV-RP-H103, Appendix A,
+Table A-2: C_A = 0.579 on V_R = pi/4 a^2 b; the high-frequency limit, without the draft and the
+pool's walls, both of which add to it): an estimate, not a measurement.
+
 Writes benchmarks/results/bodies.json and .png.
 
-    python benchmarks/bodies.py [--repeats 3] [--spacings 0.02,0.01] [--quick] [--replot]
+    python benchmarks/bodies.py [--repeats 3] [--spacings 0.02,0.01] [--parts flood,drafts,heave] [--quick] [--replot]
 """
 
 import argparse
@@ -157,6 +166,68 @@ def run_draft(spacing: float, density: float, settle: float, end: float) -> dict
     }
 
 
+PARTS = ("flood", "drafts", "heave")
+HEAVE_DROP = 0.02  # m below the placed draft
+PLATE_CA = 0.579  # DNV-RP-H103 Table A-2, a square flat plate (b / a = 1), on V_R = pi / 4 a^2 b
+
+
+def heave_estimate(rho: float = 1000.0, g: float = 9.81) -> dict:
+    """The density 500 box's undamped heave period from its hydrostatic stiffness and the added
+    mass of a square plate at a free surface (see the module)."""
+    side, height, pool_area = 0.16, 0.08, 0.4 * 0.4
+    mass = 500.0 * side * side * height
+    area = side * side
+    stiffness = rho * g * area / (1.0 - area / pool_area)
+    added = 0.5 * rho * PLATE_CA * np.pi / 4.0 * side**3
+    return {
+        "mass": mass,
+        "stiffness": stiffness,
+        "added_mass": added,
+        "period": 2.0 * np.pi * np.sqrt((mass + added) / stiffness),
+        "period_without_added_mass": 2.0 * np.pi * np.sqrt(mass / stiffness),
+    }
+
+
+def run_heave(spacing: float, duration: float) -> dict:
+    """The density 500 box of the pool released HEAVE_DROP low: its centre's height every 5 ms, and
+    a damped cosine fitted to it."""
+    from scipy.optimize import curve_fit
+
+    scene = pool(spacing, 500.0)
+    b = scene.bodies[0].shape
+    scene.bodies[0].shape = Box(np.add(b.lower, (0, -HEAVE_DROP, 0)), np.add(b.upper, (0, -HEAVE_DROP, 0)))
+    sim = Simulation(scene, "cpu", history=1)
+    t0 = time.perf_counter()
+    t, y = [], []
+    while sim.time < duration - 1e-9:
+        sim.advance(0.005)
+        t.append(sim.time)
+        y.append(sim.bodies["position"][0][1])
+    wall = time.perf_counter() - t0
+    t, y = np.array(t), np.array(y)
+
+    def damped(t, amplitude, zeta, omega, phase, rest):
+        return rest + amplitude * np.exp(-zeta * omega * t) * np.cos(omega * np.sqrt(1.0 - zeta**2) * t + phase)
+
+    guess = [y[0] - y[-1], 0.2, 2.0 * np.pi / 0.5, 0.0, float(y[-len(y) // 3 :].mean())]
+    bounds = ([-1.0, 0.0, 1.0, -2 * np.pi, 0.0], [1.0, 0.95, 100.0, 2 * np.pi, 1.0])
+    (amplitude, zeta, omega, phase, rest), _ = curve_fit(damped, t, y, p0=guess, bounds=bounds)
+    fit = damped(t, amplitude, zeta, omega, phase, rest)
+    period = 2.0 * np.pi / (omega * np.sqrt(1.0 - zeta**2))
+    return {
+        "spacing": spacing,
+        "particles": sim.n_particles,
+        "t": t.tolist(),
+        "y": y.tolist(),
+        "damped_period": float(period),
+        "damping_ratio": float(zeta),
+        "natural_period": float(2.0 * np.pi / omega),
+        "equilibrium": float(rest),
+        "fit_rms": float(np.sqrt(np.mean((fit - y) ** 2))),
+        "wall_seconds": wall,
+    }
+
+
 def summarize(runs: list) -> dict:
     """The medians of each variant's runs and their ratios: per simulated second (what a user
     waits) and per step (the free bodies' own cost; their motion also changes the steps the CFL
@@ -182,7 +253,7 @@ def summarize(runs: list) -> dict:
 
 def chart(record: dict, path) -> None:
     plt = pyplot()
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (a, b, c) = plt.subplots(1, 3, figsize=(16, 4.2))
     runs = record["flood"]["runs"]
     for i, variant in enumerate(("free", "fixed")):
         ys = [r["wall_seconds_per_simulated_second"] for r in runs if r["variant"] == variant]
@@ -212,6 +283,27 @@ def chart(record: dict, path) -> None:
     b.set_ylabel("draft error (%) vs half / quarter of the box height")
     b.set_title("Archimedes: floating drafts (dotted: the issue's 2 %)", fontsize=10)
     b.legend()
+    heave = record.get("heave")
+    if heave:
+        est = heave["estimate"]["period"]
+        for r in heave["runs"]:
+            line = c.plot(r["t"], 1e3 * (np.array(r["y"]) - r["equilibrium"]), lw=1.2)[0]
+            c.plot(
+                [],
+                [],
+                color=line.get_color(),
+                label=(
+                    f"h {r['spacing']:g}: T {r['damped_period']:.3f} s, zeta {r['damping_ratio']:.2f}, "
+                    f"undamped {r['natural_period_error_percent']:+.1f} %"
+                ),
+            )
+        c.axhline(0.0, color="k", lw=0.8)
+        c.set_xlabel("t (s)")
+        c.set_ylabel("box centre above its fitted rest (mm)")
+        c.set_title(f"Heave from {1e3 * heave['drop']:.0f} mm low (estimate: undamped {est:.3f} s)", fontsize=10)
+        c.legend(fontsize=8)
+    else:
+        c.set_axis_off()
     fig.suptitle(
         f"{record['device_name']}, {record['threads']} threads, {record['date']}"
         + (" (shared machine: timings noisy)" if record.get("shared_machine") else ""),
@@ -229,7 +321,7 @@ def main():
     ap.add_argument("--replot", action="store_true", help="redraw the chart from the saved JSON")
     ap.add_argument(
         "--parts",
-        default="flood,drafts",
+        default=",".join(PARTS),
         help="which parts to measure; a part left out keeps what the saved bodies.json holds (not with --quick)",
     )
     ap.add_argument("--shared-machine", action="store_true", help="record that other jobs shared the machine")
@@ -252,20 +344,25 @@ def main():
             1.6,
         )
     parts = set(args.parts.split(","))
+    if parts - set(PARTS):
+        ap.error(f"--parts: must be among {', '.join(PARTS)}")
     warm_up()
     record = header("bodies", threads=get_threads(), quick=args.quick, shared_machine=args.shared_machine)
     saved = Path(args.out) / "bodies.json"
-    if parts != {"flood", "drafts"} and not args.quick:  # the other part's measurement, with its date
+    if parts != set(PARTS) and not args.quick:  # the other parts' measurements, with their dates
         old = json.loads(saved.read_text())
-        for part in {"flood", "drafts"} - parts:
-            record[part] = old[part]
-            record[f"{part}_date"] = old.get(f"{part}_date", old["date"])
+        for part in set(PARTS) - parts:
+            if part in old:
+                record[part] = old[part]
+                record[f"{part}_date"] = old.get(f"{part}_date", old["date"])
             if part == "drafts":
                 record["settle"] = old["settle"]
     if "flood" in parts:
         measure_flood(record, overrides, duration, repeats)
     if "drafts" in parts:
         measure_drafts(record, spacings, settle, end)
+    if "heave" in parts:
+        measure_heave(record, spacings, 0.6 if args.quick else 1.5)
     chart(record, save(record, args.out, "bodies", args.quick))
 
 
@@ -307,6 +404,24 @@ def measure_drafts(record: dict, spacings: list, settle: float, end: float) -> N
     record["drafts"] = drafts
     record["drafts_date"] = record["date"]
     record["settle"] = [settle, end]
+
+
+def measure_heave(record: dict, spacings: list, duration: float) -> None:
+    estimate = heave_estimate()
+    runs = []
+    for h in spacings:
+        r = run_heave(h, duration)
+        r["natural_period_error_percent"] = 100.0 * (r["natural_period"] / estimate["period"] - 1.0)
+        runs.append(r)
+        print(
+            f"heave h {h:g}: damped period {r['damped_period']:.3f} s, damping ratio {r['damping_ratio']:.3f}, "
+            f"undamped {r['natural_period']:.3f} s against the estimate {estimate['period']:.3f} s "
+            f"({r['natural_period_error_percent']:+.1f} %), fit rms {1e3 * r['fit_rms']:.2f} mm, "
+            f"{r['particles']} particles, {r['wall_seconds']:.0f} s",
+            flush=True,
+        )
+    record["heave"] = {"drop": HEAVE_DROP, "estimate": estimate, "runs": runs}
+    record["heave_date"] = record["date"]
 
 
 if __name__ == "__main__":

@@ -401,6 +401,8 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     assert [r["variant"] for r in runs] == ["free", "fixed"]
     assert all(r["inside_bodies_at_frames"] == 0 and not r["body_left_tank"] and r["steps"] > 0 for r in runs)
     assert record["flood"]["summary"]["cost_ratio"] > 0
+    (heave,) = record["heave"]["runs"]  # the fit found an oscillation, not a flat line
+    assert 0.2 < heave["damped_period"] < 2.0 and 0.0 <= heave["damping_ratio"] < 0.95
     assert [(d["spacing"], d["density"]) for d in record["drafts"]] == [(0.04, 500.0), (0.04, 250.0)]
 
 
