@@ -1,7 +1,7 @@
 """The pressure solve's warm starts and schemes, side by side on the same cases in one run: what
 each costs in iterations and what it leaves (compression in a dam break, motion and pressure of
-water at rest). The package's solve is relaxed Jacobi from half the last step's pressure; the
-others are twins kept for measurement (benchmarks/solve_variants.py). docs/pressure_solve.md
+water at rest). The package's solve is relaxed Jacobi from the hydrostatic pressure (gated by the
+advected density); the others are twins kept for measurement (benchmarks/solve_variants.py). docs/pressure_solve.md
 discusses the results.
 
 Cases:
@@ -35,9 +35,10 @@ from common import (
 )
 
 VARIANTS = [
+    ("jacobi", "hydrostatic"),
     ("jacobi", "half"),
     ("jacobi", "full"),
-    ("jacobi", "hydrostatic"),
+    ("jacobi", "half_hydrostatic"),
     ("chebyshev", "half"),
     ("bb", "half"),
     ("bb", "full"),
@@ -51,6 +52,8 @@ def simulation(scene, scheme, warm):
     import warp_iisph.sph.solvers as solvers
     from warp_iisph import Simulation
 
+    scene.physics.warm_start = "half" if warm == "full" else warm  # its iteration floor follows
+    scene.physics.validate()
     original = solvers.SOLVERS["iisph"]
     solvers.SOLVERS["iisph"] = lambda model: solve_variants.VariantIISPH(model, warm, scheme)
     try:

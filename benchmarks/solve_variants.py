@@ -4,10 +4,10 @@ not use this module.
 
 Warm starts (the pressure a step's solve starts from, after ``predict_advection``):
 
-- ``half``: ``0.5 p(t - dt)``, the package's.
-- ``full``: ``p(t - dt)``.
-- ``hydrostatic``: ``0.5 p(t - dt) + 0.5 rho0 |g| d``, ``d`` the depth below the highest particle of
-  the particle's column: the package's ``physics.warm_start = "hydrostatic"`` (warp_iisph.sph.hydrostatic).
+- ``hydrostatic``, ``half``, ``half_hydrostatic``: the package's ``physics.warm_start`` values
+  (warp_iisph.sph.hydrostatic), set on the scene before the solver is built (the caller's job:
+  the scene's iteration floor follows from it).
+- ``full``: ``p(t - dt)``, on a scene set to ``half``.
 
 Schemes, each run through the package's one loop (``IterativeSolve``; but for Jacobi none ends at
 eta by blending, so each reports its last iterate's error):
@@ -30,7 +30,6 @@ import warp as wp
 
 from warp_iisph.engine.launch import launch_particles
 from warp_iisph.engine.reduce import sum_into
-from warp_iisph.sph.hydrostatic import HydrostaticPressure
 from warp_iisph.sph.neighbors import NeighborList, entry
 from warp_iisph.sph.solvers.base import Fluid
 from warp_iisph.sph.solvers.iisph import (
@@ -44,7 +43,7 @@ from warp_iisph.sph.solvers.iisph import (
 from warp_iisph.sph.solvers.iteration import IterativeSolve
 from warp_iisph.sph.wall_pressure import Walls, smoothed_pressure
 
-WARM_STARTS = ("half", "full", "hydrostatic")
+WARM_STARTS = ("hydrostatic", "half", "half_hydrostatic", "full")
 SCHEMES = ("jacobi", "bb", "cg", "chebyshev")
 INACTIVE = wp.constant(-1.0e30)  # a wall entry's head that marks it inactive for the step (cg)
 
@@ -377,16 +376,14 @@ class VariantIISPH(IISPHSolver):
         self.s_a, self.s_b, self.s_c = (wp.zeros(1, dtype=wp.float64, device=dev) for _ in range(3))
         self.length = wp.zeros(1, dtype=float, device=dev)
         self.beta = wp.zeros(1, dtype=float, device=dev)
-        if warm == "hydrostatic":
-            self.hydrostatic = HydrostaticPressure(model)
+        expected = "half" if warm == "full" else warm
+        if self.warm_start != expected:
+            raise ValueError(f"variant {warm}: the scene's physics.warm_start must be {expected!r}")
 
     def predict_advection(self, model, state) -> None:
-        super().predict_advection(model, state)  # leaves 0.5 p(t - dt)
-        n, dev = state.n, model.device
+        super().predict_advection(model, state)  # the scene's start (0.5 p(t - dt) for "full")
         if self.warm == "full":
-            launch_particles(scale_pressure, n, [2.0, state.p], dev)
-        elif self.warm == "hydrostatic":
-            self.hydrostatic.add(state.x, n, 0.5, state.p)
+            launch_particles(scale_pressure, state.n, [2.0, state.p], model.device)
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
         if self.scheme == "jacobi":

@@ -5,7 +5,7 @@ the same cores, SPlisHSPlasH's IISPH and DFSPH on the same dam break with 2 thre
 (benchmarks/peer_splishsplash.py; the `bench` extra, skipped when not installed). Writes
 benchmarks/results/thread_scaling.json and .png. ``--matched iisph:3e-4,dfsph:5e-4`` adds runs of
 ours with 2 threads at other methods and tolerances, to set beside the peers at a like compression
-(``iisph-hydrostatic:1e-3``: IISPH with ``physics.warm_start = "hydrostatic"``).
+(``iisph-half:1e-3``: IISPH with ``physics.warm_start = "half"``; without one, the default start).
 
     python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer]
         [--matched METHOD:ETA,...] [--quick]
@@ -23,7 +23,7 @@ from warp_iisph.engine.launch import available_cores, set_threads
 
 
 def run(
-    threads: int, spacing: float, duration: float, method: str = "iisph", eta: float = 1e-3, warm_start: str = "half"
+    threads: int, spacing: float, duration: float, method: str = "iisph", eta: float = 1e-3, warm_start=None
 ) -> dict:
     set_threads(threads)
     scene = scenes.dam_break_cube(spacing=spacing, method=method, eta=eta, cfl=0.5, dt_max=5e-3, warm_start=warm_start)
@@ -35,7 +35,7 @@ def run(
     stages = {k: float(np.median([s["ms"][k] for s in st])) for k in st[0]["ms"]}
     return {
         "method": method,
-        "warm_start": warm_start,
+        "warm_start": sim.physics.pressure_start() if method == "iisph" else None,  # resolved
         "eta": eta,
         "threads": threads,
         "particles": sim.n_particles,
@@ -64,7 +64,7 @@ def chart(results: list, peers: list, path, matched: list = ()) -> None:
             [r["threads"]],
             [r["wall_seconds_per_simulated_second"]],
             marker,
-            label=f"warp_iisph {r['method'].upper()}{' ' + r['warm_start'] if r['warm_start'] != 'half' else ''} "
+            label=f"warp_iisph {r['method'].upper()}{' ' + r['warm_start'] if r['warm_start'] else ''} "
             f"eta {r['eta']:g} ({100 * r['mean_density_error']:.3f} %)",
         )
     for p, style in zip(peers, ("--", ":")):
@@ -135,7 +135,7 @@ def main():
     for item in filter(None, args.matched.split(",")):
         method, eta = item.split(":")
         method, _, warm = method.partition("-")  # iisph-hydrostatic: IISPH with that warm start
-        r = run(2, args.spacing, args.duration, method, float(eta), warm or "half")
+        r = run(2, args.spacing, args.duration, method, float(eta), warm or None)
         matched.append(r)
         print(
             f"warp_iisph {method.upper()}{' (' + warm + ' warm start)' if warm else ''} eta {float(eta):g}, 2 threads: "

@@ -19,7 +19,8 @@ def run(scene, graph: bool, duration: float = 0.15, device: str = "cpu", shrink_
 
 
 @pytest.mark.parametrize(
-    "method, warm_start", [("iisph", "half"), ("iisph", "hydrostatic"), ("wcsph", "half"), ("dfsph", "half")]
+    "method, warm_start",
+    [("iisph", "hydrostatic"), ("iisph", "half"), ("iisph", "half_hydrostatic"), ("wcsph", None), ("dfsph", None)],
 )
 def test_captured_step_equals_plain_launches(method, warm_start):
     def scene():
@@ -119,7 +120,9 @@ def test_cuda_graph_matches_cpu(method):
     assert np.max(np.abs(cuda.positions - cpu.positions)) < 0.02
 
 
-@pytest.mark.parametrize("method, warm_start", [("iisph", "half"), ("iisph", "hydrostatic"), ("dfsph", "half")])
+@pytest.mark.parametrize(
+    "method, warm_start", [("iisph", "hydrostatic"), ("iisph", "half"), ("iisph", "half_hydrostatic"), ("dfsph", None)]
+)
 def test_nothing_in_a_conditional_body_allocates(conditional_body_allocations, method, warm_start):
     """On CUDA, a conditional body of a graph (the loop over steps, the reorder's capture_if, the
     Jacobi loops of IISPH and of DFSPH's two solves) may not allocate (the conftest fixture

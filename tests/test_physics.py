@@ -41,7 +41,8 @@ def test_resting_pressure_holds_still_through_frame_landings():
     slope at every step, those landing on a frame and those right after included, stays within
     1 % of its own mean. The steps into a landing are equal; a landing cut as full steps and two
     halves kicked resting water's pressure by several per cent at every frame (the pressure's
-    response to the state's compression grows as 1/dt^2)."""
+    response to the state's compression grows as 1/dt^2). At the defaults (the hydrostatic warm
+    start) each step takes at most 5 iterations."""
     sim = settled_resting_tank()
     slopes = []
     first = int(np.ceil(sim.time * 30.0)) + 1
@@ -49,6 +50,23 @@ def test_resting_pressure_holds_still_through_frame_landings():
         sim.advance(frame / 30.0 - sim.time, callback=lambda rec: slopes.append(at_rest(sim, rec)[0]))
     slopes = np.asarray(slopes)
     assert np.all(np.abs(slopes / slopes.mean() - 1.0) <= 0.01), slopes
+    assert max(s["iterations"] for s in sim.stats[-len(slopes) :]) <= 5
+
+
+def test_a_changed_step_length_moves_resting_pressure_less_from_the_hydrostatic_start():
+    """The settled tank stepped by hand at 2 ms and back at the CFL rule's step (2.9 ms): the
+    slope's largest departure from its own mean stays under 3 % from the hydrostatic start (the
+    default, which keeps nothing of the last step's pressure) and under half the half start's
+    (7.7 % measured): what remains is the solve's response to the compression left at eta, which
+    grows as 1/dt^2 (docs/pressure_solve.md)."""
+    spread = {}
+    for warm_start in ("hydrostatic", "half"):
+        sim = settled_resting_tank(warm_start=warm_start)
+        dt = sim.stats[-1]["dt"]
+        slopes = np.asarray([at_rest(sim, sim.step(step))[0] for step in [2e-3] * 6 + [dt] * 6])
+        spread[warm_start] = float(np.abs(slopes / slopes.mean() - 1.0).max())
+    assert spread["hydrostatic"] <= 0.03, spread
+    assert spread["hydrostatic"] <= 0.5 * spread["half"], spread
 
 
 def settled_resting_tank(**physics) -> Simulation:
@@ -148,33 +166,57 @@ def test_tank_not_a_multiple_of_h_starts_at_rest(spacing, depth):
     assert rec["max_velocity"] < 0.05 and rec["compression"] < 1e-4
 
 
-def test_the_hydrostatic_warm_start_takes_fewer_iterations_at_the_same_tolerance():
-    """physics.warm_start = "hydrostatic": the Martin & Moyce column's first 0.5 s takes at most
-    half the iterations of the half warm start, its mean compression stays at most eta, no
-    particle is put back, and its front is within 3 % of the half warm start's."""
+@pytest.mark.parametrize("warm_start", ["hydrostatic", "half_hydrostatic"])
+def test_the_hydrostatic_warm_starts_take_fewer_iterations_at_the_same_tolerance(warm_start):
+    """The Martin & Moyce column's first 0.5 s from the hydrostatic starts takes at most half the
+    iterations of the half warm start (0.7 times from the gated one, the default, whose floor is 4
+    iterations), its mean compression stays at most eta, no particle is put back, and its front is
+    within 3 % of the half warm start's (the gated one's within 1 %: an ungated start keeps an
+    over-pressure in the collapsing column)."""
     runs = {}
-    for warm_start in ("half", "hydrostatic"):
-        sim = Simulation(scenes.martin_moyce(spacing=0.02, warm_start=warm_start), "cpu")
+    for start in ("half", warm_start):
+        sim = Simulation(scenes.martin_moyce(spacing=0.02, warm_start=start), "cpu")
         sim.advance(0.5)
         st = sim.stats
-        runs[warm_start] = (
+        runs[start] = (
             np.mean([s["iterations"] for s in st]),
             np.mean([s["compression"] for s in st]),
             sum(s["wall_corrections"] + s["obstacle_corrections"] for s in st),
             surge_front(sim.positions, 0.02),
         )
-    (it_half, _, _, front_half), (it_hydro, comp, put_back, front) = runs["half"], runs["hydrostatic"]
-    assert it_hydro <= 0.5 * it_half, runs
+    (it_half, _, _, front_half), (it_start, comp, put_back, front) = runs["half"], runs[warm_start]
+    assert it_start <= (0.7 if warm_start == "hydrostatic" else 0.5) * it_half, runs
     assert comp <= 1e-3 and put_back == 0, runs
-    assert abs(front / front_half - 1.0) < 0.03, runs
+    assert abs(front / front_half - 1.0) < (0.01 if warm_start == "hydrostatic" else 0.03), runs
 
 
-def test_the_hydrostatic_warm_start_keeps_water_at_rest():
-    """Water settled with the hydrostatic warm start rests (mean speed under 1 cm/s, none above
-    10 cm/s) at the minimum of iterations, its slope within 5 % of rho0 g."""
-    sim = settled_resting_tank(warm_start="hydrostatic")
+@pytest.mark.parametrize("warm_start", ["hydrostatic", "half_hydrostatic"])
+def test_the_hydrostatic_warm_starts_keep_water_at_rest(warm_start):
+    """Water settled from a hydrostatic start rests (mean speed under 1 cm/s, none above 10 cm/s)
+    at its floor of iterations (4 from the gated start, 2 from the half-and-half one), its slope
+    within 5 % of rho0 g; from the gated start, the default, within 1 % of its own mean at every
+    step (the half-and-half start wanders by a few per cent)."""
+    sim = settled_resting_tank(warm_start=warm_start)
     rows = [at_rest(sim, sim.step()) for _ in range(20)]
     slopes, mean_speed, max_speed, _ = (np.asarray(c) for c in zip(*rows))
     assert np.all(np.abs(slopes - 1.0) <= 0.05), slopes
     assert max(mean_speed) < 0.01 and max(max_speed) < 0.1
-    assert all(s["iterations"] <= 3 for s in sim.stats[-20:])
+    assert all(s["iterations"] <= (5 if warm_start == "hydrostatic" else 3) for s in sim.stats[-20:])
+    if warm_start == "hydrostatic":
+        assert np.all(np.abs(slopes / slopes.mean() - 1.0) <= 0.01), slopes
+
+
+def test_the_hydrostatic_warm_start_is_the_default_only_with_gravity_along_an_axis_and_no_free_bodies():
+    """Unset, physics.warm_start resolves to the hydrostatic start (with its floor of 4 iterations)
+    where gravity points along an axis and the scene has no free bodies, and to the half start
+    (floor 2) otherwise; a value set is kept."""
+    assert Physics().pressure_start() == "hydrostatic" and Physics().iteration_floor() == 4
+    assert Physics().pressure_start(free_bodies=True) == "half" and Physics().iteration_floor(True) == 2
+    assert Physics(gravity=(0.0, 0.0, 0.0)).pressure_start() == "half"
+    assert Physics(gravity=(1.0, -9.81, 0.0)).pressure_start() == "half"
+    assert Physics(warm_start="hydrostatic").pressure_start(free_bodies=True) == "hydrostatic"
+    assert Physics(method="dfsph").iteration_floor() == 2 and Physics(min_iterations=3).iteration_floor() == 3
+    from warp_iisph.scene import load_scene
+
+    assert Simulation(load_scene("flood"), "cpu").solver.warm_start == "half"  # it has free bodies
+    assert Simulation(load_scene("dam_break"), "cpu").solver.warm_start == "hydrostatic"

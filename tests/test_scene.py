@@ -28,7 +28,7 @@ def _scene(**kw):
         (lambda s: setattr(s.physics, "dt", 0.0), r"physics.dt = 0.0"),
         (
             lambda s: setattr(s.physics, "warm_start", "full"),
-            r"physics.warm_start = 'full': must be one of half, hydrostatic",
+            r"physics.warm_start = 'full': must be one of hydrostatic, half, half_hydrostatic",
         ),
         (
             lambda s: (setattr(s.physics, "warm_start", "hydrostatic"), setattr(s.physics, "method", "dfsph")),

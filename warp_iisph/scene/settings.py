@@ -12,7 +12,8 @@ from .checks import Record, flag, floats, in_range, position, positive, vec3
 METHODS = ("iisph", "wcsph", "dfsph")
 
 WALL_PRESSURES = ("extrapolated", "fluid")  # physics.wall_pressure: see Physics
-WARM_STARTS = ("half", "hydrostatic")  # physics.warm_start: see Physics
+WARM_STARTS = ("hydrostatic", "half", "half_hydrostatic")  # physics.warm_start: see Physics
+HYDROSTATIC_STARTS = ("hydrostatic", "half_hydrostatic")  # the starts that need gravity along an axis
 
 SMOOTHING = ("laplacian", "taubin", "none")
 MESH_FORMATS = ("obj", "ply")
@@ -153,17 +154,25 @@ class Physics(Record):
     - ``eta_divergence``: DFSPH's target average divergence error, the density that the
       compression rate ``max(D rho/Dt, 0)`` would add in one step, a fraction of rho0.
     - ``max_iterations``: cap on IISPH's relaxed Jacobi iterations and on each of DFSPH's two
-      solves; ``min_iterations`` the floor of the pressure (constant-density) solve.
+      solves; ``min_iterations`` the floor of the pressure (constant-density) solve, unset: 4
+      for IISPH from the hydrostatic start (from 2, a narrow resting column's slope rose 3 % above
+      rho0 g, 1 % above the converged solve's), 2 otherwise (see :meth:`iteration_floor`).
     - ``omega``: IISPH's Jacobi relaxation factor.
-    - ``warm_start``: the pressure IISPH's solve starts each step from. ``"half"`` (the default):
-      half the last step's, ``0.5 p(t - dt)``; resting water's pressure holds still (its
-      hydrostatic slope within 0.4 % from step to step), at about 22 iterations a step in a
-      0.6 m column. ``"hydrostatic"``: ``0.5 p(t - dt) + 0.5 rho0 |g| d``, ``d`` the depth below
-      the highest liquid in the particle's column (columns one spacing wide across gravity, which
-      must point along an axis): two to four times fewer iterations in flows and at rest, and
-      about half the compression at the same eta; resting water's pressure wanders by a few per
-      cent (docs/pressure_solve.md). A full warm start, ``p(t - dt)``, makes resting water
-      bounce and is not offered.
+    - ``warm_start``: the pressure IISPH's solve starts each step from. Unset (the default):
+      ``"hydrostatic"`` where gravity points along an axis and the scene has no free bodies,
+      ``"half"`` otherwise (no gravity, gravity at an angle, or free bodies; see
+      :meth:`pressure_start`). ``"hydrostatic"``: the hydrostatic pressure
+      under the particle's column, ``rho0 |g| d`` with ``d`` the depth below the highest liquid in it
+      (columns one spacing wide across gravity), taken in full where the particle's advected density
+      is at least rho0 and not at all where it is 1 % or more below (a particle being pulled
+      apart: the solution leaves it free), linearly between; nothing of the last step's, so
+      resting water keeps no memory that could make it bounce (4 iterations a step at rest, its
+      slope within 0.2 % from step to step; docs/pressure_solve.md). ``"half"``: half the last
+      step's, ``0.5 p(t - dt)``; resting water's pressure holds still too, at about 22 iterations a
+      step in a 0.6 m column. ``"half_hydrostatic"``: ``0.5 p(t - dt)`` plus half the hydrostatic
+      pressure (ungated): the fewest iterations at tight tolerances in flows, but resting water's
+      pressure wanders by a few per cent. A full warm start, ``p(t - dt)``, makes resting water
+      bounce and is not offered. DFSPH and WCSPH ignore it (DFSPH starts from its own stiffness).
     - ``stiffness``: WCSPH's k in p = k((rho/rho0)^7 - 1) (Pa).
     - ``substeps``: with a fixed ``dt``, cut a step longer than the method can take into equal
       substeps (each step record's ``substeps`` says into how many): no longer than
@@ -189,9 +198,9 @@ class Physics(Record):
     eta: float = 1.0e-3
     eta_divergence: float = 1.0e-3
     max_iterations: int = 100
-    min_iterations: int = 2
+    min_iterations: Optional[int] = None
     omega: float = 0.5
-    warm_start: str = "half"
+    warm_start: Optional[str] = None
     stiffness: float = 50_000.0
     dt: Optional[float] = None
     substeps: bool = True
@@ -199,6 +208,25 @@ class Physics(Record):
     dt_min: float = 1.0e-5
     dt_max: float = 5.0e-3
     max_velocity: Optional[float] = None
+
+    def pressure_start(self, free_bodies: bool = False) -> str:
+        """The warm start IISPH's solve uses: ``warm_start`` where set, else ``"hydrostatic"`` where
+        gravity points along an axis and the scene has no free bodies, ``"half"`` otherwise (a
+        column's estimate counts only the liquid above a particle, not a body's weight on it; in
+        the flood the film under the block then shot particles at 14 m/s, 4.5 from the half
+        start: docs/physics.md 4.14)."""
+        if self.warm_start is not None:
+            return self.warm_start
+        along_an_axis = sum(1 for g in self.gravity if g != 0.0) == 1
+        return "hydrostatic" if along_an_axis and not free_bodies else "half"
+
+    def iteration_floor(self, free_bodies: bool = False) -> int:
+        """The fewest iterations of the pressure solve: ``min_iterations`` where set, else 4 for
+        IISPH from the hydrostatic start and 2 otherwise (never above ``max_iterations``)."""
+        if self.min_iterations is not None:
+            return int(self.min_iterations)
+        hydrostatic = self.method == "iisph" and self.pressure_start(free_bodies) == "hydrostatic"
+        return min(4 if hydrostatic else 2, int(self.max_iterations))
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -222,25 +250,27 @@ class Physics(Record):
         )
         for key in ("max_iterations", "min_iterations"):
             v = getattr(self, key)
+            if v is None and key == "min_iterations":
+                continue
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 100_000:
                 raise ValueError(f"physics.{key} = {v!r}: must be an integer in [1, 100000]")
-        if self.min_iterations > self.max_iterations:
+        if self.min_iterations is not None and self.min_iterations > self.max_iterations:
             raise ValueError(
                 f"physics.min_iterations = {self.min_iterations}: must be <= "
                 f"physics.max_iterations = {self.max_iterations}"
             )
         self.omega = in_range(self.omega, "physics.omega", 0.0, 1.0, "Jacobi relaxation", lo_open=True)
-        if self.warm_start not in WARM_STARTS:
+        if self.warm_start is not None and self.warm_start not in WARM_STARTS:
             raise ValueError(f"physics.warm_start = {self.warm_start!r}: must be one of {', '.join(WARM_STARTS)}")
-        if self.warm_start == "hydrostatic":
+        if self.warm_start in HYDROSTATIC_STARTS:
             if self.method != "iisph":
                 raise ValueError(
-                    f"physics.warm_start = 'hydrostatic': IISPH's only (physics.method = {self.method!r} starts "
-                    "its solves from its own stiffness)"
+                    f"physics.warm_start = {self.warm_start!r}: IISPH's only (physics.method = {self.method!r} "
+                    "starts its solves from its own stiffness)"
                 )
-            if sum(1 for g in self.gravity if g != 0.0) > 1:
+            if sum(1 for g in self.gravity if g != 0.0) != 1:
                 raise ValueError(
-                    f"physics.warm_start = 'hydrostatic': needs physics.gravity along an axis, not {self.gravity}"
+                    f"physics.warm_start = {self.warm_start!r}: needs physics.gravity along an axis, not {self.gravity}"
                 )
         self.stiffness = positive(self.stiffness, "physics.stiffness", "Pa")
         if self.dt is not None:

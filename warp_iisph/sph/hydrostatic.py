@@ -1,9 +1,18 @@
 """The hydrostatic pressure a particle would carry under the liquid above it: ``rho0 |g| d``, ``d``
 its depth below the highest particle of its column (columns one spacing wide across gravity,
-which points along an axis), half a spacing added for the top particle's own layer. IISPH's
-``physics.warm_start = "hydrostatic"`` starts each step's solve from half of it plus half of the
-last step's pressure: the half warm start's memory, leaking towards a state function that is the
-pressure of resting water instead of towards zero.
+which points along an axis), half a spacing added for the top particle's own layer.
+
+IISPH's ``physics.warm_start = "hydrostatic"`` (the default without free bodies) starts each
+step's solve from it alone (:meth:`HydrostaticPressure.start`): a state function, the pressure of
+resting water, with no memory of the last step's pressure that could integrate resting water's
+small errors into a bounce. A particle whose advected density is below rho0 is being pulled apart and the
+solution leaves it free; started with its hydrostatic pressure it would keep an over-pressure that
+the solve's criterion (compression only) never sees, which slowed the Martin & Moyce front by about
+a point. Its hydrostatic share is therefore ramped from whole at rho0 to none at :data:`RELEASE`
+below it. Resting water's pressed particles lie within -1.2 .. +0.5 % of rho0 (1st to 99th
+percentile); a ramp of 0.5 % let their starts flip from step to step and the column bounce, 1 %
+and 2 % held it (docs/physics.md 4.14).
+``"half_hydrostatic"`` starts from half of it (ungated) plus half of the last step's pressure.
 
 A column's height is the largest of its particles' (``wp.atomic_max``: the same on every device
 and path, whatever the order); a droplet above the liquid raises its column's estimate, which
@@ -15,6 +24,8 @@ from __future__ import annotations
 import warp as wp
 
 from ..engine.launch import launch_particles
+
+RELEASE = wp.constant(0.01)  # advected density deficit (fraction of rho0) at which the start is zero
 
 
 @wp.struct
@@ -59,6 +70,25 @@ def add_hydrostatic(
     p[i] = p[i] + share * rho_g * wp.max(depth, 0.0)
 
 
+@wp.kernel
+def start_hydrostatic(
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    c: Columns,
+    rho_g: float,
+    rho_adv: wp.array(dtype=float),
+    rho0: float,
+    p: wp.array(dtype=float),
+):
+    """``p = s rho0 |g| d``, ``s`` ramped from 1 to 0 as the advected density falls from rho0 to
+    RELEASE below it."""
+    i = wp.tid() + offset
+    x_i = x[i]
+    depth = c.top[column_of(c, x_i)] + 0.5 * c.h - c.sign * x_i[c.up]
+    share = wp.clamp((rho_adv[i] / rho0 - 1.0) / RELEASE + 1.0, 0.0, 1.0)
+    p[i] = share * rho_g * wp.max(depth, 0.0)
+
+
 class HydrostaticPressure:
     """The column heights over ``model``'s domain (allocated once) and the estimate's launches."""
 
@@ -76,11 +106,22 @@ class HydrostaticPressure:
         self.rho_g = float(model.physics.rho0 * abs(g[up]))
         self.device = model.device
 
+    def tops(self, x: wp.array, n: int) -> None:
+        """The columns' heights from the first ``n`` particles at ``x``."""
+        c = self.columns
+        c.top.fill_(-1.0e30)
+        wp.launch(column_tops, dim=n, inputs=[x, c], device=self.device)
+
     def add(self, x: wp.array, n: int, share: float, p: wp.array) -> None:
         """``p += share rho0 |g| d`` for the first ``n`` particles at ``x``."""
         if n == 0:
             return
-        c = self.columns
-        c.top.fill_(-1.0e30)
-        wp.launch(column_tops, dim=n, inputs=[x, c], device=self.device)
-        launch_particles(add_hydrostatic, n, [x, c, self.rho_g, float(share), p], self.device)
+        self.tops(x, n)
+        launch_particles(add_hydrostatic, n, [x, self.columns, self.rho_g, float(share), p], self.device)
+
+    def start(self, x: wp.array, n: int, rho_adv: wp.array, rho0: float, p: wp.array) -> None:
+        """``p`` = the hydrostatic pressure, ramped by the advected density (module docstring)."""
+        if n == 0:
+            return
+        self.tops(x, n)
+        launch_particles(start_hydrostatic, n, [x, self.columns, self.rho_g, rho_adv, float(rho0), p], self.device)

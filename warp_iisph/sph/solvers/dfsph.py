@@ -336,7 +336,7 @@ class DFSPHSolver(SPHSolver):
         self.density_solve.run(
             state.n,
             ph.eta,
-            ph.min_iterations,
+            ph.iteration_floor(),
             ph.max_iterations,
             lambda: self.density_iteration(model, state),
             lambda blend: self.apply(model, state, self.kappa, self.v_adv, blend),

@@ -5,7 +5,8 @@ Per step, after densities: ``predict_advection`` computes ``v_adv = v + dt a_non
 ``d_ii = -dt^2 sum_j m/rho_i^2 grad W_ij - dt^2 sum_b psi_b/rho_i^2 grad W_ib``,
 ``rho_adv = rho_i + dt sum_j m v_adv_ij . grad W_ij + dt sum_b psi_b (v_adv_i - v_b) . grad W_ib`` and
 ``a_ii = sum_j m (d_ii - d_ji) . grad W_ij + sum_b psi_b d_ii . grad W_ib`` with
-``d_ji = dt^2 m/rho_i^2 grad W_ij``; the pressure starts at ``0.5 p(t - dt)``.
+``d_ji = dt^2 m/rho_i^2 grad W_ij``; the pressure starts from the hydrostatic pressure under the
+particle's column (``physics.warm_start``, :mod:`..hydrostatic`) or from ``0.5 p(t - dt)``.
 The solve is relaxed Jacobi: ``sum_j d_ij p_j = -dt^2 sum_j m p_j/rho_j^2 grad W_ij
 - dt^2 sum_b psi_b p_b/rho0^2 grad W_ib`` (the walls' pressures ``p_b`` extrapolated from this
 iteration's pressures: known values like the neighbours', so they enter ``s_i``; with
@@ -21,7 +22,7 @@ error is that of the iteration's input pressures (the residual; see ``jacobi_upd
 
 The solve ends at the Jacobi update of the pressures at which the error reaches eta (the one
 loop's ending, :mod:`.iteration`), so the pressure of resting water does not jump with the
-integer iteration count from step to step. Why relaxed Jacobi from half the last pressure, and
+integer iteration count from step to step. Why relaxed Jacobi from the hydrostatic pressure, and
 what faster schemes run into: docs/pressure_solve.md.
 """
 
@@ -340,8 +341,9 @@ class IISPHSolver(SPHSolver):
         self.terms = t
         self.p_next = scalars()
         self.solve = IterativeSolve(n, dev)  # the pressure solve: relaxed Jacobi, ending where its error reaches eta
-        # physics.warm_start = "hydrostatic": half the last pressure plus half the hydrostatic one
-        self.hydrostatic = HydrostaticPressure(model) if self.physics.warm_start == "hydrostatic" else None
+        self.free_bodies = model.rigid is not None
+        self.warm_start = self.physics.pressure_start(self.free_bodies)  # physics.warm_start, resolved
+        self.hydrostatic = HydrostaticPressure(model) if self.warm_start != "half" else None
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
         """One IISPH step (Ihmsen et al. 2014, Algorithm 1), stage by stage."""
@@ -358,7 +360,7 @@ class IISPHSolver(SPHSolver):
             self.solve.run(
                 state.n,
                 ph.eta,
-                ph.min_iterations,
+                ph.iteration_floor(self.free_bodies),
                 ph.max_iterations,
                 lambda: self.jacobi_iteration(model, state),
                 lambda blend: launch_particles(jacobi_advance, state.n, [blend, self.p_next, state.p], model.device),
@@ -368,8 +370,8 @@ class IISPHSolver(SPHSolver):
 
     def predict_advection(self, model, state) -> None:
         """``v_adv``, ``d_ii``, ``rho_adv``, ``a_ii`` (and the diagonal with the walls' share),
-        and the warm start ``0.5 p(t - dt)`` (plus half the hydrostatic pressure with
-        ``physics.warm_start = "hydrostatic"``)."""
+        and the warm start: the gated hydrostatic pressure (``"hydrostatic"``), ``0.5 p(t - dt)``
+        (``"half"``) or that plus half the hydrostatic pressure (``"half_hydrostatic"``)."""
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev, walls = state.n, model.device, self.walls.walls
         g = wp.vec3(*self.physics.gravity)
@@ -381,7 +383,9 @@ class IISPHSolver(SPHSolver):
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
         launch_particles(predict_advection_density, n, [self.fluid, nf, nb, walls, self.terms, state.rho, state.p], dev)
-        if self.hydrostatic is not None:
+        if self.warm_start == "hydrostatic":
+            self.hydrostatic.start(state.x, n, self.terms.rho_adv, self.physics.rho0, state.p)
+        elif self.warm_start == "half_hydrostatic":
             self.hydrostatic.add(state.x, n, 0.5, state.p)
 
     def jacobi_iteration(self, model, state) -> None:
