@@ -1,8 +1,8 @@
 """The pressure solve's warm starts and schemes, side by side on the same cases in one run: what
 each costs in iterations and what it leaves (compression in a dam break, motion and pressure of
 water at rest). The package's solve is relaxed Jacobi from the hydrostatic pressure (gated by the
-advected density); the others are twins kept for measurement (benchmarks/solve_variants.py). docs/pressure_solve.md
-discusses the results.
+advected density); the others are twins kept for measurement (benchmarks/solve_variants.py).
+docs/pressure_solve.md discusses the results.
 
 Cases:
 1. Resting tank 0.4 x 0.8 x 0.2 m, water 0.6 m deep, 2 cm spacing (6,000 particles): settled for

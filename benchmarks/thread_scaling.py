@@ -134,7 +134,7 @@ def main():
     matched = []
     for item in filter(None, args.matched.split(",")):
         method, eta = item.split(":")
-        method, _, warm = method.partition("-")  # iisph-hydrostatic: IISPH with that warm start
+        method, _, warm = method.partition("-")  # iisph-half: IISPH with that warm start
         r = run(2, args.spacing, args.duration, method, float(eta), warm or None)
         matched.append(r)
         print(

@@ -6,6 +6,7 @@ import pytest
 from warp_iisph import Box, DivergenceError, Physics, Scene, Simulation, scenes
 from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
 from warp_iisph.analysis.hydrostatic import hydrostatic_slope
+from warp_iisph.scene import load_scene
 
 G = 9.81
 
@@ -216,7 +217,5 @@ def test_the_hydrostatic_warm_start_is_the_default_only_with_gravity_along_an_ax
     assert Physics(gravity=(1.0, -9.81, 0.0)).pressure_start() == "half"
     assert Physics(warm_start="hydrostatic").pressure_start(free_bodies=True) == "hydrostatic"
     assert Physics(method="dfsph").iteration_floor() == 2 and Physics(min_iterations=3).iteration_floor() == 3
-    from warp_iisph.scene import load_scene
-
     assert Simulation(load_scene("flood"), "cpu").solver.warm_start == "half"  # it has free bodies
     assert Simulation(load_scene("dam_break"), "cpu").solver.warm_start == "hydrostatic"

@@ -217,8 +217,11 @@ class Physics(Record):
         start: docs/physics.md 4.14)."""
         if self.warm_start is not None:
             return self.warm_start
-        along_an_axis = sum(1 for g in self.gravity if g != 0.0) == 1
-        return "hydrostatic" if along_an_axis and not free_bodies else "half"
+        return "hydrostatic" if self.gravity_along_an_axis() and not free_bodies else "half"
+
+    def gravity_along_an_axis(self) -> bool:
+        """Whether gravity has exactly one non-zero component (the hydrostatic starts' columns)."""
+        return sum(1 for g in self.gravity if g != 0.0) == 1
 
     def iteration_floor(self, free_bodies: bool = False) -> int:
         """The fewest iterations of the pressure solve: ``min_iterations`` where set, else 4 for
@@ -268,7 +271,7 @@ class Physics(Record):
                     f"physics.warm_start = {self.warm_start!r}: IISPH's only (physics.method = {self.method!r} "
                     "starts its solves from its own stiffness)"
                 )
-            if sum(1 for g in self.gravity if g != 0.0) != 1:
+            if not self.gravity_along_an_axis():
                 raise ValueError(
                     f"physics.warm_start = {self.warm_start!r}: needs physics.gravity along an axis, not {self.gravity}"
                 )

@@ -5,10 +5,10 @@ which points along an axis), half a spacing added for the top particle's own lay
 IISPH's ``physics.warm_start = "hydrostatic"`` (the default without free bodies) starts each
 step's solve from it alone (:meth:`HydrostaticPressure.start`): a state function, the pressure of
 resting water, with no memory of the last step's pressure that could integrate resting water's
-small errors into a bounce. A particle whose advected density is below rho0 is being pulled apart and the
-solution leaves it free; started with its hydrostatic pressure it would keep an over-pressure that
-the solve's criterion (compression only) never sees, which slowed the Martin & Moyce front by about
-a point. Its hydrostatic share is therefore ramped from whole at rho0 to none at :data:`RELEASE`
+small errors into a bounce. A particle whose advected density is below rho0 is being pulled apart
+and the solution leaves it free; started with its hydrostatic pressure it would keep an
+over-pressure that the solve's criterion (compression only) never sees, which slowed the Martin &
+Moyce front by about a point. Its hydrostatic share is therefore ramped from whole at rho0 to none at :data:`RELEASE`
 below it. Resting water's pressed particles lie within -1.2 .. +0.5 % of rho0 (1st to 99th
 percentile); a ramp of 0.5 % let their starts flip from step to step and the column bounce, 1 %
 and 2 % held it (docs/physics.md 4.14).
