@@ -3,9 +3,10 @@
 and ms per stage for each count, and its mean actual compression. Beside it, in the same run on
 the same cores, SPlisHSPlasH's IISPH and DFSPH on the same dam break with 2 threads
 (benchmarks/peer_splishsplash.py; the `bench` extra, skipped when not installed). Writes
-benchmarks/results/thread_scaling.json and .png. ``--matched iisph:3e-4,dfsph:5e-4`` adds runs of
-ours with 2 threads at other methods and tolerances, to set beside the peers at a like compression
-(``iisph-half:1e-3``: IISPH with ``physics.warm_start = "half"``; without one, the default start).
+benchmarks/results/thread_scaling.json and .png (thread_scaling_0.5s.json for ``--duration
+0.5``). ``--matched iisph:3e-4,dfsph:5e-4`` adds runs of ours with 2 threads at other methods
+and tolerances, to set beside the peers at a like compression (``iisph-half:1e-3``: IISPH with
+``physics.warm_start = "half"``; without one, the default start).
 
     python benchmarks/thread_scaling.py [--duration 1.0] [--threads 1,2] [--no-peer]
         [--matched METHOD:ETA,...] [--quick]
@@ -20,6 +21,12 @@ from common import RESULTS, header, pyplot, save, warm_up
 
 from warp_iisph import Simulation, scenes
 from warp_iisph.engine.launch import available_cores, set_threads
+
+
+def stem(duration: float) -> str:
+    """The result file's name: thread_scaling for the default 1 s, with the duration otherwise
+    (the first 0.5 s, the issue's other window, as thread_scaling_0.5s)."""
+    return "thread_scaling" if duration == 1.0 else f"thread_scaling_{duration:g}s"
 
 
 def run(
@@ -153,7 +160,7 @@ def main():
         peers=peers,
         matched=matched,
     )
-    chart(results, peers, save(record, args.out, "thread_scaling", args.quick), matched)
+    chart(results, peers, save(record, args.out, stem(args.duration), args.quick), matched)
 
 
 if __name__ == "__main__":

@@ -55,11 +55,11 @@ def test_resting_pressure_holds_still_through_frame_landings():
 
 
 def test_a_changed_step_length_moves_resting_pressure_less_from_the_hydrostatic_start():
-    """The settled tank stepped by hand at 2 ms and back at the CFL rule's step (2.9 ms): the
+    """The settled tank stepped by hand at 2 ms and back at the CFL rule's step (3.6 ms): the
     slope's largest departure from its own mean stays under 3 % from the hydrostatic start (the
-    default, which keeps nothing of the last step's pressure) and under half the half start's
-    (7.7 % measured): what remains is the solve's response to the compression left at eta, which
-    grows as 1/dt^2 (docs/pressure_solve.md)."""
+    default, which keeps nothing of the last step's pressure; 2.7 % measured) and under half the
+    half start's (7.7 %): what remains is the solve's response to the compression left at eta,
+    which grows as 1/dt^2 (benchmarks/step_change.py, docs/pressure_solve.md)."""
     spread = {}
     for warm_start in ("hydrostatic", "half"):
         sim = settled_resting_tank(warm_start=warm_start)

@@ -1,0 +1,133 @@
+"""Resting water through a change of the step length: the 0.6 m tank (0.4 x 0.8 x 0.2 m, 2 cm,
+6,000 particles) settled 2 s at the CFL rule's step, then stepped by hand 6 times at 2 ms and 18
+times back at the CFL step. The hydrostatic slope (rho0 g) at each of those 24 steps and its
+largest departure from their mean, for the defaults and for tighter solves (smaller eta, higher
+iteration floors) and the half warm start: what part of the kick at a step-length change is
+the solve's unconverged error. docs/pressure_solve.md discusses the results.
+
+Writes benchmarks/results/step_change.json and step_change.png.
+
+    python benchmarks/step_change.py [--quick] [--workers N]
+"""
+
+import argparse
+import functools
+import time
+
+import numpy as np
+import warp as wp
+from common import RESULTS, check_cluster_options, cluster_options, header, measure_all, pyplot, save, warm_once
+
+# physics settings besides the defaults; each settles with its own settings
+VARIANTS = [
+    {},
+    {"min_iterations": 5},
+    {"min_iterations": 6},
+    {"min_iterations": 8},
+    {"min_iterations": 20},
+    {"min_iterations": 40},
+    {"eta": 3e-4},
+    {"eta": 1e-4},
+    {"eta": 3e-5, "max_iterations": 1000},
+    {"eta": 1e-5, "max_iterations": 2000},
+    {"warm_start": "half"},
+]
+SHORT = 2.0e-3  # s: the step taken by hand
+
+
+def name(settings: dict) -> str:
+    shown = {k: v for k, v in settings.items() if k != "max_iterations"}
+    return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()) or "defaults"
+
+
+def step_change(settings: dict, quick: bool) -> dict:
+    from warp_iisph import Box, Physics, Scene, Simulation
+    from warp_iisph.analysis.hydrostatic import hydrostatic_slope
+
+    warm_once()
+    h, tank, depth = (0.04, (0.4, 0.8, 0.2), 0.6) if quick else (0.02, (0.4, 0.8, 0.2), 0.6)
+    scene = Scene(spacing=h, tank=Box((0, 0, 0), tank), physics=Physics(**settings), name="resting_tank")
+    scene.add_fluid_box((0, 0, 0), (tank[0], depth, tank[2]))
+    sim = Simulation(scene, "cpu")
+    t0 = time.perf_counter()
+    sim.advance(0.5 if quick else 2.0)
+    cfl_step = sim.stats[-2]["dt"]  # the last step is fitted to land on the end time
+
+    def slope(rec):
+        assert rec["escaped"] == rec["non_finite"] == rec["wall_corrections"] == 0
+        return hydrostatic_slope(sim.positions, sim.pressures, h, (0, 0, 0), tank, 1000.0, 9.81)
+
+    before = [slope(sim.step(cfl_step)) for _ in range(3)]
+    steps = [SHORT] * 6 + [cfl_step] * 18
+    slopes = np.asarray([slope(sim.step(dt)) for dt in steps])
+    its = [s["iterations"] for s in sim.stats[-len(steps) :]]
+    return {
+        "settings": settings,
+        "name": name(settings),
+        "particles": sim.n_particles,
+        "cfl_step": cfl_step,
+        "steps": steps,
+        "slope_before": float(np.mean(before)),
+        "slopes": slopes.tolist(),
+        "spread": float(np.abs(slopes / slopes.mean() - 1.0).max()),
+        "iterations": its,
+        "iterations_per_step": float(np.mean(its)),
+        "wall_seconds": time.perf_counter() - t0,
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="4 cm tank, settled 0.5 s")
+    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--replot", action="store_true", help="draw the chart again from the result file, run nothing")
+    cluster_options(ap)
+    args = ap.parse_args()
+    check_cluster_options(ap, args)
+    wp.config.log_level = wp.LOG_WARNING
+    if args.replot:
+        import json
+        from pathlib import Path
+
+        stem = "step_change_quick" if args.quick else "step_change"
+        chart(json.loads((Path(args.out) / f"{stem}.json").read_text())["runs"], Path(args.out) / f"{stem}.png")
+        return
+    rows = []
+
+    def report(r):
+        rows.append(r)
+        print(
+            f"{r['name']:>28}: slope {r['slope_before']:.4f} before, {min(r['slopes']):.4f}..{max(r['slopes']):.4f} "
+            f"through 2 ms and back to {1000 * r['cfl_step']:.2f} ms: within {100 * r['spread']:.2f} % of its mean, "
+            f"{r['iterations_per_step']:.1f} iterations/step"
+        )
+
+    measure_all(args, [functools.partial(step_change, v, args.quick) for v in VARIANTS], report)
+    record = header("step_change", short_step=SHORT, variants=VARIANTS, runs=rows)
+    chart(rows, save(record, args.out, "step_change", args.quick))
+
+
+def chart(rows, path):
+    plt = pyplot()
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 4.8))
+    for k, r in enumerate(rows):
+        colour = plt.cm.tab20(k % 20)
+        ax.plot(np.arange(1, len(r["slopes"]) + 1), r["slopes"], "o-", ms=3, color=colour, label=r["name"])
+        bx.semilogx(r["iterations_per_step"], 100 * r["spread"], "o", color=colour)
+        bx.annotate(r["name"], (r["iterations_per_step"], 100 * r["spread"]), fontsize=7, xytext=(4, 2),
+                    textcoords="offset points")  # fmt: skip
+    ax.axvspan(0.5, 6.5, color="0.9", zorder=0)
+    ax.set_xlabel("step (shaded: 2 ms by hand; then the CFL step again)")
+    ax.set_ylabel("hydrostatic slope / rho0 g")
+    ax.set_title("0.6 m resting tank through a change of the step length")
+    ax.legend(fontsize=7)
+    bx.axhline(1.0, color="0.5", ls=":", lw=1)
+    bx.set_xlabel("pressure iterations per step (log)")
+    bx.set_ylabel("largest departure of the slope from its mean (%)")
+    bx.set_title("the kick against the solve's cost")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    main()
