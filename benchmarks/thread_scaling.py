@@ -160,7 +160,12 @@ def main():
         peers=peers,
         matched=matched,
     )
-    chart(results, peers, save(record, args.out, stem(args.duration), args.quick), matched)
+    chart(
+        results,
+        peers,
+        save(record, args.out, "thread_scaling" if args.quick else stem(args.duration), args.quick),
+        matched,
+    )
 
 
 if __name__ == "__main__":

@@ -248,3 +248,18 @@ def test_resting_tank_study_quick_mode(tmp_path):
     default = rows[0]  # IISPH at the defaults: pressure carries the weight, the water rests
     assert not default["diverged"] and abs(default["slope_mean"] - 1.0) < 0.05 and default["mean_speed_max"] < 0.03
     assert default["step_number"] == pytest.approx(default["steps"][0]["dt"] ** 2 * 9.81 * 0.6 / 0.04**2, rel=0.05)
+
+
+def test_step_change_benchmark_quick_mode(tmp_path):
+    rows = _quick("step_change.py", tmp_path, "step_change_quick")["runs"]
+    assert [r["name"] for r in rows] == ["defaults", "min_iterations 8", "warm_start half"]
+    for r in rows:  # six steps by hand at 2 ms, then back at the CFL step, each measured
+        assert r["steps"][:6] == [0.002] * 6 and r["steps"][6] == pytest.approx(r["cfl_step"]) and r["cfl_step"] > 0.003
+        # pressure carries the weight throughout (at 4 cm, 5 ms to 2 ms kicks it by up to 13 %)
+        assert (
+            len(r["slopes"]) == 24
+            and abs(np.mean(r["slopes"]) - 1.0) < 0.05
+            and all(abs(s - 1.0) < 0.2 for s in r["slopes"])
+        )
+        assert r["spread"] == pytest.approx(max(abs(s / np.mean(r["slopes"]) - 1.0) for s in r["slopes"]))
+    assert min(rows[1]["iterations"]) >= 8  # the variant's settings reach the solver
