@@ -8,10 +8,11 @@ the solver's compulsory memory traffic, see ``bytes_per_step``), the device's co
 measured here, and the ratio of that bound to the measured step. With --mesh the surface is
 also rebuilt 30 times per simulated second (the product's target: 1 simulated second per wall
 second for 1M particles with meshing on one H100), and ``realtime_ratio`` says how far a row
-is from it. Writes benchmarks/results/device_switch[_graph][_mesh].json and .png.
+is from it. ``--method dfsph`` runs DFSPH instead (the bytes model stays IISPH's). Writes
+benchmarks/results/device_switch[_dfsph][_graph][_mesh].json and .png.
 
     python benchmarks/device_switch.py [--devices cpu,cuda] [--counts 10000,30000,100000] [--duration 0.25]
-                                       [--graph] [--mesh] [--quick]
+                                       [--graph] [--mesh] [--method iisph|dfsph] [--quick]
     # on a GPU: --devices cuda --counts 100000,300000,1000000 --graph --mesh
 """
 
@@ -62,8 +63,11 @@ def copy_bandwidth(device: str, megabytes: int = 512, repeats: int = 5) -> float
     return 2.0 * a.capacity * repeats / (time.perf_counter() - t)
 
 
-def run(device: str, count: int, duration: float, graph: bool = False, mesh: bool = False) -> dict:
-    sim = Simulation(scenes.dam_break_cube(particles=count, eta=1e-3, cfl=0.5, dt_max=5e-3), device, graph=graph)
+def run(
+    device: str, count: int, duration: float, graph: bool = False, mesh: bool = False, method: str = "iisph"
+) -> dict:
+    scene = scenes.dam_break_cube(particles=count, method=method, eta=1e-3, cfl=0.5, dt_max=5e-3)
+    sim = Simulation(scene, device, graph=graph)
     sim.step()  # a plain first step loads the kernels; the graph path records its graph on the second
     sim.step()
     recon = SurfaceReconstructor(sim.model.spacing, sim.scene.surface, sim.device) if mesh else None
@@ -160,6 +164,12 @@ def main():
         help="replay graph-captured steps (warp_iisph.stepping.graph) instead of plain launches",
     )
     ap.add_argument("--mesh", action="store_true", help=f"also rebuild the surface {FPS:g} times per simulated second")
+    ap.add_argument(
+        "--method",
+        default="iisph",
+        choices=("iisph", "dfsph"),
+        help="the pressure solver (dfsph: its constant-density and divergence-free solves; the bytes model is IISPH's)",
+    )
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
@@ -170,10 +180,10 @@ def main():
     devices, missing = present_devices(args.devices)
     rows, bandwidth = [], {}
     for dev in devices:
-        warm_up(dev)
+        warm_up(dev, args.method)
         bandwidth[dev] = copy_bandwidth(dev, 64 if args.quick else 512)
         for count in (int(c) for c in args.counts.split(",")):
-            r = run(dev, count, args.duration, args.graph, args.mesh)
+            r = run(dev, count, args.duration, args.graph, args.mesh, args.method)
             r["copy_bandwidth"] = bandwidth[dev]
             r["bandwidth_bound_ms"] = 1e3 * r["bytes_per_step"] / bandwidth[dev]
             r["fraction_of_bandwidth_bound"] = r["bandwidth_bound_ms"] / r["ms_per_step"]
@@ -210,6 +220,7 @@ def main():
         "device_switch",
         devices[0],
         scene="dam_break_cube",
+        method=args.method,
         duration=args.duration,
         graph=args.graph,
         mesh=args.mesh,
@@ -221,7 +232,8 @@ def main():
     )
     if "cuda" in devices:
         record["cuda_device_name"] = wp.get_device("cuda:0").name
-    stem = "device_switch" + ("_graph" if args.graph else "") + ("_mesh" if args.mesh else "")
+    stem = "device_switch" + ("_dfsph" if args.method == "dfsph" else "") + ("_graph" if args.graph else "")
+    stem += "_mesh" if args.mesh else ""
     chart(rows, save(record, args.out, stem, args.quick))
 
 

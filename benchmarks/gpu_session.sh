@@ -14,8 +14,9 @@
 #     run "bash benchmarks/gpu_session.sh switch"   # device_switch at 100k, 300k, 1M: --graph --mesh, then plain
 #     run "bash benchmarks/gpu_session.sh access"   # lists against grid queries, slot- against particle-major
 # ("all" adds 1 simulated second at 1M with --graph, kernel_profile at 100k and 1M, and
-# breakdown at 1M with its files written; "receive check" runs the CUDA tests and every bundled
-# scene through the CLI on CUDA with --graph, benchmarks/gallery.py)
+# breakdown at 1M with its files written; "receive check" runs the CUDA tests, every bundled
+# scene through the CLI on CUDA with --graph (benchmarks/gallery.py) and DFSPH at 100k and 1M
+# with --graph)
 # or all of it in the second call, each phase under its own time limit (a session's device time
 # is 15 minutes; the second call then carries .gpu/2 and .warp_cache, the CPU kernels built here):
 #     run "bash benchmarks/gpu_session.sh receive all"
@@ -98,9 +99,10 @@ all)
     timed_phase 90 profile "python3 benchmarks/kernel_profile.py --counts 100000,1000000 --out $out"
     timed_phase 120 breakdown "python3 benchmarks/breakdown.py --device cuda --particles 1000000 --duration 0.25 --out $out"
     ;;
-check)  # the CUDA tests, then every bundled scene through the CLI on CUDA with --graph
+check)  # the CUDA tests, every bundled scene through the CLI on CUDA with --graph, DFSPH with graphs
     timed_phase 150 tests "python3 -m pytest -q -rs tests -k 'cuda' -p no:cacheprovider"
     timed_phase 240 gallery "python3 benchmarks/gallery.py --device cuda --graph --out $out/gallery"
+    timed_phase 90 switch_dfsph "python3 benchmarks/device_switch.py --devices cuda --counts 100000,1000000 --graph --method dfsph --out $out"
     ;;
 tests)
     python3 -m pytest -q -rs tests -k "cuda or graph" 2>&1 | tee "$out/tests.log"

@@ -158,6 +158,18 @@ def test_device_switch_quick_mode(tmp_path):
     for r in graph["results"]:  # meshing at 30 frames per simulated second, counted in the real-time ratio
         assert r["mesh_frames"] == 2 and r["mesh_triangles"] > 100 and r["mesh_ms_per_frame"] > 0
         assert r["realtime_ratio"] == pytest.approx(r["simulated_seconds"] / r["wall_seconds_with_mesh"])
+    dfsph = _quick(
+        "device_switch.py",
+        tmp_path,
+        "device_switch_dfsph_graph_quick",
+        "--devices",
+        "cpu",
+        "--graph",
+        "--method",
+        "dfsph",
+    )  # DFSPH's solves replayed as graphs (gpu_session.sh runs this on CUDA)
+    assert dfsph["method"] == "dfsph" and record["method"] == "iisph"
+    assert all(r["graph"] and r["steps"] > 0 and r["mean_iterations"] >= 2 for r in dfsph["results"])
 
 
 def test_speed_accuracy_quick_mode(tmp_path):
