@@ -45,6 +45,13 @@ def save(record: dict, out, stem: str, quick: bool) -> Path:
     return out / f"{stem}.png"
 
 
+def saved(out, stem: str, quick: bool = False) -> tuple[dict, Path]:
+    """The record :func:`save` wrote for ``stem`` in ``out`` and its chart's path (for --replot)."""
+    out = Path(out)
+    stem = f"{stem}_quick" if quick else stem
+    return json.loads((out / f"{stem}.json").read_text()), out / f"{stem}.png"
+
+
 def present_devices(spec: str) -> tuple[list[str], list[str]]:
     """The devices of a comma-separated ``cpu,cuda`` list that this machine has, and those it
     lacks (each reported as skipped)."""

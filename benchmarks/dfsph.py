@@ -12,12 +12,10 @@ corrections, and wall seconds per simulated second. Writes benchmarks/results/df
 """
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
-from common import RESULTS, header, pyplot, save, warm_up
+from common import RESULTS, header, pyplot, save, saved, warm_up
 
 from warp_iisph import DivergenceError, Simulation, scenes
 from warp_iisph.engine.launch import set_threads
@@ -136,8 +134,8 @@ def main():
     ap.add_argument("--replot", action="store_true", help="redraw the chart from the JSON already in --out")
     args = ap.parse_args()
     if args.replot:
-        record = json.loads((Path(args.out) / "dfsph.json").read_text())
-        chart(record["results"], record["duration"], Path(args.out) / "dfsph.png")
+        record, png = saved(args.out, "dfsph")
+        chart(record["results"], record["duration"], png)
         return
     if args.quick:
         args.particles, args.duration, args.cases = 4096, 0.1, "0.005,0.01,cfl"

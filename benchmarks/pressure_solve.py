@@ -31,6 +31,7 @@ from common import (
     measure_all,
     pyplot,
     save,
+    saved,
     warm_once,
 )
 
@@ -145,11 +146,8 @@ def main():
     check_cluster_options(ap, args)
     wp.config.log_level = wp.LOG_WARNING
     if args.replot:
-        import json
-        from pathlib import Path
-
-        stem = "pressure_solve_quick" if args.quick else "pressure_solve"
-        chart(json.loads((Path(args.out) / f"{stem}.json").read_text())["runs"], Path(args.out) / f"{stem}.png")
+        record, png = saved(args.out, "pressure_solve", args.quick)
+        chart(record["runs"], png)
         return
     calls = [functools.partial(resting, s, w, args.quick) for s, w in VARIANTS]
     calls += [functools.partial(dam_break, s, w, eta, args.quick) for eta in (1e-3, 3e-4) for s, w in VARIANTS]

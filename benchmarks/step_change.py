@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 import warp as wp
-from common import RESULTS, check_cluster_options, cluster_options, header, measure_all, pyplot, save, warm_once
+from common import RESULTS, check_cluster_options, cluster_options, header, measure_all, pyplot, save, saved, warm_once
 
 # physics settings besides the defaults; each settles with its own settings
 VARIANTS = [
@@ -88,11 +88,8 @@ def main():
     check_cluster_options(ap, args)
     wp.config.log_level = wp.LOG_WARNING
     if args.replot:
-        import json
-        from pathlib import Path
-
-        stem = "step_change_quick" if args.quick else "step_change"
-        chart(json.loads((Path(args.out) / f"{stem}.json").read_text())["runs"], Path(args.out) / f"{stem}.png")
+        record, png = saved(args.out, "step_change", args.quick)
+        chart(record["runs"], png)
         return
     rows = []
 
