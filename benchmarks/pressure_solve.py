@@ -44,6 +44,7 @@ VARIANTS = [
     ("bb", "half"),
     ("bb", "full"),
     ("cg", "full"),
+    ("twolevel", "hydrostatic"),
 ]
 
 
@@ -164,6 +165,8 @@ def main():
                     f"{r['slope_min']:.3f}..{r['slope_max']:.3f} (within {100 * r['slope_spread']:.1f} % of its mean), "
                     f"mean speed <= {100 * r['mean_speed']:.2f} cm/s, max <= {100 * r['max_speed']:.1f} cm/s"
                 )
+        elif r["iterations_per_step"] is None:
+            print(f"dam break eta {100 * r['eta']:g} %, {label(r)}: DIVERGED at the first step: {r['diverged']}")
         else:
             end = f"; DIVERGED: {r['diverged']}" if r["diverged"] else ""
             print(

@@ -22,6 +22,15 @@ eta by blending, so each reports its last iterate's error):
   non-symmetric, which conjugate gradients assume.
 - ``chebyshev``: Chebyshev semi-iteration over Jacobi (eigenvalues of ``D^-1 A`` taken in
   [0.01, 4]; two plain relaxed steps first; no momentum through a clamped particle).
+- ``twolevel``: relaxed Jacobi plus, every iteration, a coarse correction of its residual: the
+  active particles' residuals averaged over cells about 4 spacings wide (``CoarseCorrection``),
+  ``dt^2 lap(e) = rho0 r`` solved on the liquid cells (7-point Laplacian, mirrored at walls, zero
+  at the free surface placed by the cells' fill fractions; SOR sweeps on one thread, so CPU only),
+  ``e`` interpolated trilinearly back to the particles and added with the least-squares length
+  ``(r . A z) / (A z . A z)`` (one more operator pass). The geometric Laplacian is the continuum's
+  ``dt^2 lap p`` (the SPH operator gives 0.95 of it on a quadratic field inside the water); what it
+  misses is the walls: in a smooth pressure rise the layers along the walls are compressed, not
+  relieved, so the measured length comes out negative (docs/pressure_solve.md).
 """
 
 from __future__ import annotations
@@ -39,12 +48,14 @@ from warp_iisph.sph.solvers.iisph import (
     jacobi_advance,
     jacobi_boundary_sigma,
     jacobi_sigma_term,
+    jacobi_update,
+    pressure_sum_dij_pj,
 )
 from warp_iisph.sph.solvers.iteration import IterativeSolve
 from warp_iisph.sph.wall_pressure import Walls, smoothed_pressure
 
 WARM_STARTS = ("hydrostatic", "half", "half_hydrostatic", "full")
-SCHEMES = ("jacobi", "bb", "cg", "chebyshev")
+SCHEMES = ("jacobi", "bb", "cg", "chebyshev", "twolevel")
 INACTIVE = wp.constant(-1.0e30)  # a wall entry's head that marks it inactive for the step (cg)
 
 
@@ -363,7 +374,8 @@ class VariantIISPH(IISPHSolver):
             raise ValueError(f"variant {warm}/{scheme}: warm start one of {WARM_STARTS}, scheme one of {SCHEMES}")
         self.warm, self.scheme = warm, scheme
         n, dev = model.capacity, model.device
-        self.solve = IterativeSolve(n, dev, ends_at_eta=scheme == "jacobi")  # the package's ending for Jacobi
+        # the package's ending for Jacobi and for Jacobi with the coarse correction
+        self.solve = IterativeSolve(n, dev, ends_at_eta=scheme in ("jacobi", "twolevel"))
 
         def f32():
             return wp.zeros(n, dtype=float, device=dev)
@@ -376,6 +388,7 @@ class VariantIISPH(IISPHSolver):
         self.s_a, self.s_b, self.s_c = (wp.zeros(1, dtype=wp.float64, device=dev) for _ in range(3))
         self.length = wp.zeros(1, dtype=float, device=dev)
         self.beta = wp.zeros(1, dtype=float, device=dev)
+        self.coarse = CoarseCorrection(model) if scheme == "twolevel" else None
         expected = "half" if warm == "full" else warm
         if self.warm_start != expected:
             raise ValueError(f"variant {warm}: the scene's physics.warm_start must be {expected!r}")
@@ -384,11 +397,18 @@ class VariantIISPH(IISPHSolver):
         super().predict_advection(model, state)  # the scene's start (0.5 p(t - dt) for "full")
         if self.warm == "full":
             launch_particles(scale_pressure, state.n, [2.0, state.p], model.device)
+        if self.coarse is not None:
+            self.coarse.bin(state.x, state.n)
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
         if self.scheme == "jacobi":
             return super().launch_step(model, state, timer, sync)
-        self.run_scheme = {"bb": self.bb_solve, "cg": self.cg_solve, "chebyshev": self.chebyshev_solve}[self.scheme]
+        self.run_scheme = {
+            "bb": self.bb_solve,
+            "cg": self.cg_solve,
+            "chebyshev": self.chebyshev_solve,
+            "twolevel": self.twolevel_iteration,
+        }[self.scheme]
         return super().launch_step(model, state, timer, sync)
 
     def pressure_change(self, model, state, p, linear: int, out) -> None:
@@ -469,6 +489,36 @@ class VariantIISPH(IISPHSolver):
             dev,
         )  # fmt: skip
 
+    def twolevel_iteration(self, model, state) -> None:
+        """Relaxed Jacobi's update plus the coarse correction of its residual."""
+        nf, nb = self.search.fluid.lists, self.search.boundary.lists
+        n, dev, walls, c = state.n, model.device, self.walls.walls, self.coarse
+        common = [self.fluid, nf, nb, walls, self.terms, state.rho, state.p]
+        launch_particles(pressure_sum_dij_pj, n, common, dev)
+        c.grid.r.zero_()
+        launch_particles(
+            pressure_jacobi_residual,
+            n,
+            [*common, float(self.physics.omega), c.cell, c.grid, self.e, self.p_next, self.solve.error],
+            dev,
+        )
+        wp.launch(
+            coarse_solve,
+            dim=1,
+            inputs=[c.grid, self.dt, float(self.physics.rho0), COARSE_SWEEPS, COARSE_SOR],
+            device=dev,
+        )
+        launch_particles(coarse_prolong, n, [state.x, c.grid, self.z], dev)
+        if COARSE_LINE_SEARCH:
+            self.pressure_change(model, state, self.z, 1, self.q)  # q = A z: one more operator pass
+            launch_particles(correction_terms, n, [self.e, self.q, state.p, self.z, self.t_a, self.t_b], dev)
+            sum_into(self.t_a, n, self.s_a)
+            sum_into(self.t_b, n, self.s_b)
+        else:
+            self.s_a.fill_(1.0)
+            self.s_b.fill_(1.0)
+        launch_particles(add_correction, n, [self.s_a, self.s_b, COARSE_DAMPING, self.z, self.p_next], dev)
+
     def no_blend(self, dev) -> wp.array:
         if not hasattr(self, "_no_blend"):
             self._no_blend = wp.full(1, -1.0, dtype=float, device=dev)
@@ -478,3 +528,285 @@ class VariantIISPH(IISPHSolver):
         if self.scheme == "cg":
             launch_particles(clamp_pressure, state.n, [state.p], model.device)
         super().integrate(model, state, walls)
+
+
+# --- two-level: relaxed Jacobi plus a coarse correction on a grid of cells (scheme "twolevel") ---
+
+COARSE_CELLS = 4  # spacings per coarse cell (about; each axis fitted to the tank's extent)
+COARSE_SWEEPS = 60  # SOR sweeps of the coarse Poisson problem per iteration
+COARSE_SOR = 1.6
+COARSE_DAMPING = 1.0
+COARSE_LINE_SEARCH = 1  # scale each correction by the residual's least-squares share along A z
+FLUID = wp.constant(1)
+SOLID = wp.constant(2)
+
+
+@wp.struct
+class CoarseGrid:
+    """Cells over the tank: ``kind`` 1 liquid, 0 air (pressure zero at the surface, placed by the
+    fill fractions), 2 solid (mirrored); ``fill`` particles per cell over a full cell's count;
+    ``r`` the restricted residual (rho0 - rho_pred) / rho0; ``e`` the coarse pressure correction."""
+
+    lower: wp.vec3
+    size: wp.vec3
+    dims: wp.vec3i
+    full: float
+    fill: wp.array(dtype=float)
+    walls: wp.array(dtype=float)
+    kind: wp.array(dtype=int)
+    r: wp.array(dtype=float)
+    e: wp.array(dtype=float)
+
+
+@wp.func
+def cell_coords(g: CoarseGrid, x: wp.vec3) -> wp.vec3i:
+    return wp.vec3i(
+        wp.clamp(int(wp.floor((x[0] - g.lower[0]) / g.size[0])), 0, g.dims[0] - 1),
+        wp.clamp(int(wp.floor((x[1] - g.lower[1]) / g.size[1])), 0, g.dims[1] - 1),
+        wp.clamp(int(wp.floor((x[2] - g.lower[2]) / g.size[2])), 0, g.dims[2] - 1),
+    )
+
+
+@wp.func
+def cell_index(g: CoarseGrid, c: wp.vec3i) -> int:
+    return (c[0] * g.dims[1] + c[1]) * g.dims[2] + c[2]
+
+
+@wp.kernel
+def coarse_bin_fluid(offset: int, x: wp.array(dtype=wp.vec3), g: CoarseGrid, cell: wp.array(dtype=int)):
+    i = wp.tid() + offset
+    c = cell_index(g, cell_coords(g, x[i]))
+    cell[i] = c
+    wp.atomic_add(g.fill, c, 1.0 / g.full)
+
+
+@wp.kernel
+def coarse_bin_walls(xb: wp.array(dtype=wp.vec3), g: CoarseGrid):
+    b = wp.tid()
+    x = xb[b]
+    for k in range(3):
+        if x[k] < g.lower[k] or x[k] > g.lower[k] + g.size[k] * float(g.dims[k]):
+            return
+    wp.atomic_add(g.walls, cell_index(g, cell_coords(g, x)), 1.0)
+
+
+@wp.kernel
+def coarse_classify(g: CoarseGrid):
+    c = wp.tid()
+    k = int(0)
+    if g.fill[c] >= 0.5:
+        k = FLUID
+    elif g.walls[c] > 0.0:
+        k = SOLID
+    g.kind[c] = k
+
+
+@wp.kernel
+def pressure_jacobi_residual(
+    offset: int,
+    fluid: Fluid,
+    nf: NeighborList,
+    nb: NeighborList,
+    walls: Walls,
+    iisph: IISPHTerms,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    omega: float,
+    cell: wp.array(dtype=int),
+    g: CoarseGrid,
+    res: wp.array(dtype=float),
+    p_new: wp.array(dtype=float),
+    density_error: wp.array(dtype=wp.float64),
+):
+    """The package's Jacobi update (pressure_jacobi), and the residual ``rho0 - rho_pred`` of the
+    active particles (pressed or compressed; zero for the others) into ``res`` and, as a fraction
+    of rho0, summed into their cells."""
+    i = wp.tid() + offset
+    dt = fluid.dt[0]
+    mass = fluid.mass
+    rho_i = rho[i]
+    p_i = p[i]
+    sdp_i = iisph.sum_dij_pj[i]
+    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    sigma = float(0.0)
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
+        j = nf.index[k]
+        gw = nf.grad_W[k]
+        sigma += jacobi_sigma_term(mass, sdp_i, iisph.displacement[j], (d_ji_scale * gw) * p_i, gw)
+    sigma = jacobi_boundary_sigma(i, walls.psi, nb, sdp_i, sigma)
+    a = iisph.a_ii[i]
+    jacobi_update(i, sigma, p_i, a, iisph.a_diag[i], iisph.rho_adv[i], fluid.rho0, omega, p_new, density_error)
+    rho_pred = iisph.rho_adv[i] + a * p_i + sigma
+    r = float(0.0)
+    if p_i > 0.0 or rho_pred > fluid.rho0:
+        r = fluid.rho0 - rho_pred
+        wp.atomic_add(g.r, cell[i], r / fluid.rho0 / g.full)
+    res[i] = r
+
+
+@wp.func
+def face_weight(g: CoarseGrid, c: int, f_c: float, nbr: int, axis: int) -> wp.vec2:
+    """(weight on the neighbour's e, weight on the cell's own e) of one face's Laplacian term."""
+    inv = 1.0 / (g.size[axis] * g.size[axis])
+    if nbr < 0:
+        return wp.vec2(0.0, 0.0)  # outside the grid: a wall, mirrored
+    k = g.kind[nbr]
+    if k == FLUID:
+        return wp.vec2(inv, inv)
+    if k == SOLID:
+        return wp.vec2(0.0, 0.0)
+    theta = wp.clamp(wp.min(f_c, 1.0) - 0.5 + g.fill[nbr], 0.25, 1.0)  # the surface's distance, in cells
+    return wp.vec2(0.0, inv / theta)
+
+
+@wp.func
+def neighbour_cell(g: CoarseGrid, c: wp.vec3i, axis: int, side: int) -> int:
+    n = wp.vec3i(
+        c[0] + wp.where(axis == 0, side, 0), c[1] + wp.where(axis == 1, side, 0), c[2] + wp.where(axis == 2, side, 0)
+    )
+    if n[axis] < 0 or n[axis] >= g.dims[axis]:
+        return -1
+    return cell_index(g, n)
+
+
+@wp.kernel
+def coarse_solve(g: CoarseGrid, dt: wp.array(dtype=float), rho0: float, sweeps: int, w: float):
+    """SOR sweeps (one thread) of ``dt^2 lap(e) = rho0 r`` over the liquid cells, from ``e = 0``:
+    the 7-point Laplacian, ``e`` mirrored at walls and zero at the free surface, placed between a
+    cell and its air neighbour by their fill fractions (ghost fluid, clamped to a quarter cell)."""
+    n = g.dims[0] * g.dims[1] * g.dims[2]
+    dt2 = dt[0] * dt[0]
+    for c in range(n):
+        g.e[c] = 0.0
+    for _s in range(sweeps):
+        for ix in range(g.dims[0]):
+            for iy in range(g.dims[1]):
+                for iz in range(g.dims[2]):
+                    cc = wp.vec3i(ix, iy, iz)
+                    c = cell_index(g, cc)
+                    if g.kind[c] == FLUID:
+                        off = float(0.0)
+                        diag = float(0.0)
+                        air = float(0.0)
+                        f_c = g.fill[c]
+                        for axis in range(3):
+                            for s in range(2):
+                                nbr = neighbour_cell(g, cc, axis, 2 * s - 1)
+                                fw = face_weight(g, c, f_c, nbr, axis)
+                                if fw[0] > 0.0:
+                                    off += fw[0] * g.e[nbr]
+                                    diag += fw[1]
+                                else:
+                                    air += fw[1]
+                        a_ii = -dt2 * (air + diag)
+                        if a_ii < 0.0:
+                            e_new = (rho0 * g.r[c] - dt2 * off) / a_ii
+                            g.e[c] = (1.0 - w) * g.e[c] + w * e_new
+
+
+@wp.func
+def coarse_value(g: CoarseGrid, c: wp.vec3i, own: float) -> float:
+    """The correction at a cell centre for interpolation: past the grid's faces the nearest cell's
+    (mirrored walls), zero in air, ``own`` (the particle's cell's) in a solid cell."""
+    cc = wp.vec3i(wp.clamp(c[0], 0, g.dims[0] - 1), wp.clamp(c[1], 0, g.dims[1] - 1), wp.clamp(c[2], 0, g.dims[2] - 1))
+    idx = cell_index(g, cc)
+    kind = g.kind[idx]
+    if kind == FLUID:
+        return g.e[idx]
+    if kind == SOLID:
+        return own
+    return 0.0
+
+
+@wp.kernel
+def coarse_prolong(offset: int, x: wp.array(dtype=wp.vec3), g: CoarseGrid, z: wp.array(dtype=float)):
+    """``z = e(x_i)``, ``e`` interpolated trilinearly between cell centres."""
+    i = wp.tid() + offset
+    x_i = x[i]
+    u = wp.vec3(0.0)
+    base = wp.vec3i(0, 0, 0)
+    for k in range(3):
+        s = (x_i[k] - g.lower[k]) / g.size[k] - 0.5
+        b = int(wp.floor(s))
+        base[k] = b
+        u[k] = s - float(b)
+    own_c = cell_coords(g, x_i)
+    own = coarse_value(g, own_c, 0.0)
+    v = float(0.0)
+    for dx in range(2):
+        for dy in range(2):
+            for dz in range(2):
+                wgt = (
+                    wp.where(dx == 1, u[0], 1.0 - u[0])
+                    * wp.where(dy == 1, u[1], 1.0 - u[1])
+                    * wp.where(dz == 1, u[2], 1.0 - u[2])
+                )
+                v += wgt * coarse_value(g, wp.vec3i(base[0] + dx, base[1] + dy, base[2] + dz), own)
+    z[i] = v
+
+
+@wp.kernel
+def correction_terms(
+    offset: int,
+    res: wp.array(dtype=float),
+    q: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+    z: wp.array(dtype=float),
+    t_rq: wp.array(dtype=wp.float64),
+    t_qq: wp.array(dtype=wp.float64),
+):
+    """Over the active particles (pressed, compressed or given a correction): ``r . q`` and
+    ``q . q``, ``q = A z`` the density change the correction gives."""
+    i = wp.tid() + offset
+    active = res[i] != 0.0 or p[i] > 0.0 or z[i] > 0.0
+    q_i = wp.where(active, q[i], 0.0)
+    t_rq[i] = wp.float64(res[i]) * wp.float64(q_i)
+    t_qq[i] = wp.float64(q_i) * wp.float64(q_i)
+
+
+@wp.kernel
+def add_correction(
+    offset: int,
+    rq: wp.array(dtype=wp.float64),
+    qq: wp.array(dtype=wp.float64),
+    damping: float,
+    z: wp.array(dtype=float),
+    p_new: wp.array(dtype=float),
+):
+    """``p_new += alpha z``, ``alpha = damping (r . q) / (q . q)`` (the residual's least-squares
+    share along the correction's response), clamped at zero."""
+    i = wp.tid() + offset
+    alpha = float(0.0)
+    if qq[0] > wp.float64(0.0):
+        alpha = damping * float(rq[0] / qq[0])
+    p_new[i] = wp.max(p_new[i] + alpha * z[i], 0.0)
+
+
+class CoarseCorrection:
+    """The coarse grid of a model and the launches of one correction."""
+
+    def __init__(self, model, cells: float = COARSE_CELLS):
+        h = float(model.spacing)
+        lo = [float(v) + 0.5 * h for v in model.domain_lower]  # the box tank's faces
+        hi = [float(v) - 0.5 * h for v in model.domain_upper]
+        dims = [max(1, round((hi[k] - lo[k]) / (cells * h))) for k in range(3)]
+        size = [(hi[k] - lo[k]) / dims[k] for k in range(3)]
+        n = dims[0] * dims[1] * dims[2]
+        g = CoarseGrid()
+        g.lower, g.size, g.dims = wp.vec3(*lo), wp.vec3(*size), wp.vec3i(*dims)
+        g.full = float(size[0] * size[1] * size[2] / h**3)
+        dev = model.device
+        g.fill, g.walls, g.r, g.e = (wp.zeros(n, dtype=float, device=dev) for _ in range(4))
+        g.kind = wp.zeros(n, dtype=int, device=dev)
+        self.grid, self.n_cells, self.device = g, n, dev
+        self.cell = wp.zeros(model.capacity, dtype=int, device=dev)
+        self.boundary_x = model.boundary_x
+
+    def bin(self, x, n: int) -> None:
+        g = self.grid
+        g.fill.zero_()
+        g.walls.zero_()
+        launch_particles(coarse_bin_fluid, n, [x, g, self.cell], self.device)
+        wp.launch(coarse_bin_walls, dim=self.boundary_x.shape[0], inputs=[self.boundary_x, g], device=self.device)
+        wp.launch(coarse_classify, dim=self.n_cells, inputs=[g], device=self.device)
