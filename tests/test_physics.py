@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import warp as wp
 
 from warp_iisph import Box, DivergenceError, Physics, Scene, Simulation, scenes
 from warp_iisph.analysis.dam_break import load_martin_moyce, surge_front
@@ -219,3 +220,35 @@ def test_the_hydrostatic_warm_start_is_the_default_only_with_gravity_along_an_ax
     assert Physics(method="dfsph").iteration_floor() == 2 and Physics(min_iterations=3).iteration_floor() == 3
     assert Simulation(load_scene("flood"), "cpu").solver.warm_start == "half"  # it has free bodies
     assert Simulation(load_scene("dam_break"), "cpu").solver.warm_start == "hydrostatic"
+
+
+def test_a_box_sampled_by_faces_has_its_wall_at_its_inner_boundary_layer():
+    """The last line (sph/containment.py) puts a particle back where it passed a wall's inner layer
+    of boundary particles, as at the tank's walls: for a box obstacle sampled by faces that layer is
+    h/2 inside the faces, so a particle whose centre is a quarter spacing past a face is left to the
+    pressure and one 0.75 h past it is put back onto the layer. The bundled spheric_test2's put-backs
+    at its box were all of the first kind (less than h/4 past the face)."""
+    import trimesh
+
+    from warp_iisph.sph.containment import CLEARANCE, Containment
+    from warp_iisph.sph.neighbors import NeighborListBuffer
+
+    h = 0.02
+    box = trimesh.creation.box(extents=(0.2, 0.2, 0.2))  # faces at +-0.1
+    walls = Containment("cpu", None, [(box.vertices, box.faces, -1, False, 0.5 * h)], spacing=h)
+    near = NeighborListBuffer(2, "cpu", capacity=2)
+    near.lists.count.fill_(1)  # both had wall neighbours at the step's start
+    x = wp.array([[0.1 - 0.25 * h, 0.0, 0.0], [0.1 - 0.75 * h, 0.0, 0.0]], dtype=wp.vec3, device="cpu")
+    v = wp.array([[-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]], dtype=wp.vec3, device="cpu")
+    walls.apply(x, v, near.lists, 2, wp.array([1e-3], dtype=wp.float64, device="cpu"))
+    assert walls.corrections.numpy().tolist() == [0, 1]
+    np.testing.assert_allclose(x.numpy()[0], [0.1 - 0.25 * h, 0.0, 0.0], atol=1e-7)  # left to the pressure
+    np.testing.assert_allclose(x.numpy()[1], [0.1 - 0.5 * h + CLEARANCE * h, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(v.numpy(), [[-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], atol=1e-6)  # into the wall: removed
+
+    scene = Scene(spacing=h, tank=Box((0, 0, 0), (0.4, 0.3, 0.2)), name="walls")
+    scene.add_fluid_box((0, 0, 0), (0.1, 0.1, 0.2))
+    scene.add_obstacle(Box((0.2, 0.0, 0.06), (0.28, 0.08, 0.14), sampling="faces"))
+    scene.add_obstacle(Box((0.3, 0.0, 0.06), (0.38, 0.08, 0.14)))
+    depth = Simulation(scene, "cpu").model.containment.solids.depth.numpy()
+    np.testing.assert_allclose(depth, [0.5 * h, 0.0])

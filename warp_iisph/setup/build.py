@@ -126,7 +126,9 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, devic
         if o.motion is not None:
             k, body = body, body + 1
         if m.is_watertight and not getattr(o, "shell", False):
-            solids.append((m.vertices, m.faces, k, False))
+            # a box sampled by faces has its wall, the inner boundary layer, h/2 inside its faces
+            depth = 0.5 * h if getattr(o, "sampling", "cells") == "faces" else 0.0
+            solids.append((m.vertices, m.faces, k, False, depth))
     for f in free:
         solids.append((f["vertices"], f["faces"], body, False))
         body += 1

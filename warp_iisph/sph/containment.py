@@ -2,7 +2,12 @@
 tank's wall (its inner layer of boundary particles, h/2 beyond the faces), inside a closed obstacle
 (still or moving) or outside a mesh container is put back on the surface it crossed and loses the
 velocity that carried it through (relative to the wall); every such correction is counted in the
-step's statistics. The pressure solver is meant to do
+step's statistics. As for the tank, a wall is where its inner layer of boundary particles lies:
+for an obstacle sampled on the cells its surface crosses, the surface; for a box obstacle sampled
+by faces (layers h/2 and h inside them), h/2 inside its faces (``Solids.depth``), so that a
+particle that touches such a box, its centre a little past the face but short of the layer, is
+the pressure's to push back, as it is at the tank's walls. A free body's wall stays its surface:
+no particle's centre may be inside a body. The pressure solver is meant to do
 nearly all of this work: the count says how much it left.
 
 Obstacles are queried as ``wp.Mesh`` signed distances, in their own frame (a moving body's
@@ -30,11 +35,13 @@ CLEARANCE = 1.0e-3
 class Solids:
     """Closed surfaces fluid may not cross: ``meshes[k]`` (its ``wp.Mesh`` id, in the frame of
     moving body ``body[k]``, -1 for a still one); ``container[k]`` is 1 where the fluid belongs
-    inside (a mesh tank), 0 where it belongs outside (an obstacle or a body)."""
+    inside (a mesh tank), 0 where it belongs outside (an obstacle or a body); ``depth[k]`` how far
+    inside the surface its inner layer of boundary particles, the wall, lies (module docstring)."""
 
     meshes: wp.array(dtype=wp.uint64)
     body: wp.array(dtype=wp.int32)
     container: wp.array(dtype=wp.int32)
+    depth: wp.array(dtype=float)  # how far past the surface its wall (inner boundary layer) lies
     count: int
     box_lower: wp.vec3
     box_upper: wp.vec3
@@ -114,9 +121,12 @@ def contain(
                 if solids.container[k] != 0:
                     inside = q.sign >= 0.0
                 if inside:
-                    escaped = 1
                     c = wp.mesh_eval_position(solids.meshes[k], q.face, q.u, q.v)
-                    n = wp.normalize(c - p)  # towards the fluid's side
+                    past = wp.length(c - p)
+                    if past > solids.depth[k]:
+                        escaped = 1
+                        n = wp.normalize(c - p)  # towards the fluid's side
+                        c = c - solids.depth[k] * n  # on the wall
             if escaped == 0 and b >= 0:
                 if poses.free[b] != 0:  # through a free body within the step
                     a = wp.transform_point(wp.transform_inverse(poses.start[b]), x_i - h * v_i)
@@ -148,7 +158,8 @@ class Containment:
 
     def __init__(self, device, box=None, meshes=(), spacing: float = 1.0, bodies: MovingBodies | None = None):
         """``box``: (lower, upper) of a box tank, or None; ``meshes``: (vertices, faces, body,
-        container) per closed surface (vertices where the scene places the shape)."""
+        container[, depth]) per closed surface (vertices where the scene places the shape; depth
+        0 unless given)."""
         self.device = device
         self.spacing = float(spacing)
         self._meshes = [
@@ -156,14 +167,14 @@ class Containment:
                 points=wp.array(np.asarray(v, np.float32), dtype=wp.vec3, device=device),
                 indices=wp.array(np.asarray(f, np.int32).reshape(-1), dtype=wp.int32, device=device),
             )
-            for v, f, _, _ in meshes
+            for v, f, *_ in meshes
         ]
         s = Solids()
         s.meshes = wp.array(np.array([m.id for m in self._meshes], dtype=np.uint64), dtype=wp.uint64, device=device)
-        s.body = wp.array(np.array([b for _, _, b, _ in meshes], dtype=np.int32), dtype=wp.int32, device=device)
-        s.container = wp.array(
-            np.array([int(c) for _, _, _, c in meshes], dtype=np.int32), dtype=wp.int32, device=device
-        )
+        s.body = wp.array(np.array([m[2] for m in meshes], dtype=np.int32), dtype=wp.int32, device=device)
+        s.container = wp.array(np.array([int(m[3]) for m in meshes], dtype=np.int32), dtype=wp.int32, device=device)
+        depth = [float(m[4]) if len(m) > 4 else 0.0 for m in meshes]
+        s.depth = wp.array(np.array(depth, dtype=np.float32), dtype=float, device=device)
         s.count = len(self._meshes)
         s.has_box = int(box is not None)
         lo, hi = box if box is not None else (np.zeros(3), np.zeros(3))
