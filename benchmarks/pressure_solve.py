@@ -183,7 +183,7 @@ def main():
 
 def chart(rows, path):
     plt = pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(15, 5.2), gridspec_kw={"width_ratios": [1.0, 1.15], "wspace": 0.9})
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(15, 6.0), gridspec_kw={"width_ratios": [1.0, 1.15], "wspace": 0.9})
     colours = {v: f"C{i}" for i, v in enumerate(VARIANTS)}
     for r in rows:
         if r["case"] != "dam_break" or r["diverged"] or not r["iterations_per_step"]:
@@ -198,11 +198,15 @@ def chart(rows, path):
     for h, lab in zip(*ax.get_legend_handles_labels()):
         handles.setdefault(lab.split(" (eta")[0], h)
     ax.legend(handles.values(), handles.keys(), fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    lost = sorted({label(r) for r in rows if r["case"] == "dam_break" and r["diverged"]})
+    if lost:
+        ax.text(1.02, 0.0, "diverged:\n" + "\n".join(lost), transform=ax.transAxes, fontsize=7, va="bottom")
     rest = [r for r in rows if r["case"] == "resting"]
     names = [label(r) for r in rest]
     speeds = [100 * r["mean_speed"] if not r["diverged"] else np.nan for r in rest]
     bars = bx.barh(names, speeds, color=[colours[(r["scheme"], r["warm"])] for r in rest])
     bx.set_xscale("log")
+    bx.set_ylim(-0.6, len(rest) - 0.4)  # a diverged variant's empty bar still gets its row
     finite = [v for v in speeds if np.isfinite(v)]
     bx.set_xlim(0.5 * min(finite), 60 * max(finite))  # room for the labels
     for b, r in zip(bars, rest):
@@ -214,7 +218,7 @@ def chart(rows, path):
         bx.text(x, b.get_y() + b.get_height() / 2, " " + text, va="center", fontsize=7)
     bx.set_xlabel("largest mean speed while at rest (cm/s, log)")
     bx.set_title("Resting tank, frame by frame: motion, iterations, pressure spread")
-    fig.subplots_adjust(left=0.06, right=0.97, bottom=0.12, top=0.88)
+    fig.subplots_adjust(left=0.06, right=0.97, bottom=0.1, top=0.86)
     fig.savefig(path, dpi=120)
 
 

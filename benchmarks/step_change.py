@@ -144,6 +144,13 @@ def chart(rows, path):
     bx.set_xlabel("pressure iterations per step (log)")
     bx.set_ylabel("largest departure of the slope from its mean (%)")
     bx.set_title("the kick against the solve's cost")
+    plain = [r for r in rows if "first_jump" in r and set(r["settings"]) <= {"short"}]  # the defaults' three steps
+    if len(plain) > 1:
+        x = np.array([(r["cfl_step"] / r["short_step"]) ** 2 - 1.0 for r in plain])
+        c = float(np.dot(x, [r["first_jump"] for r in plain]) / np.dot(x, x))
+        xs = np.linspace(0.0, x.max(), 10)
+        cx.plot(xs, 100 * c * xs, "--", color="0.4", lw=1, label=f"defaults: {c:.4f} x ((dt / dt_short)^2 - 1)")
+        cx.legend(fontsize=7, loc="upper left")
     cx.set_xlabel("(dt before / dt after)^2 - 1")
     cx.set_ylabel("first step's jump of the slope (% of rho0 g)")
     cx.set_title("the jump grows as the solve's stiffness 1 / dt^2")
