@@ -2,12 +2,15 @@
 
 (a) The bundled ``flood`` scene at its defaults (three crates and a concrete block swept along a
 channel) with its free bodies, against the same scene with the bodies fixed where they start (the
-same boxes as still obstacles, sampled in layers inside their faces as a body is): wall seconds
-per simulated second, the median of interleaved repeats (free, fixed, free, fixed, ...). Each
+same boxes as still obstacles, sampled in layers inside their faces as a body is; at its defaults,
+so from the hydrostatic warm start, and once more from the half start the free bodies' scene
+takes): wall seconds per simulated second, the median of interleaved repeats (free, fixed, free, fixed, ...). Each
 run also reports the containment's last-line corrections (``obstacle_corrections``: particles it
 put back out of an obstacle or a body; ``wall_corrections``: out of the tank), the fluid
-particles found inside a body at every frame (checked outside the timing, in each body's frame),
-and whether any body left the tank (a corner of its box beyond a face by more than a spacing).
+particles found inside a body at every frame (checked outside the timing, in each body's frame:
+centres inside its surface, and past its wall, the last line's, which is a free body's surface and
+a still faces-sampled box's inner boundary layer h/2 inside its faces), and whether any body left
+the tank (a corner of its box beyond a face by more than a spacing).
 
 (b) Archimedes: the draft of a box of density 500 and one of 250 (0.16 x 0.08 x 0.16 m, in a
 0.4 m square pool 0.2 m deep, as tests/test_bodies.py's ``pool``) at spacings 0.02 and 0.01 m,
@@ -42,11 +45,18 @@ from warp_iisph.engine.launch import get_threads
 from warp_iisph.scene import load_scene
 from warp_iisph.scene.bodies import quaternion_matrix
 
+FLOOD_VARIANTS = ("free", "fixed", "fixed_half")
+
 
 def flood(variant: str, overrides: list) -> Scene:
-    """The flood scene; ``fixed``: its bodies replaced by still box obstacles of the same shapes."""
+    """The flood scene; ``fixed``: its bodies replaced by still box obstacles of the same shapes
+    (then the scene's warm start is the hydrostatic one, the default without free bodies);
+    ``fixed_half``: so, with the half warm start the free bodies' scene runs with."""
     scene = load_scene("flood", overrides)
-    if variant == "fixed":
+    if variant == "fixed_half":
+        scene.physics.warm_start = "half"
+        scene.physics.validate()
+    if variant in ("fixed", "fixed_half"):
         for body in scene.bodies:  # in layers inside its faces where it is thick enough (3 spacings)
             thick = min(np.subtract(body.shape.upper, body.shape.lower)) >= 3 * scene.spacing
             scene.add_obstacle(Box(body.shape.lower, body.shape.upper, sampling="faces" if thick else "cells"))
@@ -54,12 +64,12 @@ def flood(variant: str, overrides: list) -> Scene:
     return scene
 
 
-def inside_count(x: np.ndarray, boxes: list, poses: dict) -> int:
+def inside_count(x: np.ndarray, boxes: list, poses: dict, inset: float = 0.0) -> int:
     """Fluid particles strictly inside any of the boxes at their poses (``poses``: Simulation.bodies;
-    none for boxes that do not move)."""
+    none for boxes that do not move), each box shrunk by ``inset`` on every side."""
     n = 0
     for k, (lo, hi) in enumerate(boxes):
-        half = 0.5 * (np.asarray(hi) - np.asarray(lo))
+        half = 0.5 * (np.asarray(hi) - np.asarray(lo)) - inset
         if poses:
             centre, rot = poses["position"][k], quaternion_matrix(poses["orientation"][k])
         else:
@@ -96,7 +106,10 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         counts["corrected_steps"] += bool(r["obstacle_corrections"] or r["wall_corrections"])
         counts["iterations"] += r["iterations"]
 
-    wall, inside, inside_frames, left = 0.0, 0, 0, False
+    # the boxes' walls for the last line: a free body's surface, a still box's inner boundary layer
+    # h/2 inside its faces (sampled by faces; sph/containment.py)
+    inset = 0.5 * scene.spacing if variant != "free" else 0.0
+    wall, inside, inside_frames, past_walls, left = 0.0, 0, 0, 0, False
     while sim.time < duration - 1e-9:
         t0 = time.perf_counter()
         sim.advance(min(frame, duration - sim.time), callback=on_step)
@@ -105,6 +118,7 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         k = inside_count(sim.positions, boxes, poses)
         inside += k
         inside_frames += bool(k)
+        past_walls += inside_count(sim.positions, boxes, poses, inset) if inset else k
         if poses:
             left |= outside_tank(boxes, poses, scene.tank.lower, scene.tank.upper, scene.spacing)
     poses = sim.bodies
@@ -118,7 +132,8 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         "wall_seconds_per_simulated_second": wall / sim.time,
         **counts,
         "mean_iterations": counts["iterations"] / counts["steps"],
-        "inside_bodies_at_frames": inside,
+        "inside_bodies_at_frames": inside,  # centres inside the boxes' surfaces, summed over frames
+        "past_walls_at_frames": past_walls,  # centres past their walls (module docstring), summed over frames
         "frames_with_particles_inside": inside_frames,
         "body_left_tank": left,
         "final_positions": poses["position"].tolist() if poses else None,
@@ -236,35 +251,47 @@ def summarize(runs: list) -> dict:
     def median(value, v):
         return statistics.median(value(r) for r in runs if r["variant"] == v)
 
-    per_s = {v: median(lambda r: r["wall_seconds_per_simulated_second"], v) for v in ("free", "fixed")}
-    per_step = {v: median(lambda r: r["wall_seconds"] / r["steps"], v) for v in ("free", "fixed")}
-    return {
+    variants = [v for v in FLOOD_VARIANTS if any(r["variant"] == v for r in runs)]
+    per_s = {v: median(lambda r: r["wall_seconds_per_simulated_second"], v) for v in variants}
+    per_step = {v: median(lambda r: r["wall_seconds"] / r["steps"], v) for v in variants}
+    out = {
         "particles": runs[0]["particles"],
         "median_wall_seconds_per_simulated_second": per_s,
         "cost_ratio": per_s["free"] / per_s["fixed"],
         "median_ms_per_step": {v: 1e3 * t for v, t in per_step.items()},
         "cost_ratio_per_step": per_step["free"] / per_step["fixed"],
         **{
-            key: {v: [r[key] for r in runs if r["variant"] == v] for v in ("free", "fixed")}
-            for key in ("steps", "obstacle_corrections")
+            key: {v: [r[key] for r in runs if r["variant"] == v] for v in variants}
+            for key in ("steps", "obstacle_corrections", "mean_iterations")
         },
     }
+    if "fixed_half" in per_s:  # against the fixed scene with the free one's warm start
+        out["cost_ratio_same_start"] = per_s["free"] / per_s["fixed_half"]
+        out["cost_ratio_per_step_same_start"] = per_step["free"] / per_step["fixed_half"]
+    return out
 
 
 def chart(record: dict, path) -> None:
     plt = pyplot()
     fig, (a, b, c) = plt.subplots(1, 3, figsize=(16, 4.2))
     runs = record["flood"]["runs"]
-    for i, variant in enumerate(("free", "fixed")):
+    names = {"free": "free bodies", "fixed": "bodies fixed\n(still obstacles)", "fixed_half": "fixed,\nhalf warm start"}
+    shown = [v for v in FLOOD_VARIANTS if any(r["variant"] == v for r in runs)]
+    for i, variant in enumerate(shown):
         ys = [r["wall_seconds_per_simulated_second"] for r in runs if r["variant"] == variant]
-        a.scatter([i] * len(ys), ys, color="C0" if variant == "free" else "C1", alpha=0.6)
-        a.bar(i, statistics.median(ys), width=0.5, color="C0" if variant == "free" else "C1", alpha=0.5)
+        a.scatter([i] * len(ys), ys, color=f"C{i}", alpha=0.6)
+        a.bar(i, statistics.median(ys), width=0.5, color=f"C{i}", alpha=0.5)
     s = record["flood"]["summary"]
-    a.set_xticks([0, 1], ["free bodies", "bodies fixed\n(still obstacles)"])
+    a.set_xticks(range(len(shown)), [names[v] for v in shown])
     a.set_ylabel("wall s per simulated s (median, repeats as dots)")
     a.set_title(
         f"flood, {s['particles']} particles: free / fixed = {s['cost_ratio']:.2f} per simulated s, "
-        f"{s['cost_ratio_per_step']:.2f} per step",
+        f"{s['cost_ratio_per_step']:.2f} per step"
+        + (
+            f"\n(against the fixed run with the half start: {s['cost_ratio_same_start']:.2f})"
+            if "cost_ratio_same_start" in s
+            else ""
+        ),
         fontsize=9,
     )
     for density, marker in ((500.0, "o"), (250.0, "s")):
@@ -369,13 +396,14 @@ def main():
 def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None:
     runs = []
     for i in range(repeats):
-        for variant in ("free", "fixed") if i % 2 == 0 else ("fixed", "free"):
+        for variant in FLOOD_VARIANTS if i % 2 == 0 else FLOOD_VARIANTS[::-1]:
             r = run_flood(variant, overrides, duration)
             runs.append(r)
             print(
-                f"flood {variant:5s} #{i}: {r['particles']} particles, {r['steps']} steps, "
+                f"flood {variant:10s} #{i}: {r['particles']} particles, {r['steps']} steps, "
                 f"{r['wall_seconds_per_simulated_second']:.1f} wall s per s, corrections {r['obstacle_corrections']} "
-                f"(walls {r['wall_corrections']}), inside at frames {r['inside_bodies_at_frames']}, "
+                f"(walls {r['wall_corrections']}), inside at frames {r['inside_bodies_at_frames']} "
+                f"(past the walls {r['past_walls_at_frames']}), "
                 f"left the tank {r['body_left_tank']}",
                 flush=True,
             )
@@ -384,7 +412,8 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
     print(
         f"flood: free / fixed = {summary['cost_ratio']:.3f} "
         f"(medians {med['free']:.1f} and {med['fixed']:.1f} wall s per s), "
-        f"{summary['cost_ratio_per_step']:.3f} per step"
+        f"{summary['cost_ratio_per_step']:.3f} per step; against the fixed run with the half start "
+        f"{summary.get('cost_ratio_same_start', float('nan')):.3f}"
     )
     record["flood"] = {"overrides": overrides, "repeats": repeats, "runs": runs, "summary": summary}
     record["flood_date"] = record["date"]
