@@ -274,4 +274,38 @@ def test_step_change_benchmark_quick_mode(tmp_path):
             and all(abs(s - 1.0) < 0.2 for s in r["slopes"])
         )
         assert r["spread"] == pytest.approx(max(abs(s / np.mean(r["slopes"]) - 1.0) for s in r["slopes"]))
+        # the first jump, and that per unit of the solve's stiffening (dt / dt_short)^2 - 1
+        assert r["short_step"] == 0.002 and r["first_jump"] == pytest.approx(r["slopes"][0] - r["slope_before"])
+        ratio = (r["cfl_step"] / r["short_step"]) ** 2 - 1.0
+        assert r["jump_per_stiffening"] == pytest.approx(r["first_jump"] / ratio)
     assert min(rows[1]["iterations"]) >= 8  # the variant's settings reach the solver
+
+
+def test_the_two_level_twin_solves_its_coarse_poisson_problem():
+    """benchmarks/solve_variants.py's coarse problem, whose correction docs/pressure_solve.md reports
+    as diverging: on a column of 7 liquid cells under one of air (uniform residual, the floor
+    mirrored, the surface at the face between them by the fill fractions), its SOR sweeps give the
+    parabola of ``dt^2 e'' = rho0 r`` with ``e' = 0`` at the floor and ``e = 0`` at the surface, to
+    the ghost-fluid surface's first-order error."""
+    import warp as wp
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import solve_variants as sv
+    finally:
+        sys.path.pop(0)
+    H, n, dt, rho0, r = 0.08, 8, 3.0e-3, 1000.0, -1.0e-3
+    g = sv.CoarseGrid()
+    g.lower, g.size, g.dims, g.full = wp.vec3(0.0, 0.0, 0.0), wp.vec3(1.0, H, 1.0), wp.vec3i(1, n, 1), 1.0
+    kind, fill = np.ones(n, dtype=np.int32), np.ones(n, dtype=np.float32)
+    kind[-1], fill[-1] = 0, 0.0
+    g.kind, g.fill = wp.array(kind, dtype=int), wp.array(fill, dtype=float)
+    g.walls, g.e = wp.zeros(n, dtype=float), wp.zeros(n, dtype=float)
+    g.r = wp.full(n, r, dtype=float)
+    wp.launch(sv.coarse_solve, dim=1, inputs=[g, wp.array([dt], dtype=float), rho0, 200, 1.6])
+    e = g.e.numpy()[:-1]
+    y = (np.arange(n - 1) + 0.5) * H
+    surface = (n - 1) * H
+    exact = 0.5 * (-rho0 * r / dt**2) * (surface**2 - y**2)  # e'' = rho0 r / dt^2 < 0: a compression's bump
+    np.testing.assert_allclose(e, exact, rtol=0.05, atol=0.02 * exact.max())
+    assert g.e.numpy()[-1] == 0.0  # air keeps no correction
