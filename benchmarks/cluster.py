@@ -9,7 +9,8 @@ on the same cores: the wall time of the whole command, as a user types it.
 2. ``warp-iisph render`` of 8 mesh frames of that dam break (640x360, 16 samples, as the
    command's defaults) one after another, then with ``--workers N``. Target: at most 0.6 x.
 
-Both check that the parallel command wrote what the serial one did (the variants' particle frames
+Each is timed ``--repeats`` times (default 3), serial and parallel alternated, and the medians
+compared. Both check that the parallel command wrote what the serial one did (the variants' particle frames
 and step records but their timings; the rendered PNGs, byte for byte). Writes
 benchmarks/results/cluster.json and cluster.png.
 
@@ -24,6 +25,7 @@ import json
 import os
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -68,45 +70,77 @@ def same_runs(a: Path, b: Path) -> bool:
     return bool(ca) and ca == content(b)
 
 
-def sweep_timing(work: Path, workers: int, duration: float) -> dict:
+def alternated(repeats: int, serial, parallel) -> tuple[list, list]:
+    """``repeats`` timings of each, alternating which goes first (serial first in even repeats)."""
+    times = {"serial": [], "parallel": []}
+    for k in range(repeats):
+        order = (("serial", serial), ("parallel", parallel))
+        for name, run in order if k % 2 == 0 else order[::-1]:
+            times[name].append(run(k))
+    return times["serial"], times["parallel"]
+
+
+def sweep_timing(work: Path, workers: int, duration: float, repeats: int) -> dict:
     args = [*SCENE, *VARY, "--duration", str(duration), "--no-progress"]
-    serial = command("sweep", *args, "--out", str(work / "serial"))
-    parallel = command("sweep", *args, "--workers", str(workers), "--out", str(work / "parallel"))
-    record = json.loads((work / "parallel" / "sweep.json").read_text())
+    serials, parallels = alternated(
+        repeats,
+        lambda k: command("sweep", *args, "--out", str(work / f"serial{k}")),
+        lambda k: command("sweep", *args, "--workers", str(workers), "--out", str(work / f"parallel{k}")),
+    )
+    serial, parallel = statistics.median(serials), statistics.median(parallels)
+    record = json.loads((work / "parallel0" / "sweep.json").read_text())
     return {
         "scene": " ".join(SCENE),
         "vary": VARY[1::2],
         "duration": duration,
         "variants": len(record["variants"]),
         "particles": record["variants"][0]["summary"]["particles"]["fluid"],
-        "serial_seconds": serial,
+        "repeats": repeats,
+        "serial_seconds": serial,  # medians of the repeats
         "workers_seconds": parallel,
+        "serial_runs": serials,
+        "workers_runs": parallels,
         "ratio": parallel / serial,
         "variant_seconds": [e["wall_seconds"] for e in record["variants"]],
-        "same_results": same_runs(work / "serial", work / "parallel"),
+        "same_results": all(same_runs(work / "serial0", work / f"parallel{k}") for k in range(repeats)),
     }
 
 
-def render_timing(work: Path, workers: int, resolution: str, spp: int) -> dict:
+def render_timing(work: Path, workers: int, resolution: str, spp: int, repeats: int) -> dict:
     run = work / "meshed"
     command("run", *SCENE, "--duration", str(7 / 30), "--fps", "30", "--mesh", "--out", str(run), "--no-progress")
     args = ["--resolution", resolution, "--spp", str(spp), "--no-progress"]
-    twin = work / "meshed_farm"
-    shutil.copytree(run, twin)
-    serial = command("render", str(run), *args)
-    parallel = command("render", str(twin), *args, "--workers", str(workers))
+
+    def copy(name: str, k: int) -> Path:
+        twin = work / f"{name}{k}"
+        shutil.copytree(run, twin)
+        return twin
+
+    serials, parallels = alternated(
+        repeats,
+        lambda k: command("render", str(copy("meshed_serial", k)), *args),
+        lambda k: command("render", str(copy("meshed_farm", k)), *args, "--workers", str(workers)),
+    )
+    serial, parallel = statistics.median(serials), statistics.median(parallels)
+    run, twins = work / "meshed_serial0", [work / f"meshed_farm{k}" for k in range(repeats)]
     pngs = sorted((run / "frames").glob("frame_*.png"))
     return {
         "frames": len(pngs),
         "resolution": resolution,
         "spp": spp,
         "variant": json.loads((run / "frames" / "source.json").read_text())["settings"]["variant"],
-        "serial_seconds": serial,
+        "repeats": repeats,
+        "serial_seconds": serial,  # medians of the repeats
         "workers_seconds": parallel,
+        "serial_runs": serials,
+        "workers_runs": parallels,
         "ratio": parallel / serial,
         "same_results": bool(pngs)
-        and all(p.read_bytes() == (twin / "frames" / p.name).read_bytes() for p in pngs)
-        and len(pngs) == len(list((twin / "frames").glob("frame_*.png"))),
+        and all(
+            all(p.read_bytes() == (twin / "frames" / p.name).read_bytes() for p in pngs)
+            and len(pngs) == len(list((twin / "frames").glob("frame_*.png")))
+            for twin in twins
+        ),
     }
 
 
@@ -138,6 +172,7 @@ def chart(record: dict, path: Path) -> None:
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    ap.add_argument("--repeats", type=int, default=3, help="timings of each, alternated; medians reported")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
@@ -151,11 +186,12 @@ def main():
     except ImportError:
         mitsuba = None
     duration, resolution, spp = (0.5, "160x90", 4) if args.quick else (4.0, "640x360", 16)
+    repeats = 1 if args.quick else max(1, args.repeats)
     with tempfile.TemporaryDirectory(prefix="cluster_bench_") as tmp:
         work = Path(tmp)
         # kernels compiled (and cached) before anything is timed
         command("run", *SCENE, "--duration", "0.1", "--mesh", "--out", str(work / "warm"), "--no-progress")
-        sweep = sweep_timing(work, args.workers, duration)
+        sweep = sweep_timing(work, args.workers, duration, repeats)
         print(
             f"sweep of {sweep['variants']} variants ({sweep['particles']} particles, {duration:g} s each): "
             f"{sweep['serial_seconds']:.1f} s one after another, {sweep['workers_seconds']:.1f} s on "
@@ -166,7 +202,7 @@ def main():
         if mitsuba is None:
             print("render: Mitsuba (the render extra) is not installed, skipped")
         else:
-            render = render_timing(work, args.workers, resolution, spp)
+            render = render_timing(work, args.workers, resolution, spp, repeats)
             print(
                 f"render of {render['frames']} frames ({resolution}, {spp} spp, {render['variant']}): "
                 f"{render['serial_seconds']:.1f} s one after another, {render['workers_seconds']:.1f} s on "
