@@ -46,8 +46,7 @@ from warp_iisph.sph.solvers.iisph import (
     IISPHTerms,
     dij_pj_term,
     jacobi_advance,
-    jacobi_boundary_sigma,
-    jacobi_sigma_term,
+    jacobi_sigma,
     jacobi_update,
     pressure_sum_dij_pj,
 )
@@ -138,17 +137,7 @@ def density_change_of(
 ):
     """``a_ii p_i + s_i``: the density change the pressures ``p`` give particle i."""
     i = wp.tid() + offset
-    dt = fluid.dt[0]
-    rho_i = rho[i]
-    p_i = p[i]
-    sdp_i = iisph.sum_dij_pj[i]
-    d_ji_scale = dt * dt * fluid.mass / (rho_i * rho_i)
-    sigma = float(0.0)
-    for m in range(nf.count[i]):
-        k = entry(nf, i, m)
-        g = nf.grad_W[k]
-        sigma += jacobi_sigma_term(fluid.mass, sdp_i, iisph.displacement[nf.index[k]], (d_ji_scale * g) * p_i, g)
-    out[i] = iisph.a_ii[i] * p_i + jacobi_boundary_sigma(i, walls.psi, nb, sdp_i, sigma)
+    out[i] = iisph.a_ii[i] * p[i] + jacobi_sigma(i, fluid, nf, nb, walls, iisph, rho, p)
 
 
 @wp.func
@@ -622,19 +611,8 @@ def pressure_jacobi_residual(
     active particles (pressed or compressed; zero for the others) into ``res`` and, as a fraction
     of rho0, summed into their cells."""
     i = wp.tid() + offset
-    dt = fluid.dt[0]
-    mass = fluid.mass
-    rho_i = rho[i]
     p_i = p[i]
-    sdp_i = iisph.sum_dij_pj[i]
-    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
-    sigma = float(0.0)
-    for m in range(nf.count[i]):
-        k = entry(nf, i, m)
-        j = nf.index[k]
-        gw = nf.grad_W[k]
-        sigma += jacobi_sigma_term(mass, sdp_i, iisph.displacement[j], (d_ji_scale * gw) * p_i, gw)
-    sigma = jacobi_boundary_sigma(i, walls.psi, nb, sdp_i, sigma)
+    sigma = jacobi_sigma(i, fluid, nf, nb, walls, iisph, rho, p)
     a = iisph.a_ii[i]
     jacobi_update(i, sigma, p_i, a, iisph.a_diag[i], iisph.rho_adv[i], fluid.rho0, omega, p_new, density_error)
     rho_pred = iisph.rho_adv[i] + a * p_i + sigma

@@ -193,6 +193,34 @@ def jacobi_boundary_sigma(
 
 
 @wp.func
+def jacobi_sigma(
+    i: int,
+    fluid: Fluid,
+    nf: NeighborList,
+    nb: NeighborList,
+    walls: Walls,
+    iisph: IISPHTerms,
+    rho: wp.array(dtype=float),
+    p: wp.array(dtype=float),
+) -> float:
+    """``s_i`` of the pressures ``p``, from this iteration's ``sum_dij_pj`` and ``displacement``:
+    the fluid neighbours' parts (:func:`jacobi_sigma_term`), then the walls'."""
+    dt = fluid.dt[0]
+    mass = fluid.mass
+    rho_i = rho[i]
+    p_i = p[i]
+    sdp_i = iisph.sum_dij_pj[i]
+    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
+    sigma = float(0.0)
+    for m in range(nf.count[i]):
+        k = entry(nf, i, m)
+        j = nf.index[k]
+        g = nf.grad_W[k]
+        sigma += jacobi_sigma_term(mass, sdp_i, iisph.displacement[j], (d_ji_scale * g) * p_i, g)
+    return jacobi_boundary_sigma(i, walls.psi, nb, sdp_i, sigma)
+
+
+@wp.func
 def jacobi_update(
     i: int,
     sigma: float,
@@ -281,21 +309,9 @@ def pressure_jacobi(
 ):
     """One relaxed Jacobi update from ``s_i`` (:func:`jacobi_update`)."""
     i = wp.tid() + offset
-    dt = fluid.dt[0]
-    mass = fluid.mass
-    rho_i = rho[i]
-    p_i = p[i]
-    sdp_i = iisph.sum_dij_pj[i]
-    d_ji_scale = dt * dt * mass / (rho_i * rho_i)
-    sigma = float(0.0)
-    for m in range(nf.count[i]):
-        k = entry(nf, i, m)
-        j = nf.index[k]
-        g = nf.grad_W[k]
-        sigma += jacobi_sigma_term(mass, sdp_i, iisph.displacement[j], (d_ji_scale * g) * p_i, g)
-    sigma = jacobi_boundary_sigma(i, walls.psi, nb, sdp_i, sigma)
+    sigma = jacobi_sigma(i, fluid, nf, nb, walls, iisph, rho, p)
     jacobi_update(
-        i, sigma, p_i, iisph.a_ii[i], iisph.a_diag[i], iisph.rho_adv[i], fluid.rho0, omega, p_new, density_error
+        i, sigma, p[i], iisph.a_ii[i], iisph.a_diag[i], iisph.rho_adv[i], fluid.rho0, omega, p_new, density_error
     )
 
 
