@@ -624,7 +624,7 @@ def pressure_jacobi_residual(
 
 
 @wp.func
-def face_weight(g: CoarseGrid, c: int, f_c: float, nbr: int, axis: int) -> wp.vec2:
+def face_weight(g: CoarseGrid, f_c: float, nbr: int, axis: int) -> wp.vec2:
     """(weight on the neighbour's e, weight on the cell's own e) of one face's Laplacian term."""
     inv = 1.0 / (g.size[axis] * g.size[axis])
     if nbr < 0:
@@ -671,7 +671,7 @@ def coarse_solve(g: CoarseGrid, dt: wp.array(dtype=float), rho0: float, sweeps: 
                         for axis in range(3):
                             for s in range(2):
                                 nbr = neighbour_cell(g, cc, axis, 2 * s - 1)
-                                fw = face_weight(g, c, f_c, nbr, axis)
+                                fw = face_weight(g, f_c, nbr, axis)
                                 if fw[0] > 0.0:
                                     off += fw[0] * g.e[nbr]
                                     diag += fw[1]
