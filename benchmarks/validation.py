@@ -31,7 +31,9 @@ docs/physics.md quote.
 5. SPHERIC Test 2 (the bundled scene spheric_test2: the MARIN dam break onto a box, Kleefsman et
    al. 2005) at --spheric spacings for 2 s: every sensor and gauge scored against the experiment
    (warp_iisph.analysis.spheric: the first impact's arrival, the plateau's mean over 0.6-1.2 s,
-   the peak with its sampling rate, the gauges' RMS error over 0-2 s over the depth 0.55 m).
+   the peak with its sampling rate, the gauges' RMS error over 0-2 s over the depth 0.55 m; beside
+   them, where a delay is made: the front's arrival at each gauge downstream of the column, and
+   each sensor's arrival counted from the front's passage at x = 1.488 m).
 
 Writes benchmarks/results/validation.json (the parts not run this time kept from the file there),
 validation.png (Z against T beside the experiment, shifted and not; the slope per step within the
@@ -567,6 +569,12 @@ def describe(kind: str, key, r: dict, t_max: float) -> str:
         if n in sc
     ]
     cells += [f"{n} RMS {_num(sc[n]['rms'], 100, '.1f', ' %')}" for n in marin.GAUGES if n in sc]
+    cells += [f"front at {n} {_num(sc[n].get('front_error'), 1e3, '+.0f', ' ms')}" for n in marin.DOWNSTREAM if n in sc]
+    cells += [
+        f"{n} from the front at {marin.DOWNSTREAM[0]} {_num(sc[n].get('transit_error'), 1e3, '+.0f', ' ms')}"
+        for n in ("P1", "P2", "P3", "P4")
+        if n in sc
+    ]
     head = f"{label}SPHERIC Test 2 at {key:g} m ({r['particles']} particles, {r.get('wall_seconds', 0):.0f} s): "
     return head + "; ".join(cells)
 

@@ -327,3 +327,24 @@ def test_sampling_inside_a_graph_allocates_nothing(tmp_path, conditional_body_al
     sim.advance(0.1)
     assert sim.graph.captures == 1 and sim.graph.replays >= 1 and not calls
     assert len(sim.probes) == sim.step_count
+
+
+def test_spheric_scores_locate_a_delay_between_the_release_and_the_run_out():
+    """SPHERIC Test 2's scores of the experiment against itself are zero; a run whose every series is
+    the experiment's 50 ms late is scored 50 ms late at every sensor and gauge front, and on time
+    from the front's passage at the gauge nearest the column."""
+    from warp_iisph.analysis import spheric
+
+    ref = spheric.load_marin()
+    names = spheric.PRESSURES + spheric.GAUGES
+    same = spheric.score({n: (ref["t"], ref[n]) for n in names})
+    late = spheric.score({n: (ref["t"] + 0.05, ref[n]) for n in names})
+    for name in ("P1", "P2", "P3", "P4"):
+        assert abs(same[name]["arrival_error"]) < 1e-9 and abs(same[name]["transit_error"]) < 1e-9
+        assert late[name]["arrival_error"] == pytest.approx(0.05, abs=1e-9)
+        assert abs(late[name]["transit_error"]) < 1e-9
+        assert not late[name]["arrival_ok"] and same[name]["arrival_ok"]
+    for name in spheric.DOWNSTREAM:
+        assert same[name]["rms"] == pytest.approx(0.0, abs=1e-12)
+        assert late[name]["front_error"] == pytest.approx(0.05, abs=1e-9)
+    assert 0.18 < same["H_x1.488"]["front"]["experiment"] < 0.2  # the front passes x = 1.488 m at 0.19 s

@@ -11,6 +11,11 @@ between samples), the mean over the plateau that follows (0.6-1.2 s), the peak w
 sampling rate it was found at (a peak depends on the rate and on the sensor's size as much as on
 the flow, so it is reported, not scored); per gauge the RMS of the difference over 0-2 s (the
 run's series interpolated at the experiment's samples) as a fraction of the initial depth 0.55 m.
+
+Where a delay is made, reported beside the scores (not targets): the front's arrival at each gauge
+downstream of the column (its level's first rise above 1 cm), and each sensor's arrival counted
+from the front's passage at the gauge nearest the column (x = 1.488 m, 0.5 m from the gate), which
+leaves out whatever the release itself delays or hurries.
 """
 
 from __future__ import annotations
@@ -25,6 +30,8 @@ DEPTH = 0.55  # the water column's initial depth (m)
 IMPACT = 1000.0  # a first impact is the first rise above this (Pa)
 PLATEAU = (0.6, 1.2)  # the window of the plateau after the impact (s)
 GAUGE_WINDOW = (0.0, 2.0)  # the window of the gauges' RMS error (s)
+FRONT = 0.01  # the front has reached a gauge when its level first rises above this (m)
+DOWNSTREAM = ("H_x1.488", "H_x0.992", "H_x0.496")  # the gauges the front reaches, nearest the column first
 PRESSURES = tuple(f"P{k}" for k in range(1, 9))
 GAUGES = ("H_x0.496", "H_x0.992", "H_x1.488", "H_x2.638")
 # the targets of issue 29 at the finest resolution: arrival within 0.02 s, plateau within 15 %, the
@@ -86,6 +93,9 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
     experiment, beside the experiment's own values; each target's pass or fail."""
     ref = reference if reference is not None else load_marin()
     out = {}
+    start = DOWNSTREAM[0]
+    front_sim = arrival(*series[start], FRONT) if start in series else None
+    front_exp = arrival(ref["t"], ref[start], FRONT)
     for name in PRESSURES:
         if name not in series:
             continue
@@ -101,6 +111,9 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
             row["arrival_error"] = got["arrival"] - exp["arrival"]
         if got["plateau"] is not None:
             row["plateau_error"] = got["plateau"] / exp["plateau"] - 1.0
+        if got["arrival"] is not None and front_sim is not None:
+            row["transit"] = {"sim": got["arrival"] - front_sim, "experiment": exp["arrival"] - front_exp}
+            row["transit_error"] = row["transit"]["sim"] - row["transit"]["experiment"]
         if name in ("P1", "P2", "P3", "P4"):
             row["arrival_ok"] = row.get("arrival_error") is not None and abs(row["arrival_error"]) <= ARRIVAL_TOLERANCE
             row["plateau_ok"] = row.get("plateau_error") is not None and abs(row["plateau_error"]) <= PLATEAU_TOLERANCE
@@ -111,4 +124,9 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
         t, h = series[name]
         rms = gauge_rms(t, h, ref["t"], ref[name])
         out[name] = {"rms": rms, "rms_ok": rms is not None and rms <= GAUGE_TOLERANCE[name]}
+        if name in DOWNSTREAM:
+            front = {"sim": arrival(t, h, FRONT), "experiment": arrival(ref["t"], ref[name], FRONT)}
+            out[name]["front"] = front
+            if front["sim"] is not None:
+                out[name]["front_error"] = front["sim"] - front["experiment"]
     return out
