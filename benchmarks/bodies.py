@@ -45,16 +45,18 @@ from warp_iisph.engine.launch import get_threads
 from warp_iisph.scene import load_scene
 from warp_iisph.scene.bodies import quaternion_matrix
 
-FLOOD_VARIANTS = ("free", "fixed", "fixed_half")
+FLOOD_VARIANTS = ("free", "fixed", "fixed_half", "free_hydrostatic")
 
 
 def flood(variant: str, overrides: list) -> Scene:
     """The flood scene; ``fixed``: its bodies replaced by still box obstacles of the same shapes
     (then the scene's warm start is the hydrostatic one, the default without free bodies);
-    ``fixed_half``: so, with the half warm start the free bodies' scene runs with."""
+    ``fixed_half``: so, with the half warm start the free bodies' scene runs with;
+    ``free_hydrostatic``: the free bodies from the hydrostatic start (beside a body at least half the
+    last pressure), the still boxes' own."""
     scene = load_scene("flood", overrides)
-    if variant == "fixed_half":
-        scene.physics.warm_start = "half"
+    if variant in ("fixed_half", "free_hydrostatic"):
+        scene.physics.warm_start = "half" if variant == "fixed_half" else "hydrostatic"
         scene.physics.validate()
     if variant in ("fixed", "fixed_half"):
         for body in scene.bodies:  # in layers inside its faces where it is thick enough (3 spacings)
@@ -268,6 +270,9 @@ def summarize(runs: list) -> dict:
     if "fixed_half" in per_s:  # against the fixed scene with the free one's warm start
         out["cost_ratio_same_start"] = per_s["free"] / per_s["fixed_half"]
         out["cost_ratio_per_step_same_start"] = per_step["free"] / per_step["fixed_half"]
+    if "free_hydrostatic" in per_s:  # the free bodies from the still boxes' start
+        out["cost_ratio_hydrostatic_start"] = per_s["free_hydrostatic"] / per_s["fixed"]
+        out["cost_ratio_per_step_hydrostatic_start"] = per_step["free_hydrostatic"] / per_step["fixed"]
     return out
 
 
@@ -275,7 +280,12 @@ def chart(record: dict, path) -> None:
     plt = pyplot()
     fig, (a, b, c) = plt.subplots(1, 3, figsize=(16, 4.2))
     runs = record["flood"]["runs"]
-    names = {"free": "free bodies", "fixed": "bodies fixed\n(still obstacles)", "fixed_half": "fixed,\nhalf warm start"}
+    names = {
+        "free": "free bodies",
+        "fixed": "bodies fixed\n(still obstacles)",
+        "fixed_half": "fixed,\nhalf warm start",
+        "free_hydrostatic": "free,\nhydrostatic start",
+    }
     shown = [v for v in FLOOD_VARIANTS if any(r["variant"] == v for r in runs)]
     for i, variant in enumerate(shown):
         ys = [r["wall_seconds_per_simulated_second"] for r in runs if r["variant"] == variant]
@@ -413,7 +423,8 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
         f"flood: free / fixed = {summary['cost_ratio']:.3f} "
         f"(medians {med['free']:.1f} and {med['fixed']:.1f} wall s per s), "
         f"{summary['cost_ratio_per_step']:.3f} per step; against the fixed run with the half start "
-        f"{summary.get('cost_ratio_same_start', float('nan')):.3f}"
+        f"{summary.get('cost_ratio_same_start', float('nan')):.3f}; free from the hydrostatic start / fixed "
+        f"{summary.get('cost_ratio_hydrostatic_start', float('nan')):.3f}"
     )
     record["flood"] = {"overrides": overrides, "repeats": repeats, "runs": runs, "summary": summary}
     record["flood_date"] = record["date"]

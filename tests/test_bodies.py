@@ -286,18 +286,22 @@ def test_a_resumed_run_keeps_its_bodies_bitwise(tmp_path):
     assert np.linalg.norm(rows[-1, 1 + 7 : 1 + 10]) > 0.0  # the crate moves
 
 
-def test_a_heavy_box_sinks_and_comes_to_rest_on_the_floor():
+@pytest.mark.parametrize("warm_start", [None, "hydrostatic"])
+def test_a_heavy_box_sinks_and_comes_to_rest_on_the_floor(warm_start):
     """A box of density 2,000 released in the liquid sinks onto the floor and rests there: upright,
-    still, with no particle inside it. Its bottom rests on one trapped layer of liquid (measured
-    0.012 m, 0.6 h: a film thinner than a spacing does not drain at this resolution), and its
-    velocity keeps a jitter of a few cm/s from that film (measured at most 0.039 m/s, mean
-    -0.002 m/s over 1.0 .. 1.3 s). Before the film particles' diagonal counted the walls on
-    both sides (sph/solvers/iisph.py), this run diverged at t = 0.615 s."""
+    still, with no particle inside it, from the free bodies' default warm start and from the
+    hydrostatic one (which keeps at least half the last pressure beside a body: from the column's
+    estimate alone the film under it kept the box jittering at 0.10 m/s). Its bottom rests on one
+    trapped layer of liquid (measured 0.012 m, 0.6 h: a film thinner than a spacing does not drain
+    at this resolution), and its velocity keeps a jitter of a few cm/s from that film (measured at
+    most 0.039 m/s, mean -0.002 m/s over 1.0 .. 1.3 s). Before the film particles' diagonal
+    counted the walls on both sides (sph/solvers/iisph.py), this run diverged at t = 0.615 s."""
     from warp_iisph.scene.bodies import quaternion_matrix
 
     scene = Scene(spacing=0.02, tank=Box((0, 0, 0), (0.24, 0.4, 0.24)), name="sink")
     scene.add_fluid_box((0, 0, 0), (0.24, 0.2, 0.24))
     scene.add_body(Box((0.04, 0.06, 0.04), (0.2, 0.14, 0.2)), density=2000.0)
+    scene.physics.warm_start = warm_start
     sim = Simulation(scene, "cpu")
     sim.advance(1.0)  # diverges (DivergenceError) if the solve blows up in the film
     half = np.array([0.08, 0.04, 0.08])
@@ -399,12 +403,13 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     record = json.loads((tmp_path / "bodies_quick.json").read_text())
     assert record["versions"]["warp"] and record["date"] and (tmp_path / "bodies_quick.png").stat().st_size > 10_000
     runs = record["flood"]["runs"]
-    assert [r["variant"] for r in runs] == ["free", "fixed", "fixed_half"]
+    assert [r["variant"] for r in runs] == ["free", "fixed", "fixed_half", "free_hydrostatic"]
     # no centre past a wall, and none inside a free body's surface (a still box's wall is h/2 inside it)
     assert all(r["past_walls_at_frames"] == 0 and not r["body_left_tank"] and r["steps"] > 0 for r in runs)
-    assert runs[0]["inside_bodies_at_frames"] == 0
+    assert runs[0]["inside_bodies_at_frames"] == 0 and runs[3]["inside_bodies_at_frames"] == 0
     summary = record["flood"]["summary"]
     assert summary["cost_ratio"] > 0 and summary["cost_ratio_same_start"] > 0
+    assert summary["cost_ratio_hydrostatic_start"] > 0
     (heave,) = record["heave"]["runs"]  # the fit found an oscillation, not a flat line
     assert 0.2 < heave["damped_period"] < 2.0 and 0.0 <= heave["damping_ratio"] < 0.95
     assert [(d["spacing"], d["density"]) for d in record["drafts"]] == [(0.04, 500.0), (0.04, 250.0)]

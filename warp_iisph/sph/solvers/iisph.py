@@ -400,7 +400,7 @@ class IISPHSolver(SPHSolver):
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)
         launch_particles(predict_advection_density, n, [self.fluid, nf, nb, walls, self.terms, state.rho, state.p], dev)
         if self.warm_start == "hydrostatic":
-            self.hydrostatic.start(state.x, n, self.terms.rho_adv, self.physics.rho0, state.p)
+            self.hydrostatic.start(state.x, n, self.terms.rho_adv, self.physics.rho0, nb, state.p)
         elif self.warm_start == "half_hydrostatic":
             self.hydrostatic.add(state.x, n, 0.5, state.p)
 
