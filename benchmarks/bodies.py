@@ -46,6 +46,7 @@ from warp_iisph.scene import load_scene
 from warp_iisph.scene.bodies import quaternion_matrix
 
 FLOOD_VARIANTS = ("free", "fixed", "fixed_half", "free_hydrostatic")
+VARIANT_WARM_STARTS = {"fixed_half": "half", "free_hydrostatic": "hydrostatic"}  # the others: the scene's own
 
 
 def flood(variant: str, overrides: list) -> Scene:
@@ -55,8 +56,8 @@ def flood(variant: str, overrides: list) -> Scene:
     ``free_hydrostatic``: the free bodies from the hydrostatic start (beside a body at least half the
     last pressure), the still boxes' own."""
     scene = load_scene("flood", overrides)
-    if variant in ("fixed_half", "free_hydrostatic"):
-        scene.physics.warm_start = "half" if variant == "fixed_half" else "hydrostatic"
+    if variant in VARIANT_WARM_STARTS:
+        scene.physics.warm_start = VARIANT_WARM_STARTS[variant]
         scene.physics.validate()
     if variant in ("fixed", "fixed_half"):
         for body in scene.bodies:  # in layers inside its faces where it is thick enough (3 spacings)

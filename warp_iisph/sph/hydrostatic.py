@@ -87,6 +87,7 @@ def start_hydrostatic(
     rho0: float,
     nb: NeighborList,
     loaded: wp.array(dtype=wp.int32),
+    any_loaded: int,
     p: wp.array(dtype=float),
 ):
     """``p = s rho0 |g| d``, ``s`` ramped from 1 to 0 as the advected density falls from rho0 to
@@ -96,10 +97,11 @@ def start_hydrostatic(
     depth = c.top[column_of(c, x_i)] + 0.5 * c.h - c.sign * x_i[c.up]
     share = wp.clamp((rho_adv[i] / rho0 - 1.0) / RELEASE + 1.0, 0.0, 1.0)
     start = share * rho_g * wp.max(depth, 0.0)
-    for m in range(nb.count[i]):
-        if loaded[nb.index[entry(nb, i, m)]] != 0:
-            start = wp.max(start, p[i])  # by a free body: at least half the last pressure (p[i] holds it)
-            break
+    if any_loaded != 0:
+        for m in range(nb.count[i]):
+            if loaded[nb.index[entry(nb, i, m)]] != 0:
+                start = wp.max(start, p[i])  # by a free body: at least half the last pressure (p[i] holds it)
+                break
     p[i] = start
 
 
@@ -124,6 +126,7 @@ class HydrostaticPressure:
             body = model.bodies.body.numpy()
             loaded[model.bodies.first : model.bodies.first + len(body)] = body >= model.bodies.n_keyed
         self.loaded = wp.array(loaded, dtype=wp.int32, device=model.device)
+        self.any_loaded = int(loaded.any())  # without free bodies the start never looks at the walls
 
     def tops(self, x: wp.array, n: int) -> None:
         """The columns' heights from the first ``n`` particles at ``x``."""
@@ -143,5 +146,5 @@ class HydrostaticPressure:
         if n == 0:
             return
         self.tops(x, n)
-        inputs = [x, self.columns, self.rho_g, rho_adv, float(rho0), nb, self.loaded, p]
+        inputs = [x, self.columns, self.rho_g, rho_adv, float(rho0), nb, self.loaded, self.any_loaded, p]
         launch_particles(start_hydrostatic, n, inputs, self.device)
