@@ -10,11 +10,16 @@ on the same cores: the wall time of the whole command, as a user types it.
    command's defaults) one after another, then with ``--workers N``. Target: at most 0.6 x.
 
 Each is timed ``--repeats`` times (default 3), serial and parallel alternated, and the medians
-compared. Both check that the parallel command wrote what the serial one did (the variants' particle frames
-and step records but their timings; the rendered PNGs, byte for byte). Writes
+compared. Beside each, in the same run, the best any engine could do on these cores: for the sweep,
+its variants split into N plain ``warp-iisph sweep`` processes started together, no scheduler at
+all, against the whole sweep in one (alternated, medians); for the render, the
+CPU seconds the serial command used over its wall time (how many cores it already keeps busy: a
+farm of N workers on the same cores cannot beat that share of N). Both check that the parallel
+command wrote what the serial one did (the variants' particle frames and step records but their
+timings; the rendered PNGs, byte for byte). Writes
 benchmarks/results/cluster.json and cluster.png.
 
-    python benchmarks/cluster.py [--workers 2] [--quick]
+    python benchmarks/cluster.py [--workers 2] [--quick] [--replot]
 
 --quick (proves it works; its times say little): 0.5 s of simulation per variant, 160x90 frames
 at 4 samples. Needs the cluster extra (Dask) and, for the render, the render extra (Mitsuba).
@@ -24,6 +29,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import shutil
 import statistics
 import subprocess
@@ -31,9 +37,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from subprocess import PIPE
 
 import warp as wp
-from common import RESULTS, header, pyplot, save
+from common import RESULTS, header, pyplot, save, saved
 
 from warp_iisph.engine.devices import init_warp
 
@@ -42,14 +49,55 @@ SCENE = ["martin_moyce", "--set", "spacing=0.02"]
 VARY = ["--vary", "physics.viscosity=0.02,0.05", "--vary", "physics.boundary_viscosity=0,0.1"]
 
 
+def children_cpu() -> float:
+    """CPU seconds (user and system) used so far by this process's waited-for children."""
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return use.ru_utime + use.ru_stime
+
+
 def command(*args) -> float:
-    """Run ``warp-iisph ARGS``; its wall seconds (a failure stops the benchmark with its stderr)."""
-    t0 = time.perf_counter()
+    """Run ``warp-iisph ARGS``; its wall seconds (a failure stops the benchmark with its stderr).
+    The CPU seconds it used (its children's included) are appended to ``command.cpu``."""
+    cpu0, t0 = children_cpu(), time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "warp_iisph.cli", *args], capture_output=True, text=True)
     seconds = time.perf_counter() - t0
+    command.cpu.append(children_cpu() - cpu0)
     if proc.returncode != 0:
         sys.exit(f"warp-iisph {' '.join(args)}: exit status {proc.returncode}\n{proc.stderr}")
     return seconds
+
+
+command.cpu = []
+
+
+def together(*commands) -> float:
+    """Wall seconds of ``warp-iisph`` commands started at once as plain processes, until the last ends."""
+    t0 = time.perf_counter()
+    procs = [
+        subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", *a], stdout=subprocess.DEVNULL, stderr=PIPE)
+        for a in commands
+    ]
+    for proc, a in zip(procs, commands):
+        _, err = proc.communicate()
+        if proc.returncode != 0:
+            sys.exit(f"warp-iisph {' '.join(a)}: exit status {proc.returncode}\n{err.decode()}")
+    return time.perf_counter() - t0
+
+
+def split_sweep(work: Path, workers: int, duration: float, k: int) -> float:
+    """The sweep with no engine at all: its variants split by the first varied key's values into
+    ``workers`` plain ``warp-iisph sweep`` processes started together (one thread each, as a
+    worker's task has); wall seconds until the last ends."""
+    key, values = VARY[1].split("=")
+    shares = [values.split(",")[w::workers] for w in range(workers)]
+    rest = [*SCENE, *VARY[2:], "--duration", str(duration), "--no-progress", "--threads", "1"]
+    return together(
+        *[
+            ["sweep", "--vary", f"{key}={','.join(v)}", *rest, "--out", str(work / f"split{k}_{w}")]
+            for w, v in enumerate(shares)
+            if v
+        ]
+    )
 
 
 def same_runs(a: Path, b: Path) -> bool:
@@ -70,24 +118,26 @@ def same_runs(a: Path, b: Path) -> bool:
     return bool(ca) and ca == content(b)
 
 
-def alternated(repeats: int, serial, parallel) -> tuple[list, list]:
-    """``repeats`` timings of each, alternating which goes first (serial first in even repeats)."""
-    times = {"serial": [], "parallel": []}
+def alternated(repeats: int, *runs) -> list[list]:
+    """``repeats`` timings of each of ``runs`` (functions of the repeat's number), the order
+    rotated each repeat so that none always goes first; one list of timings per run."""
+    times = [[] for _ in runs]
     for k in range(repeats):
-        order = (("serial", serial), ("parallel", parallel))
-        for name, run in order if k % 2 == 0 else order[::-1]:
-            times[name].append(run(k))
-    return times["serial"], times["parallel"]
+        for j in range(len(runs)):
+            i = (j + k) % len(runs)
+            times[i].append(runs[i](k))
+    return times
 
 
 def sweep_timing(work: Path, workers: int, duration: float, repeats: int) -> dict:
     args = [*SCENE, *VARY, "--duration", str(duration), "--no-progress"]
-    serials, parallels = alternated(
+    serials, parallels, splits = alternated(
         repeats,
         lambda k: command("sweep", *args, "--out", str(work / f"serial{k}")),
         lambda k: command("sweep", *args, "--workers", str(workers), "--out", str(work / f"parallel{k}")),
+        lambda k: split_sweep(work, workers, duration, k),
     )
-    serial, parallel = statistics.median(serials), statistics.median(parallels)
+    serial, parallel, split = (statistics.median(t) for t in (serials, parallels, splits))
     record = json.loads((work / "parallel0" / "sweep.json").read_text())
     return {
         "scene": " ".join(SCENE),
@@ -103,6 +153,11 @@ def sweep_timing(work: Path, workers: int, duration: float, repeats: int) -> dic
         "ratio": parallel / serial,
         "variant_seconds": [e["wall_seconds"] for e in record["variants"]],
         "same_results": all(same_runs(work / "serial0", work / f"parallel{k}") for k in range(repeats)),
+        # the best on these cores with no engine: the variants split over `workers` plain
+        # processes started together (split_sweep), against the serial sweep
+        "split_seconds": split,
+        "split_runs": splits,
+        "floor": split / serial,
     }
 
 
@@ -116,12 +171,20 @@ def render_timing(work: Path, workers: int, resolution: str, spp: int, repeats: 
         shutil.copytree(run, twin)
         return twin
 
+    serial_cpu = []
+
+    def serial_render(k: int) -> float:
+        seconds = command("render", str(copy("meshed_serial", k)), *args)
+        serial_cpu.append(command.cpu[-1])
+        return seconds
+
     serials, parallels = alternated(
         repeats,
-        lambda k: command("render", str(copy("meshed_serial", k)), *args),
+        serial_render,
         lambda k: command("render", str(copy("meshed_farm", k)), *args, "--workers", str(workers)),
     )
     serial, parallel = statistics.median(serials), statistics.median(parallels)
+    busy = statistics.median(c / s for c, s in zip(serial_cpu, serials))
     run, twins = work / "meshed_serial0", [work / f"meshed_farm{k}" for k in range(repeats)]
     pngs = sorted((run / "frames").glob("frame_*.png"))
     return {
@@ -135,6 +198,10 @@ def render_timing(work: Path, workers: int, resolution: str, spp: int, repeats: 
         "serial_runs": serials,
         "workers_runs": parallels,
         "ratio": parallel / serial,
+        # cores the serial render keeps busy (its CPU seconds over its wall time), and so the best
+        # ratio any farm of `workers` on these same cores could reach
+        "serial_cores_busy": busy,
+        "floor": busy / workers,
         "same_results": bool(pngs)
         and all(
             all(p.read_bytes() == (twin / "frames" / p.name).read_bytes() for p in pngs)
@@ -153,6 +220,9 @@ def chart(record: dict, path: Path) -> None:
         serial, farm = ("one after another", f"{record['workers']} workers") if k == 0 else (None, None)
         ax.bar(k - 0.2, r["serial_seconds"], 0.4, color="tab:gray", label=serial)
         ax.bar(k + 0.2, r["workers_seconds"], 0.4, color="tab:blue", label=farm)
+        best = r["floor"] * r["serial_seconds"]
+        best_label = "best on these cores" if k == 0 else None
+        ax.hlines(best, k - 0.42, k + 0.42, colors="k", linestyles="--", label=best_label)
         ax.annotate(
             f"{r['ratio']:.2f} x" + ("" if r["same_results"] else " (results differ!)"),
             (k + 0.2, r["workers_seconds"]),
@@ -162,9 +232,9 @@ def chart(record: dict, path: Path) -> None:
         )
     ax.set_xticks(range(len(rows)), [name for name, _ in rows])
     ax.set_ylabel("wall seconds of the command")
-    ax.set_ylim(0, 1.2 * max(max(r["serial_seconds"], r["workers_seconds"]) for _, r in rows))
+    ax.set_ylim(0, 1.4 * max(max(r["serial_seconds"], r["workers_seconds"]) for _, r in rows))
     ax.set_title(f"Dask LocalCluster of {record['workers']} against one process (target <= {TARGET} x)")
-    ax.legend(loc="upper left")
+    ax.legend(loc="upper center", ncol=3, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
@@ -175,7 +245,12 @@ def main():
     ap.add_argument("--repeats", type=int, default=3, help="timings of each, alternated; medians reported")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--replot", action="store_true", help="redraw the chart from the saved JSON; run nothing")
     args = ap.parse_args()
+    if args.replot:
+        record, png = saved(args.out, "cluster", args.quick)
+        chart(record, png)
+        return
     wp.config.log_level = wp.LOG_WARNING
     try:
         import distributed  # noqa: F401
@@ -196,7 +271,8 @@ def main():
             f"sweep of {sweep['variants']} variants ({sweep['particles']} particles, {duration:g} s each): "
             f"{sweep['serial_seconds']:.1f} s one after another, {sweep['workers_seconds']:.1f} s on "
             f"{args.workers} workers: {sweep['ratio']:.2f} x (target <= {TARGET}); "
-            f"same results: {sweep['same_results']}"
+            f"same results: {sweep['same_results']}; split over {args.workers} plain processes at once "
+            f"(no engine): {sweep['floor']:.2f} x"
         )
         render = None
         if mitsuba is None:
@@ -207,7 +283,8 @@ def main():
                 f"render of {render['frames']} frames ({resolution}, {spp} spp, {render['variant']}): "
                 f"{render['serial_seconds']:.1f} s one after another, {render['workers_seconds']:.1f} s on "
                 f"{args.workers} workers: {render['ratio']:.2f} x (target <= {TARGET}); "
-                f"same frames: {render['same_results']}"
+                f"same frames: {render['same_results']}; the serial render keeps "
+                f"{render['serial_cores_busy']:.2f} cores busy: best on these cores {render['floor']:.2f} x"
             )
     init_warp()  # without the no-driver warning of a machine with no GPU
     record = header("cluster", workers=args.workers, cores_available=len(os.sched_getaffinity(0)), target=TARGET)
