@@ -24,7 +24,11 @@ spacings of (b). The undamped period it implies, ``T_d sqrt(1 - zeta^2)``, is se
 closed pool the level rises as the box sinks) and the added mass of a square flat plate of the
 box's side at a free surface, half of its value in unbounded fluid (DNV-RP-H103, Appendix A,
 Table A-2: C_A = 0.579 on V_R = pi/4 a^2 b; the high-frequency limit, without the draft and the
-pool's walls, both of which add to it): an estimate, not a measurement.
+pool's walls, both of which add to it): an estimate, not a measurement. Then the same box in a
+1.2 m pool (``OPEN_POOL``: its walls' echo comes back after the window fitted) at the first
+spacing, fitted from its first turning point on, against linear potential flow for the box's own
+shape in open water (heave_reference.py: Capytaine's radiation solve and Cummins' equation,
+released from rest at the same turning point and fitted the same way; skipped without Capytaine).
 
 Writes benchmarks/results/bodies.json and .png.
 
@@ -143,13 +147,15 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
     }
 
 
-def pool(spacing: float, density: float) -> Scene:
-    """tests/test_bodies.py's pool: a 0.16 x 0.08 x 0.16 m box placed at its draft in a 0.4 m pool 0.2 m deep."""
-    scene = Scene(spacing=spacing, tank=Box((0, 0, 0), (0.4, 0.4, 0.4)), name="pool")
-    scene.add_fluid_box((0, 0, 0), (0.4, 0.2, 0.4))
+def pool(spacing: float, density: float, width: float = 0.4) -> Scene:
+    """tests/test_bodies.py's pool: a 0.16 x 0.08 x 0.16 m box placed at its draft in the middle of
+    a square pool ``width`` wide (0.4 m there) and 0.2 m deep."""
+    scene = Scene(spacing=spacing, tank=Box((0, 0, 0), (width, 0.4, width)), name="pool")
+    scene.add_fluid_box((0, 0, 0), (width, 0.2, width))
     draft = density / 1000.0 * 0.08
-    bottom = 0.2 - draft + draft * 0.16**2 / 0.4**2
-    scene.add_body(Box((0.12, bottom, 0.12), (0.28, bottom + 0.08, 0.28)), density=density)
+    bottom = 0.2 - draft + draft * 0.16**2 / width**2
+    lo = 0.5 * width - 0.08
+    scene.add_body(Box((lo, bottom, lo), (lo + 0.16, bottom + 0.08, lo + 0.16)), density=density)
     return scene
 
 
@@ -186,6 +192,9 @@ def run_draft(spacing: float, density: float, settle: float, end: float) -> dict
 
 PARTS = ("flood", "drafts", "heave")
 HEAVE_DROP = 0.02  # m below the placed draft
+# m: the open pool's width, its walls 0.52 m from the box: the waves the heave radiates (group speed
+# about 0.45 m/s at its 11 rad/s) are back at the box after about 2.3 s, past the 1.5 s fitted
+OPEN_POOL = 1.2
 PLATE_CA = 0.579  # DNV-RP-H103 Table A-2, a square flat plate (b / a = 1), on V_R = pi / 4 a^2 b
 
 
@@ -206,12 +215,10 @@ def heave_estimate(rho: float = 1000.0, g: float = 9.81) -> dict:
     }
 
 
-def run_heave(spacing: float, duration: float) -> dict:
-    """The density 500 box of the pool released HEAVE_DROP low: its centre's height every 5 ms, and
-    a damped cosine fitted to it."""
-    from scipy.optimize import curve_fit
-
-    scene = pool(spacing, 500.0)
+def run_heave(spacing: float, duration: float, width: float = 0.4) -> dict:
+    """The density 500 box of the pool ``width`` wide released HEAVE_DROP low: its centre's height
+    every 5 ms, and a damped cosine fitted to it."""
+    scene = pool(spacing, 500.0, width)
     b = scene.bodies[0].shape
     scene.bodies[0].shape = Box(np.add(b.lower, (0, -HEAVE_DROP, 0)), np.add(b.upper, (0, -HEAVE_DROP, 0)))
     sim = Simulation(scene, "cpu", history=1)
@@ -222,27 +229,31 @@ def run_heave(spacing: float, duration: float) -> dict:
         t.append(sim.time)
         y.append(sim.bodies["position"][0][1])
     wall = time.perf_counter() - t0
-    t, y = np.array(t), np.array(y)
+    return {"spacing": spacing, "width": width, "particles": sim.n_particles, **fit_damped(t, y), "wall_seconds": wall}
+
+
+def fit_damped(t, y) -> dict:
+    """A damped cosine fitted to a heave record: its damped period, damping ratio, undamped period
+    ``T_d sqrt(1 - zeta^2)``, equilibrium and the fit's rms residual, and the record itself."""
+    from scipy.optimize import curve_fit
+
+    t, y = np.asarray(t, float), np.asarray(y, float)
 
     def damped(t, amplitude, zeta, omega, phase, rest):
         return rest + amplitude * np.exp(-zeta * omega * t) * np.cos(omega * np.sqrt(1.0 - zeta**2) * t + phase)
 
     guess = [y[0] - y[-1], 0.2, 2.0 * np.pi / 0.5, 0.0, float(y[-len(y) // 3 :].mean())]
-    bounds = ([-1.0, 0.0, 1.0, -2 * np.pi, 0.0], [1.0, 0.95, 100.0, 2 * np.pi, 1.0])
+    bounds = ([-1.0, 0.0, 1.0, -2 * np.pi, -1.0], [1.0, 0.95, 100.0, 2 * np.pi, 1.0])
     (amplitude, zeta, omega, phase, rest), _ = curve_fit(damped, t, y, p0=guess, bounds=bounds)
     fit = damped(t, amplitude, zeta, omega, phase, rest)
-    period = 2.0 * np.pi / (omega * np.sqrt(1.0 - zeta**2))
     return {
-        "spacing": spacing,
-        "particles": sim.n_particles,
         "t": t.tolist(),
         "y": y.tolist(),
-        "damped_period": float(period),
+        "damped_period": float(2.0 * np.pi / (omega * np.sqrt(1.0 - zeta**2))),
         "damping_ratio": float(zeta),
         "natural_period": float(2.0 * np.pi / omega),
         "equilibrium": float(rest),
         "fit_rms": float(np.sqrt(np.mean((fit - y) ** 2))),
-        "wall_seconds": wall,
     }
 
 
@@ -335,6 +346,28 @@ def chart(record: dict, path) -> None:
                     f"undamped {r['natural_period_error_percent']:+.1f} %"
                 ),
             )
+        run, ref = heave.get("open"), heave.get("reference")
+        if run:
+            turn = run["turning"]
+            c.plot(
+                turn["t"],
+                1e3 * (np.array(turn["y"]) - turn["equilibrium"]),
+                color="tab:red",
+                lw=1.2,
+                label=(
+                    f"h {run['spacing']:g}, {heave['open_pool']:g} m pool, from its first turning point: "
+                    f"T {turn['damped_period']:.3f} s, zeta {turn['damping_ratio']:.2f}"
+                ),
+            )
+        if ref:
+            c.plot(
+                ref["t"],
+                1e3 * np.array(ref["y"]),
+                color="k",
+                ls="--",
+                lw=1.0,
+                label=f"linear theory (Capytaine): T {ref['damped_period']:.3f} s, zeta {ref['damping_ratio']:.2f}",
+            )
         c.axhline(0.0, color="k", lw=0.8)
         c.set_xlabel("t (s)")
         c.set_ylabel("box centre above its fitted rest (mm)")
@@ -400,7 +433,7 @@ def main():
     if "drafts" in parts:
         measure_drafts(record, spacings, settle, end)
     if "heave" in parts:
-        measure_heave(record, spacings, 0.6 if args.quick else 1.5)
+        measure_heave(record, spacings, 0.6 if args.quick else 1.5, args.quick)
     chart(record, save(record, args.out, "bodies", args.quick))
 
 
@@ -447,7 +480,43 @@ def measure_drafts(record: dict, spacings: list, settle: float, end: float) -> N
     record["settle"] = [settle, end]
 
 
-def measure_heave(record: dict, spacings: list, duration: float) -> None:
+def from_turning_point(t, y) -> tuple:
+    """The record from its first turning point on (the box at rest for an instant), times from it."""
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    dy = np.diff(y)
+    k = int(np.nonzero(np.sign(dy[1:]) != np.sign(dy[:-1]))[0][0]) + 1
+    return t[k:] - t[k], y[k:]
+
+
+def heave_reference(run: dict) -> dict | None:
+    """Linear potential flow's free decay of the box in open water (heave_reference.py; None
+    without Capytaine) from rest at the open-pool run's first turning point, fitted as the run is."""
+    try:
+        import capytaine  # noqa: F401
+    except ImportError:
+        print("heave reference: Capytaine (pip install 'warp_iisph[bench]') is not installed, skipped")
+        return None
+    import heave_reference as linear
+
+    mass, stiffness = 500.0 * 0.16 * 0.16 * 0.08, 1000.0 * 9.81 * 0.16 * 0.16
+    rad = linear.radiation(0.16, 0.04, 0.2)
+    t, y = from_turning_point(run["t"], run["y"])
+    t_ref, z = linear.free_decay(mass, stiffness, rad, float(y[0] - run["turning"]["equilibrium"]), float(t[-1]))
+    keep = np.clip(np.searchsorted(t_ref, t), 0, len(t_ref) - 1)  # sampled as the run is
+    fit = fit_damped(t_ref[keep], z[keep])
+    w = linear.natural_frequency(mass, stiffness, rad)
+    return {
+        "radiation": rad,
+        "mass": mass,
+        "stiffness": stiffness,
+        "resonance_period": 2.0 * np.pi / w,  # where w^2 (M + A(w)) = k
+        "added_mass_at_resonance": float(np.interp(w, rad["omega"], rad["added_mass"])),
+        "damping_at_resonance": float(np.interp(w, rad["omega"], rad["damping"])),
+        **fit,
+    }
+
+
+def measure_heave(record: dict, spacings: list, duration: float, quick: bool) -> None:
     estimate = heave_estimate()
     runs = []
     for h in spacings:
@@ -462,6 +531,27 @@ def measure_heave(record: dict, spacings: list, duration: float) -> None:
             flush=True,
         )
     record["heave"] = {"drop": HEAVE_DROP, "estimate": estimate, "runs": runs}
+    # the open pool, where the walls' echo comes back after the window fitted, against linear theory
+    h = spacings[0]
+    run = run_heave(h, duration, OPEN_POOL)
+    run["turning"] = fit_damped(*from_turning_point(run["t"], run["y"]))
+    reference = None if quick else heave_reference(run)
+    if reference is not None:
+        for key in ("damped_period", "natural_period"):
+            run["turning"][f"{key}_error_percent"] = 100.0 * (run["turning"][key] / reference[key] - 1.0)
+    print(
+        f"heave h {h:g} in a {OPEN_POOL:g} m pool, from its first turning point: damped period "
+        f"{run['turning']['damped_period']:.3f} s, damping ratio {run['turning']['damping_ratio']:.3f}"
+        + (
+            f"; linear theory (Capytaine, Cummins): {reference['damped_period']:.3f} s, "
+            f"{reference['damping_ratio']:.3f}"
+            if reference
+            else ""
+        )
+        + f", {run['particles']} particles, {run['wall_seconds']:.0f} s",
+        flush=True,
+    )
+    record["heave"].update(open_pool=OPEN_POOL, open=run, reference=reference)
     record["heave_date"] = record["date"]
 
 

@@ -309,3 +309,39 @@ def test_the_two_level_twin_solves_its_coarse_poisson_problem():
     exact = 0.5 * (-rho0 * r / dt**2) * (surface**2 - y**2)  # e'' = rho0 r / dt^2 < 0: a compression's bump
     np.testing.assert_allclose(e, exact, rtol=0.05, atol=0.02 * exact.max())
     assert g.e.numpy()[-1] == 0.0  # air keeps no correction
+
+
+def _heave_reference():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("heave_reference", ROOT / "benchmarks" / "heave_reference.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_heave_reference_free_decay_without_radiation_is_the_undamped_oscillator():
+    """Cummins' equation with no radiation damping is a mass M + A_inf on a spring k: released
+    from rest it swings at 2 pi sqrt((M + A_inf) / k) without losing or gaining amplitude; the
+    frequency-domain resonance with a constant A is the same oscillator's."""
+    linear = _heave_reference()
+    omega = np.arange(1.0, 30.0, 0.25)
+    rad = {"omega": omega.tolist(), "added_mass": [0.8] * len(omega), "damping": [0.0] * len(omega)}
+    rad["added_mass_infinite"] = 0.8
+    mass, stiffness = 1.0, 250.0
+    t, z = linear.free_decay(mass, stiffness, rad, -0.02, 1.2)
+    period = 2.0 * np.pi * np.sqrt((mass + 0.8) / stiffness)
+    np.testing.assert_allclose(z, -0.02 * np.cos(2.0 * np.pi * t / period), atol=3e-4)
+    assert linear.natural_frequency(mass, stiffness, rad) == pytest.approx(2.0 * np.pi / period, rel=1e-3)
+
+
+def test_heave_reference_radiation_damps_the_decay():
+    """With radiation damping the swings shrink, one after another."""
+    linear = _heave_reference()
+    omega = np.arange(1.0, 30.0, 0.25)
+    damping = 4.0 * np.exp(-(((omega - 9.0) / 5.0) ** 2))
+    rad = {"omega": omega.tolist(), "added_mass": [1.0] * len(omega), "damping": damping.tolist()}
+    rad["added_mass_infinite"] = 1.2
+    t, z = linear.free_decay(1.0, 250.0, rad, -0.02, 2.0)
+    peaks = [abs(z[k]) for k in range(1, len(z) - 1) if abs(z[k]) >= abs(z[k - 1]) and abs(z[k]) > abs(z[k + 1])]
+    assert len(peaks) >= 4 and all(b < a for a, b in zip(peaks, peaks[1:]))
