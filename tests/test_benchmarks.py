@@ -345,3 +345,22 @@ def test_heave_reference_radiation_damps_the_decay():
     t, z = linear.free_decay(1.0, 250.0, rad, -0.02, 2.0)
     peaks = [abs(z[k]) for k in range(1, len(z) - 1) if abs(z[k]) >= abs(z[k - 1]) and abs(z[k]) > abs(z[k + 1])]
     assert len(peaks) >= 4 and all(b < a for a, b in zip(peaks, peaks[1:]))
+
+
+def test_cluster_benchmark_quick_mode_measures_its_bounds(tmp_path):
+    """cluster.py --quick: the sweep and the render on 2 workers write what they write one after
+    another, and beside each ratio the bound measured with no engine (the sweep split over plain
+    processes; the serial render's busy cores over the workers)."""
+    pytest.importorskip("distributed", reason="Dask distributed (the cluster extra) is not installed")
+    record = _quick("cluster.py", tmp_path, "cluster_quick")
+    sweep = record["sweep"]
+    assert sweep["same_results"] and sweep["variants"] == 4
+    assert len(sweep["split_runs"]) == 1 and sweep["floor"] == pytest.approx(
+        sweep["split_seconds"] / sweep["serial_seconds"]
+    )
+    assert 0.3 < sweep["floor"] < 2.0
+    render = record["render"]
+    if render is not None:  # with the render extra
+        assert render["same_results"] and render["frames"] == 8
+        assert 0.5 < render["serial_cores_busy"] <= os.cpu_count() + 0.2
+        assert render["floor"] == pytest.approx(render["serial_cores_busy"] / 2)
