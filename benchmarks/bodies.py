@@ -25,7 +25,7 @@ closed pool the level rises as the box sinks) and the added mass of a square fla
 box's side at a free surface, half of its value in unbounded fluid (DNV-RP-H103, Appendix A,
 Table A-2: C_A = 0.579 on V_R = pi/4 a^2 b; the high-frequency limit, without the draft and the
 pool's walls, both of which add to it): an estimate, not a measurement. Then the same box in a
-1.2 m pool (``OPEN_POOL``: its walls' echo comes back after the window fitted) at the first
+1.2 m pool (``OPEN_POOL``: the echo of the heave's own waves comes back after the window fitted) at the first
 spacing, fitted from its first turning point on, against linear potential flow for the box's own
 shape in open water (heave_reference.py: Capytaine's radiation solve and Cummins' equation,
 released from rest at the same turning point and fitted the same way; skipped without Capytaine).
@@ -192,8 +192,9 @@ def run_draft(spacing: float, density: float, settle: float, end: float) -> dict
 
 PARTS = ("flood", "drafts", "heave")
 HEAVE_DROP = 0.02  # m below the placed draft
-# m: the open pool's width, its walls 0.52 m from the box: the waves the heave radiates (group speed
-# about 0.45 m/s at its 11 rad/s) are back at the box after about 2.3 s, past the 1.5 s fitted
+# m: the open pool's width, its walls 0.52 m from the box: the waves the heave radiates at its 11
+# rad/s (group speed about 0.45 m/s) are back after about 2.3 s, past the 1.5 s fitted, but long
+# waves (sqrt(g h) = 1.4 m/s) after about 0.75 s (docs/performance.md, "Heave")
 OPEN_POOL = 1.2
 PLATE_CA = 0.579  # DNV-RP-H103 Table A-2, a square flat plate (b / a = 1), on V_R = pi / 4 a^2 b
 
@@ -362,7 +363,7 @@ def chart(record: dict, path) -> None:
         if ref:
             c.plot(
                 ref["t"],
-                1e3 * np.array(ref["y"]),
+                1e3 * (np.array(ref["y"]) - ref["equilibrium"]),
                 color="k",
                 ls="--",
                 lw=1.0,
@@ -481,11 +482,26 @@ def measure_drafts(record: dict, spacings: list, settle: float, end: float) -> N
 
 
 def from_turning_point(t, y) -> tuple:
-    """The record from its first turning point on (the box at rest for an instant), times from it."""
+    """The record from its first turning point on (the box at rest for an instant), times from it;
+    the whole record where it has none."""
     t, y = np.asarray(t, float), np.asarray(y, float)
     dy = np.diff(y)
-    k = int(np.nonzero(np.sign(dy[1:]) != np.sign(dy[:-1]))[0][0]) + 1
+    turns = np.nonzero(np.sign(dy[1:]) != np.sign(dy[:-1]))[0]
+    k = int(turns[0]) + 1 if len(turns) else 0
     return t[k:] - t[k], y[k:]
+
+
+def crossing_period(t, y, rest: float) -> float | None:
+    """Twice the time between the record's first two crossings of ``rest`` (linearly interpolated):
+    the period of its first swing, which needs no model of the decay (a damped cosine crosses every
+    half period) and, unlike the later crossings of a strongly damped record, stands well above the
+    pool's own slosh; None with fewer than two crossings."""
+    t, z = np.asarray(t, float), np.asarray(y, float) - rest
+    k = np.nonzero(np.sign(z[1:]) != np.sign(z[:-1]))[0][:2]
+    if len(k) < 2:
+        return None
+    crossings = t[k] - z[k] * (t[k + 1] - t[k]) / (z[k + 1] - z[k])
+    return float(2.0 * (crossings[1] - crossings[0]))
 
 
 def heave_reference(run: dict) -> dict | None:
@@ -498,12 +514,14 @@ def heave_reference(run: dict) -> dict | None:
         return None
     import heave_reference as linear
 
-    mass, stiffness = 500.0 * 0.16 * 0.16 * 0.08, 1000.0 * 9.81 * 0.16 * 0.16
+    area = 0.16 * 0.16
+    # the simulated pool's stiffness: its level rises as the box sinks (1.8 % above open water's)
+    mass, stiffness = 500.0 * area * 0.08, 1000.0 * 9.81 * area / (1.0 - area / run["width"] ** 2)
     rad = linear.radiation(0.16, 0.04, 0.2)
     t, y = from_turning_point(run["t"], run["y"])
     t_ref, z = linear.free_decay(mass, stiffness, rad, float(y[0] - run["turning"]["equilibrium"]), float(t[-1]))
-    keep = np.clip(np.searchsorted(t_ref, t), 0, len(t_ref) - 1)  # sampled as the run is
-    fit = fit_damped(t_ref[keep], z[keep])
+    fit = fit_damped(t, np.interp(t, t_ref, z))  # sampled as the run is
+    fit["crossing_period"] = crossing_period(fit["t"], fit["y"], fit["equilibrium"])
     w = linear.natural_frequency(mass, stiffness, rad)
     return {
         "radiation": rad,
@@ -535,16 +553,20 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
     h = spacings[0]
     run = run_heave(h, duration, OPEN_POOL)
     run["turning"] = fit_damped(*from_turning_point(run["t"], run["y"]))
+    turn = run["turning"]
+    turn["crossing_period"] = crossing_period(turn["t"], turn["y"], turn["equilibrium"])
     reference = None if quick else heave_reference(run)
     if reference is not None:
-        for key in ("damped_period", "natural_period"):
-            run["turning"][f"{key}_error_percent"] = 100.0 * (run["turning"][key] / reference[key] - 1.0)
+        for key in ("damped_period", "natural_period", "crossing_period"):
+            if turn[key] is not None and reference[key] is not None:
+                turn[f"{key}_error_percent"] = 100.0 * (turn[key] / reference[key] - 1.0)
     print(
         f"heave h {h:g} in a {OPEN_POOL:g} m pool, from its first turning point: damped period "
-        f"{run['turning']['damped_period']:.3f} s, damping ratio {run['turning']['damping_ratio']:.3f}"
+        f"{turn['damped_period']:.3f} s (between crossings {seconds(turn['crossing_period'])}), damping ratio "
+        f"{turn['damping_ratio']:.3f}"
         + (
-            f"; linear theory (Capytaine, Cummins): {reference['damped_period']:.3f} s, "
-            f"{reference['damping_ratio']:.3f}"
+            f"; linear theory (Capytaine, Cummins): {reference['damped_period']:.3f} s (between crossings "
+            f"{seconds(reference['crossing_period'])}), {reference['damping_ratio']:.3f}"
             if reference
             else ""
         )
@@ -553,6 +575,10 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
     )
     record["heave"].update(open_pool=OPEN_POOL, open=run, reference=reference)
     record["heave_date"] = record["date"]
+
+
+def seconds(value) -> str:
+    return "none" if value is None else f"{value:.3f} s"
 
 
 if __name__ == "__main__":

@@ -12,9 +12,9 @@ on the same cores: the wall time of the whole command, as a user types it.
 Each is timed ``--repeats`` times (default 3), serial and parallel alternated, and the medians
 compared. Beside each, in the same run, the best any engine could do on these cores: for the sweep,
 its variants split into N plain ``warp-iisph sweep`` processes started together, no scheduler at
-all, against the whole sweep in one (alternated, medians); for the render, the
-CPU seconds the serial command used over its wall time (how many cores it already keeps busy: a
-farm of N workers on the same cores cannot beat that share of N). Both check that the parallel
+all, against the whole sweep in one (alternated, medians); for the render, the CPU seconds the
+serial command used over its wall time (how many cores it already keeps busy: a farm on the same
+C cores, doing at least that work, cannot beat that share of C). Both check that the parallel
 command wrote what the serial one did (the variants' particle frames and step records but their
 timings; the rendered PNGs, byte for byte). Writes
 benchmarks/results/cluster.json and cluster.png.
@@ -37,7 +37,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from subprocess import PIPE
 
 import warp as wp
 from common import RESULTS, header, pyplot, save, saved
@@ -71,26 +70,33 @@ command.cpu = []
 
 
 def together(*commands) -> float:
-    """Wall seconds of ``warp-iisph`` commands started at once as plain processes, until the last ends."""
-    t0 = time.perf_counter()
-    procs = [
-        subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", *a], stdout=subprocess.DEVNULL, stderr=PIPE)
-        for a in commands
-    ]
-    for proc, a in zip(procs, commands):
-        _, err = proc.communicate()
-        if proc.returncode != 0:
-            sys.exit(f"warp-iisph {' '.join(a)}: exit status {proc.returncode}\n{err.decode()}")
-    return time.perf_counter() - t0
+    """Wall seconds of ``warp-iisph`` commands started at once as plain processes, until the last
+    ends (their stderr in files, so that none waits on a full pipe); a failure stops the benchmark."""
+    with tempfile.TemporaryDirectory(prefix="together_") as tmp:
+        errs = [open(Path(tmp) / f"{k}.err", "w+") for k in range(len(commands))]
+        t0 = time.perf_counter()
+        procs = [
+            subprocess.Popen([sys.executable, "-m", "warp_iisph.cli", *a], stdout=subprocess.DEVNULL, stderr=err)
+            for a, err in zip(commands, errs)
+        ]
+        codes = [proc.wait() for proc in procs]
+        seconds = time.perf_counter() - t0
+        for code, a, err in zip(codes, commands, errs):
+            err.seek(0)
+            if code != 0:
+                sys.exit(f"warp-iisph {' '.join(a)}: exit status {code}\n{err.read()}")
+            err.close()
+    return seconds
 
 
 def split_sweep(work: Path, workers: int, duration: float, k: int) -> float:
     """The sweep with no engine at all: its variants split by the first varied key's values into
-    ``workers`` plain ``warp-iisph sweep`` processes started together (one thread each, as a
-    worker's task has); wall seconds until the last ends."""
+    ``workers`` plain ``warp-iisph sweep`` processes started together (each with the threads a
+    worker's task has, the cores over the workers); wall seconds until the last ends."""
     key, values = VARY[1].split("=")
     shares = [values.split(",")[w::workers] for w in range(workers)]
-    rest = [*SCENE, *VARY[2:], "--duration", str(duration), "--no-progress", "--threads", "1"]
+    threads = max(1, len(os.sched_getaffinity(0)) // workers)
+    rest = [*SCENE, *VARY[2:], "--duration", str(duration), "--no-progress", "--threads", str(threads)]
     return together(
         *[
             ["sweep", "--vary", f"{key}={','.join(v)}", *rest, "--out", str(work / f"split{k}_{w}")]
@@ -199,9 +205,9 @@ def render_timing(work: Path, workers: int, resolution: str, spp: int, repeats: 
         "workers_runs": parallels,
         "ratio": parallel / serial,
         # cores the serial render keeps busy (its CPU seconds over its wall time), and so the best
-        # ratio any farm of `workers` on these same cores could reach
+        # ratio any farm on these same cores could reach (doing at least the serial CPU work)
         "serial_cores_busy": busy,
-        "floor": busy / workers,
+        "floor": busy / len(os.sched_getaffinity(0)),
         "same_results": bool(pngs)
         and all(
             all(p.read_bytes() == (twin / "frames" / p.name).read_bytes() for p in pngs)

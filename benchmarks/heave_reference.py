@@ -2,19 +2,19 @@
 against, computed for the box's own shape rather than taken from a table.
 
 The box's heave added mass ``A(w)`` and radiation damping ``B(w)`` come from Capytaine (a
-boundary-element solver of the linear radiation problem, after Nemoh; the ``reference`` extra), on
+boundary-element solver of the linear radiation problem, after Nemoh; the ``bench`` extra), on
 the box's wetted hull with a lid on its waterplane (which removes the irregular frequencies), in
 water as deep as the pool, at frequencies up to ``W_MAX`` and at infinite frequency. The free decay
-from the same release as the simulation's follows from Cummins' equation, the time-domain form of
-the same linear problem (open water: no pool walls, whose reflected waves need longer to come back
-than the window fitted, in the pool bodies.py uses for it):
+from rest at the simulation's first turning point follows from Cummins' equation, the time-domain
+form of the same linear problem, for a body in water without walls:
 
     (M + A_inf) z'' + int_0^t K(t - s) z'(s) ds + k z = 0,   K(t) = (2 / pi) int_W_MIN^W_MAX B(w) cos(w t) dw,
 
-with ``k = rho g A_b`` the open water's hydrostatic stiffness. It is fitted with the same damped
-cosine as the simulation's record, so that the two periods and damping ratios compare like with
-like. Linear theory holds for small motions: the 2 cm release is half the box's 4 cm draft, so
-the comparison is at a finite amplitude, and the theory has no viscosity.
+with ``k`` the hydrostatic stiffness (the caller's: that of the simulated pool, whose level rises
+as the box sinks). It is fitted with the same damped cosine as the simulation's record, so that
+the two periods and damping ratios compare like with like. Linear theory holds for small motions
+from still water: the simulation's turning point is 3 cm below rest (three quarters of the box's
+draft) in water already moving, and the theory has no viscosity.
 """
 
 from __future__ import annotations
@@ -23,12 +23,14 @@ import logging
 
 import numpy as np
 
-# rad/s: B(w) is 0.2 kg/s at 25 rad/s against 4.4 at its peak near 8, and the 1 cm panels grow too
-# coarse for shorter waves (B rises spuriously to 0.9 at 30); the fitted decay moves by 0.1 % between
-# a cut at 20 and one at 30 rad/s
-W_MAX = 30.0
+# rad/s: B(w) is 0.2 kg/s at 25 rad/s, and beyond it the 1 cm panels grow too coarse for the
+# shorter waves (B rises spuriously to 0.9 at 30); the fitted decay moves by 0.1 % between a cut at
+# 20 and one at 30 rad/s
+W_MAX = 25.0
 W_STEP = 0.25  # rad/s
-W_MIN = 1.0  # rad/s: below, the finite-depth Green function is out of range (kh < 0.1) and B(w) ~ 0
+# rad/s: below, the finite-depth Green function is out of range (kh < 0.1); B(1 rad/s) is 0.8 kg/s
+# against 4.4 at its peak near 8, and the band below adds under 1 % to the integral of B
+W_MIN = 1.0
 PANEL = 0.01  # m, the hull's panel size (16 across the box's 0.16 m)
 
 

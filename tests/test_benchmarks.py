@@ -335,16 +335,21 @@ def test_heave_reference_free_decay_without_radiation_is_the_undamped_oscillator
     assert linear.natural_frequency(mass, stiffness, rad) == pytest.approx(2.0 * np.pi / period, rel=1e-3)
 
 
-def test_heave_reference_radiation_damps_the_decay():
-    """With radiation damping the swings shrink, one after another."""
+def test_heave_reference_radiation_damps_the_decay_by_its_damping():
+    """With a radiation damping B0 the same at every frequency the memory kernel is nearly B0 times
+    a delta, and the decay's damping ratio B0 / (2 sqrt(k (M + A))), read from the log decrement of
+    successive swings; the swings shrink one after another."""
     linear = _heave_reference()
     omega = np.arange(1.0, 30.0, 0.25)
-    damping = 4.0 * np.exp(-(((omega - 9.0) / 5.0) ** 2))
-    rad = {"omega": omega.tolist(), "added_mass": [1.0] * len(omega), "damping": damping.tolist()}
-    rad["added_mass_infinite"] = 1.2
-    t, z = linear.free_decay(1.0, 250.0, rad, -0.02, 2.0)
+    mass, added, stiffness, b0 = 1.0, 1.2, 250.0, 2.0
+    rad = {"omega": omega.tolist(), "added_mass": [added] * len(omega), "damping": [b0] * len(omega)}
+    rad["added_mass_infinite"] = added
+    t, z = linear.free_decay(mass, stiffness, rad, -0.02, 2.0)
     peaks = [abs(z[k]) for k in range(1, len(z) - 1) if abs(z[k]) >= abs(z[k - 1]) and abs(z[k]) > abs(z[k + 1])]
-    assert len(peaks) >= 4 and all(b < a for a, b in zip(peaks, peaks[1:]))
+    assert len(peaks) >= 6 and all(b < a for a, b in zip(peaks, peaks[1:]))
+    decrement = np.log(peaks[0] / peaks[2])  # one period: from a swing to the next on the same side
+    zeta = decrement / np.sqrt(4.0 * np.pi**2 + decrement**2)
+    assert zeta == pytest.approx(b0 / (2.0 * np.sqrt(stiffness * (mass + added))), rel=0.05)
 
 
 def test_cluster_benchmark_quick_mode_measures_its_bounds(tmp_path):
@@ -362,5 +367,4 @@ def test_cluster_benchmark_quick_mode_measures_its_bounds(tmp_path):
     render = record["render"]
     if render is not None:  # with the render extra
         assert render["same_results"] and render["frames"] == 8
-        assert 0.5 < render["serial_cores_busy"] <= os.cpu_count() + 0.2
-        assert render["floor"] == pytest.approx(render["serial_cores_busy"] / 2)
+        assert 0.5 < render["serial_cores_busy"] <= os.cpu_count() + 0.2 and 0.0 < render["floor"] <= 1.1
