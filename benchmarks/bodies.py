@@ -199,10 +199,10 @@ OPEN_POOL = 1.2
 PLATE_CA = 0.579  # DNV-RP-H103 Table A-2, a square flat plate (b / a = 1), on V_R = pi / 4 a^2 b
 
 
-def heave_estimate(rho: float = 1000.0, g: float = 9.81) -> dict:
-    """The density 500 box's undamped heave period from its hydrostatic stiffness and the added
-    mass of a square plate at a free surface (see the module)."""
-    side, height, pool_area = 0.16, 0.08, 0.4 * 0.4
+def heave_estimate(width: float = 0.4, rho: float = 1000.0, g: float = 9.81) -> dict:
+    """The density 500 box's undamped heave period in the pool ``width`` wide from its hydrostatic
+    stiffness and the added mass of a square plate at a free surface (see the module)."""
+    side, height, pool_area = 0.16, 0.08, width * width
     mass = 500.0 * side * side * height
     area = side * side
     stiffness = rho * g * area / (1.0 - area / pool_area)
@@ -514,9 +514,9 @@ def heave_reference(run: dict) -> dict | None:
         return None
     import heave_reference as linear
 
-    area = 0.16 * 0.16
-    # the simulated pool's stiffness: its level rises as the box sinks (1.8 % above open water's)
-    mass, stiffness = 500.0 * area * 0.08, 1000.0 * 9.81 * area / (1.0 - area / run["width"] ** 2)
+    # the simulated pool's mass and stiffness (its level rises as the box sinks: 1.8 % above open water's)
+    box = heave_estimate(run["width"])
+    mass, stiffness = box["mass"], box["stiffness"]
     rad = linear.radiation(0.16, 0.04, 0.2)
     t, y = from_turning_point(run["t"], run["y"])
     t_ref, z = linear.free_decay(mass, stiffness, rad, float(y[0] - run["turning"]["equilibrium"]), float(t[-1]))

@@ -54,19 +54,17 @@ def children_cpu() -> float:
     return use.ru_utime + use.ru_stime
 
 
-def command(*args) -> float:
+def command(*args, cpu: list | None = None) -> float:
     """Run ``warp-iisph ARGS``; its wall seconds (a failure stops the benchmark with its stderr).
-    The CPU seconds it used (its children's included) are appended to ``command.cpu``."""
+    The CPU seconds it used (its children's included) are appended to ``cpu`` where given."""
     cpu0, t0 = children_cpu(), time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "warp_iisph.cli", *args], capture_output=True, text=True)
     seconds = time.perf_counter() - t0
-    command.cpu.append(children_cpu() - cpu0)
+    if cpu is not None:
+        cpu.append(children_cpu() - cpu0)
     if proc.returncode != 0:
         sys.exit(f"warp-iisph {' '.join(args)}: exit status {proc.returncode}\n{proc.stderr}")
     return seconds
-
-
-command.cpu = []
 
 
 def together(*commands) -> float:
@@ -178,15 +176,9 @@ def render_timing(work: Path, workers: int, resolution: str, spp: int, repeats: 
         return twin
 
     serial_cpu = []
-
-    def serial_render(k: int) -> float:
-        seconds = command("render", str(copy("meshed_serial", k)), *args)
-        serial_cpu.append(command.cpu[-1])
-        return seconds
-
     serials, parallels = alternated(
         repeats,
-        serial_render,
+        lambda k: command("render", str(copy("meshed_serial", k)), *args, cpu=serial_cpu),
         lambda k: command("render", str(copy("meshed_farm", k)), *args, "--workers", str(workers)),
     )
     serial, parallel = statistics.median(serials), statistics.median(parallels)
