@@ -8,7 +8,10 @@ given: a ``center_of_mass`` alone moves the uniform body's inertia to that point
 as ballast would. It starts with ``velocity`` (m/s) and ``angular_velocity`` (rad/s, about its
 centre of mass); ``fixed_axes`` holds translations (``x``, ``y``, ``z``) or rotations (``rx``,
 ``ry``, ``rz``, about world axes through the centre of mass) still. ``restitution`` and
-``friction`` are its contact's (against the tank, obstacles and other bodies).
+``friction`` are its contact's (against the tank, obstacles and other bodies). ``release_time``
+holds the whole body still where the scene places it until that time (s), as a hand or a clamp
+would, while the liquid settles around it; from then on it is free, from rest: a free-decay
+test's release, or a crate dropped once the water has calmed.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ class Body(Record):
     fixed_axes: list = field(default_factory=list)
     restitution: float = 0.0
     friction: float = 0.5
+    release_time: float = 0.0
     name: Optional[str] = None
 
     def validate(self, name: str) -> None:
@@ -88,6 +92,12 @@ class Body(Record):
         self.fixed_axes = [a for a in AXES if a in axes]
         self.restitution = in_range(self.restitution, f"{name}.restitution", 0.0, 1.0, "kept share of the speed")
         self.friction = in_range(self.friction, f"{name}.friction", 0.0, 10.0, "Coulomb's coefficient")
+        self.release_time = in_range(self.release_time, f"{name}.release_time", 0.0, 1.0e6, "s held still")
+        if self.release_time > 0.0 and (any(self.velocity) or any(self.angular_velocity)):
+            raise ValueError(
+                f"{name}.release_time = {self.release_time:g}: a held body starts from rest; give it no "
+                "velocity or angular_velocity"
+            )
         if self.name is not None and (not isinstance(self.name, str) or not self.name.isidentifier()):
             raise ValueError(f"{name}.name = {self.name!r}: must be a plain name (letters, digits, _), bodies.csv's")
 

@@ -253,6 +253,8 @@ def _body_table(body: Body) -> dict:
     table = _shape_table(body.shape)
     for key in sorted(BODY_KEYS):
         value = getattr(body, key)
+        if key == "release_time" and value == 0.0:
+            continue  # free from the start: the table (and so the geometry's hash) as before the key existed
         if value is not None:
             table[key] = list(value) if isinstance(value, (tuple, list)) else value
     return table

@@ -53,6 +53,7 @@ def sample_body(body, h: float, rho0: float, device) -> dict:
         "fixed_axes": list(body.fixed_axes),
         "restitution": float(body.restitution),
         "friction": float(body.friction),
+        "release_time": float(body.release_time),
         "vertices": np.asarray(mesh.vertices, np.float64) - com,
         "faces": np.asarray(mesh.faces, np.int32),
     }

@@ -14,7 +14,8 @@ integration):
 
 Holding the angular momentum (not the angular velocity) keeps a free body's L exact without a
 torque, and its angular velocity follows its inertia as it turns. ``fixed_axes`` zero the held
-translations and rotations (world axes). The last step's accelerations, ``(V - V_before) / h``
+translations and rotations (world axes); a body before its ``release`` time is held whole (at rest,
+and to the contacts as heavy as a fixed obstacle). The last step's accelerations, ``(V - V_before) / h``
 and ``(w - w_before) / h``, are what the body's boundary particles carry into the walls'
 extrapolated pressure (:mod:`.wall_pressure`).
 """
@@ -59,6 +60,7 @@ class RigidConstants:
     samples: wp.array(dtype=wp.int32)  # its boundary particles
     restitution: wp.array(dtype=wp.float64)
     friction: wp.array(dtype=wp.float64)
+    release: wp.array(dtype=wp.float64)  # held still until this time (s)
     gravity: wp.vec3d
     keyed: int  # body f's poses are at keyed + f
 
@@ -103,11 +105,12 @@ def advance(
     contacts: ContactSet,
     solids: Solids,
     poses: Poses,
+    time: wp.array(dtype=wp.float64),
     dt: wp.array(dtype=wp.float64),
     n_free: int,
 ):
-    """One step of every free body (the module's docstring); one thread, so that contacts between
-    bodies are resolved in one order."""
+    """One step of every free body (the module's docstring), from ``time``; one thread, so that
+    contacts between bodies are resolved in one order."""
     h = dt[0]
     for f in range(n_free):
         force = wp.vec3d(loads[f, 0] + loads[f, 3], loads[f, 1] + loads[f, 4], loads[f, 2] + loads[f, 5])
@@ -118,6 +121,9 @@ def advance(
         Rt = wp.transpose(R)
         free_v = c.linear_free[f]
         free_w = c.angular_free[f]
+        if time[0] < c.release[f]:  # held whole until its release
+            free_v = wp.vec3d(0.0)
+            free_w = wp.vec3d(0.0)
         # the liquid's load and gravity, with the added-mass term of the partitioned coupling (the
         # estimate of a body under the liquid, by the wet share of its particles)
         wet = wp.float64(wetted[f]) / wp.float64(c.samples[f])
@@ -134,7 +140,7 @@ def advance(
         motion.centre[f] = s.position[f]
         motion.velocity[f] = v
         motion.spin[f] = w
-        motion.inv_mass[f] = free_v / m
+        motion.inv_mass[f] = free_v / m  # a held body or axis takes no impulse
         P = wp.diag(free_w)
         motion.inv_inertia[f] = P * (R * c.inv_inertia[f] * Rt) * P
         motion.restitution[f] = c.restitution[f]
@@ -200,6 +206,7 @@ class RigidBodies:
         c.samples = wp.array(np.asarray(self.counts or [1], np.int32), dtype=wp.int32, device=device)
         c.restitution = arr([b["restitution"] for b in bodies], wp.float64)
         c.friction = arr([b["friction"] for b in bodies], wp.float64)
+        c.release = arr([b.get("release_time", 0.0) for b in bodies], wp.float64)
         c.gravity = wp.vec3d(*[float(g) for g in gravity])
         c.keyed = self.keyed
         self.constants = c
@@ -254,15 +261,17 @@ class RigidBodies:
         if self.n:
             wp.launch(begin_step, dim=self.n, inputs=[self.constants, self.state, poses], device=self.device)
 
-    def advance(self, loads, solids: Solids, poses: Poses, boundary_x: wp.array, dt: wp.array) -> None:
+    def advance(self, loads, solids: Solids, poses: Poses, boundary_x: wp.array, time: wp.array, dt: wp.array) -> None:
         """The step's contacts, then every body's update (``loads``: the liquid's, per body, a
-        :class:`.wall_forces.WallForces` whose totals and wetted counts are this step's)."""
+        :class:`.wall_forces.WallForces` whose totals and wetted counts are this step's; ``time``
+        the step's start)."""
         if not self.n:
             return
         cs, dev = self.contacts, self.device
         wp.launch(sample_gaps, dim=self.n_samples, inputs=[cs, solids, poses, boundary_x, self.n_samples], device=dev)
         wp.launch(pool_contacts, dim=(self.n, cs.partners), inputs=[cs, boundary_x], device=dev)
-        inputs = [self.constants, self.state, loads.totals, loads.wetted, self.motion, cs, solids, poses, dt, self.n]
+        inputs = [self.constants, self.state, loads.totals, loads.wetted, self.motion, cs, solids, poses]
+        inputs += [time, dt, self.n]
         wp.launch(advance, dim=1, inputs=inputs, device=dev)
 
     def speeds(self, speed2: wp.array) -> None:

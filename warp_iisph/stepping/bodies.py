@@ -32,13 +32,14 @@ class BodySteps:
             self.rigid.begin_step(model.bodies.poses)
         model.bodies.place(model.boundary_x, model.boundary_v, model.boundary_a, time, dt)
 
-    def move(self, state, dt, max_speed2) -> None:
-        """The free bodies' update after the liquid's step, their fastest points into ``max_speed2``."""
+    def move(self, state, time, dt, max_speed2) -> None:
+        """The free bodies' update after the liquid's step from ``time``, their fastest points into
+        ``max_speed2``."""
         if self.loads is None:
             return
         model = self.model
         self.loads.compute(state)
-        self.rigid.advance(self.loads, model.containment.solids, model.bodies.poses, model.boundary_x, dt)
+        self.rigid.advance(self.loads, model.containment.solids, model.bodies.poses, model.boundary_x, time, dt)
         self.rigid.speeds(max_speed2)
 
     def arrays(self) -> list:

@@ -246,7 +246,7 @@ class TimeLoop:
         with timer("integration") if timer else nullcontext():
             self.max_speed2.zero_()
             if self.bodies is not None:  # loads, gravity and contacts move the free bodies (their speed counts)
-                self.bodies.move(state, self.dt64, self.max_speed2)
+                self.bodies.move(state, self.time, self.dt64, self.max_speed2)
             # the last line: nothing beyond a wall, every correction counted; then the checks
             model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.dt64)
             self.counts.zero_()
