@@ -17,18 +17,21 @@ the tank (a corner of its box beyond a face by more than a spacing).
 the mean over t = 1.0 .. 1.6 s against the liquid's level by its rest volume, as % error against
 half and a quarter of the box's height.
 
-(c) Heave: the density 500 box of (b) released 2 cm below where it was placed, its centre's height
-every 5 ms over 1.5 s, fitted with a damped cosine (period, damping ratio, equilibrium), at the
-spacings of (b). The undamped period it implies, ``T_d sqrt(1 - zeta^2)``, is set against
-``2 pi sqrt((M + M_a) / k)``: the hydrostatic stiffness ``k = rho g A_b / (1 - A_b / A_pool)`` (in a
-closed pool the level rises as the box sinks) and the added mass of a square flat plate of the
-box's side at a free surface, half of its value in unbounded fluid (DNV-RP-H103, Appendix A,
-Table A-2: C_A = 0.579 on V_R = pi/4 a^2 b; the high-frequency limit, without the draft and the
-pool's walls, both of which add to it): an estimate, not a measurement. Then the same box in a
-1.2 m pool (``OPEN_POOL``: the echo of the heave's own waves comes back after the window fitted) at the first
-spacing, fitted from its first turning point on, against linear potential flow for the box's own
+(c) Heave: the density 500 box of (b) placed 2 cm below its draft and held there for 0.5 s
+(``release_time``) while the liquid settles around it, then released from rest; its centre's
+height every 5 ms over 1.5 s from the release, fitted with a damped cosine (period, damping ratio,
+equilibrium), at the spacings of (b). The undamped period it implies, ``T_d sqrt(1 - zeta^2)``, is
+set against ``2 pi sqrt((M + M_a) / k)``: the hydrostatic stiffness ``k = rho g A_b / (1 - A_b /
+A_pool)`` (in a closed pool the level rises as the box sinks) and the added mass of a square flat
+plate of the box's side at a free surface, half of its value in unbounded fluid (DNV-RP-H103,
+Appendix A, Table A-2: C_A = 0.579 on V_R = pi/4 a^2 b; the high-frequency limit, without the
+draft and the pool's walls, both of which add to it): an estimate, not a measurement. Then the
+same box in a 1.2 m pool (``OPEN_POOL``) at the first spacing, at the defaults and without
+viscosity (the liquid linear theory assumes), against linear potential flow for the box's own
 shape in open water (heave_reference.py: Capytaine's radiation solve and Cummins' equation,
-released from rest at the same turning point and fitted the same way; skipped without Capytaine).
+released from rest as far from rest as the box, and fitted the same way; skipped without
+Capytaine); the period of the first swing (twice the time between the first two crossings of
+rest) beside the fit.
 
 Writes benchmarks/results/bodies.json and .png.
 
@@ -192,6 +195,7 @@ def run_draft(spacing: float, density: float, settle: float, end: float) -> dict
 
 PARTS = ("flood", "drafts", "heave")
 HEAVE_DROP = 0.02  # m below the placed draft
+HEAVE_HOLD = 0.5  # s the box is held there while the liquid settles around it, then released
 # m: the open pool's width, its walls 0.52 m from the box: the waves the heave radiates at its 11
 # rad/s (group speed about 0.45 m/s) are back after about 2.3 s, past the 1.5 s fitted, but long
 # waves (sqrt(g h) = 1.4 m/s) after about 0.75 s (docs/performance.md, "Heave")
@@ -216,21 +220,40 @@ def heave_estimate(width: float = 0.4, rho: float = 1000.0, g: float = 9.81) -> 
     }
 
 
-def run_heave(spacing: float, duration: float, width: float = 0.4) -> dict:
-    """The density 500 box of the pool ``width`` wide released HEAVE_DROP low: its centre's height
-    every 5 ms, and a damped cosine fitted to it."""
+def run_heave(spacing: float, duration: float, width: float = 0.4, hold: float = HEAVE_HOLD, **physics) -> dict:
+    """The density 500 box of the pool ``width`` wide, placed HEAVE_DROP low and held there until
+    ``hold`` while the liquid settles around it, then released: its centre's height every 5 ms for
+    ``duration`` seconds from the release (times from it), the liquid's speeds at the release, and
+    a damped cosine fitted to it. ``physics``: settings changed from the defaults."""
     scene = pool(spacing, 500.0, width)
     b = scene.bodies[0].shape
     scene.bodies[0].shape = Box(np.add(b.lower, (0, -HEAVE_DROP, 0)), np.add(b.upper, (0, -HEAVE_DROP, 0)))
+    scene.bodies[0].release_time = hold
+    for key, value in physics.items():
+        setattr(scene.physics, key, value)
+    scene.validate()
     sim = Simulation(scene, "cpu", history=1)
     t0 = time.perf_counter()
-    t, y = [], []
-    while sim.time < duration - 1e-9:
+    sim.advance(hold)
+    speed = np.linalg.norm(sim.velocities, axis=1)
+    t, y = [0.0], [sim.bodies["position"][0][1]]
+    while sim.time < hold + duration - 1e-9:
         sim.advance(0.005)
-        t.append(sim.time)
+        t.append(sim.time - hold)
         y.append(sim.bodies["position"][0][1])
     wall = time.perf_counter() - t0
-    return {"spacing": spacing, "width": width, "particles": sim.n_particles, **fit_damped(t, y), "wall_seconds": wall}
+    fit = fit_damped(t, y)
+    fit["crossing_period"] = crossing_period(fit["t"], fit["y"], fit["equilibrium"])
+    return {
+        "spacing": spacing,
+        "width": width,
+        "hold": hold,
+        "physics": physics,
+        "particles": sim.n_particles,
+        "liquid_speed_at_release": {"mean": float(speed.mean()), "max": float(speed.max())},
+        **fit,
+        "wall_seconds": wall,
+    }
 
 
 def fit_damped(t, y) -> dict:
@@ -347,17 +370,16 @@ def chart(record: dict, path) -> None:
                     f"undamped {r['natural_period_error_percent']:+.1f} %"
                 ),
             )
-        run, ref = heave.get("open"), heave.get("reference")
-        if run:
-            turn = run["turning"]
+        ref = heave.get("reference")
+        for (name, run), color in zip(heave.get("open", {}).items(), ("tab:red", "tab:purple")):
             c.plot(
-                turn["t"],
-                1e3 * (np.array(turn["y"]) - turn["equilibrium"]),
-                color="tab:red",
+                run["t"],
+                1e3 * (np.array(run["y"]) - run["equilibrium"]),
+                color=color,
                 lw=1.2,
                 label=(
-                    f"h {run['spacing']:g}, {heave['open_pool']:g} m pool, from its first turning point: "
-                    f"T {turn['damped_period']:.3f} s, zeta {turn['damping_ratio']:.2f}"
+                    f"h {run['spacing']:g}, {heave['open_pool']:g} m pool, {name}: "
+                    f"T {run['damped_period']:.3f} s, zeta {run['damping_ratio']:.2f}"
                 ),
             )
         if ref:
@@ -370,7 +392,7 @@ def chart(record: dict, path) -> None:
                 label=f"linear theory (Capytaine): T {ref['damped_period']:.3f} s, zeta {ref['damping_ratio']:.2f}",
             )
         c.axhline(0.0, color="k", lw=0.8)
-        c.set_xlabel("t (s)")
+        c.set_xlabel(f"t from the release (s; held {heave.get('hold', 0.0):g} s before)")
         c.set_ylabel("box centre above its fitted rest (mm)")
         c.set_title(f"Heave from {1e3 * heave['drop']:.0f} mm low (estimate: undamped {est:.3f} s)", fontsize=10)
         c.legend(fontsize=8)
@@ -481,16 +503,6 @@ def measure_drafts(record: dict, spacings: list, settle: float, end: float) -> N
     record["settle"] = [settle, end]
 
 
-def from_turning_point(t, y) -> tuple:
-    """The record from its first turning point on (the box at rest for an instant), times from it;
-    the whole record where it has none."""
-    t, y = np.asarray(t, float), np.asarray(y, float)
-    dy = np.diff(y)
-    turns = np.nonzero(np.sign(dy[1:]) != np.sign(dy[:-1]))[0]
-    k = int(turns[0]) + 1 if len(turns) else 0
-    return t[k:] - t[k], y[k:]
-
-
 def crossing_period(t, y, rest: float) -> float | None:
     """Twice the time between the record's first two crossings of ``rest`` (linearly interpolated):
     the period of its first swing, which needs no model of the decay (a damped cosine crosses every
@@ -506,7 +518,7 @@ def crossing_period(t, y, rest: float) -> float | None:
 
 def heave_reference(run: dict) -> dict | None:
     """Linear potential flow's free decay of the box in open water (heave_reference.py; None
-    without Capytaine) from rest at the open-pool run's first turning point, fitted as the run is."""
+    without Capytaine), released from rest as far from rest as ``run``'s box, fitted as the run is."""
     try:
         import capytaine  # noqa: F401
     except ImportError:
@@ -518,8 +530,8 @@ def heave_reference(run: dict) -> dict | None:
     box = heave_estimate(run["width"])
     mass, stiffness = box["mass"], box["stiffness"]
     rad = linear.radiation(0.16, 0.04, 0.2)
-    t, y = from_turning_point(run["t"], run["y"])
-    t_ref, z = linear.free_decay(mass, stiffness, rad, float(y[0] - run["turning"]["equilibrium"]), float(t[-1]))
+    t = np.asarray(run["t"], float)
+    t_ref, z = linear.free_decay(mass, stiffness, rad, float(run["y"][0] - run["equilibrium"]), float(t[-1]))
     fit = fit_damped(t, np.interp(t, t_ref, z))  # sampled as the run is
     fit["crossing_period"] = crossing_period(fit["t"], fit["y"], fit["equilibrium"])
     w = linear.natural_frequency(mass, stiffness, rad)
@@ -534,11 +546,16 @@ def heave_reference(run: dict) -> dict | None:
     }
 
 
+# the open pool's runs: the defaults, and the liquid linear theory assumes (no viscosity)
+OPEN_RUNS = {"defaults": {}, "inviscid": {"viscosity": 0.0}}
+
+
 def measure_heave(record: dict, spacings: list, duration: float, quick: bool) -> None:
     estimate = heave_estimate()
+    hold = 0.2 if quick else HEAVE_HOLD
     runs = []
     for h in spacings:
-        r = run_heave(h, duration)
+        r = run_heave(h, duration, hold=hold)
         r["natural_period_error_percent"] = 100.0 * (r["natural_period"] / estimate["period"] - 1.0)
         runs.append(r)
         print(
@@ -548,32 +565,31 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
             f"{r['particles']} particles, {r['wall_seconds']:.0f} s",
             flush=True,
         )
-    record["heave"] = {"drop": HEAVE_DROP, "estimate": estimate, "runs": runs}
-    # the open pool, where the walls' echo comes back after the window fitted, against linear theory
+    record["heave"] = {"drop": HEAVE_DROP, "hold": hold, "estimate": estimate, "runs": runs}
+    # the open pool against linear theory, at the defaults and without viscosity
     h = spacings[0]
-    run = run_heave(h, duration, OPEN_POOL)
-    run["turning"] = fit_damped(*from_turning_point(run["t"], run["y"]))
-    turn = run["turning"]
-    turn["crossing_period"] = crossing_period(turn["t"], turn["y"], turn["equilibrium"])
-    reference = None if quick else heave_reference(run)
-    if reference is not None:
-        for key in ("damped_period", "natural_period", "crossing_period"):
-            if turn[key] is not None and reference[key] is not None:
-                turn[f"{key}_error_percent"] = 100.0 * (turn[key] / reference[key] - 1.0)
-    print(
-        f"heave h {h:g} in a {OPEN_POOL:g} m pool, from its first turning point: damped period "
-        f"{turn['damped_period']:.3f} s (between crossings {seconds(turn['crossing_period'])}), damping ratio "
-        f"{turn['damping_ratio']:.3f}"
-        + (
-            f"; linear theory (Capytaine, Cummins): {reference['damped_period']:.3f} s (between crossings "
-            f"{seconds(reference['crossing_period'])}), {reference['damping_ratio']:.3f}"
-            if reference
-            else ""
+    open_runs = {name: run_heave(h, duration, OPEN_POOL, hold, **physics) for name, physics in OPEN_RUNS.items()}
+    reference = None if quick else heave_reference(open_runs["defaults"])
+    for name, run in open_runs.items():
+        if reference is not None:
+            for key in ("damped_period", "natural_period", "crossing_period"):
+                if run[key] is not None and reference[key] is not None:
+                    run[f"{key}_error_percent"] = 100.0 * (run[key] / reference[key] - 1.0)
+        print(
+            f"heave h {h:g} in a {OPEN_POOL:g} m pool, {name}, from its release: damped period "
+            f"{run['damped_period']:.3f} s (first swing {seconds(run['crossing_period'])}), damping ratio "
+            f"{run['damping_ratio']:.3f}, liquid at release: mean {1e3 * run['liquid_speed_at_release']['mean']:.1f}"
+            f" mm/s, max {1e3 * run['liquid_speed_at_release']['max']:.0f} mm/s"
+            + (
+                f"; linear theory (Capytaine, Cummins): {reference['damped_period']:.3f} s (first swing "
+                f"{seconds(reference['crossing_period'])}), {reference['damping_ratio']:.3f}"
+                if reference
+                else ""
+            )
+            + f", {run['particles']} particles, {run['wall_seconds']:.0f} s",
+            flush=True,
         )
-        + f", {run['particles']} particles, {run['wall_seconds']:.0f} s",
-        flush=True,
-    )
-    record["heave"].update(open_pool=OPEN_POOL, open=run, reference=reference)
+    record["heave"].update(open_pool=OPEN_POOL, open=open_runs, reference=reference)
     record["heave_date"] = record["date"]
 
 

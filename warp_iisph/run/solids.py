@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import obstacles_mesh
-from ..scene.bodies import bodies_mesh
+from ..scene.bodies import bodies_mesh, body_names
 from .folder import BODIES, OBSTACLES
 from .formats import write_obj
 from .time_series import TimeSeriesWriter, read_time_series
@@ -26,11 +26,6 @@ QUANTITIES = (
     *((f"velocity.{a}", "m/s") for a in "xyz"),
     *((f"angular_velocity.{a}", "rad/s") for a in "xyz"),
 )
-
-
-def body_names(scene) -> list[str]:
-    """The bodies' names in ``bodies.csv``: their own, else ``body0``, ``body1``, ..."""
-    return [b.name or f"body{k}" for k, b in enumerate(scene.bodies)]
 
 
 def header(names: list[str]) -> str:
@@ -81,7 +76,7 @@ class SolidFiles:
     def __init__(self, run, scene, fps: float, keep_until: float | None = None):
         self.run, self.scene, self.fps = run, scene, fps
         self.moving = bool(scene.bodies) or any(o.motion is not None for o in scene.obstacles)
-        self.writer = BodyWriter(run.bodies, body_names(scene), keep_until) if scene.bodies else None
+        self.writer = BodyWriter(run.bodies, body_names(scene.bodies), keep_until) if scene.bodies else None
 
     def start(self) -> dict:
         """``obstacles.obj`` at t = 0 (for a scene with solids); the run record's keys for them."""

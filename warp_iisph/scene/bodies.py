@@ -125,6 +125,12 @@ class Body(Record):
         return float(mass), com, inertia
 
 
+def body_names(bodies: list) -> list[str]:
+    """The bodies' names (``bodies.csv``'s, a force probe's ``body``): their own, else ``body0``,
+    ``body1``, ... by their place in the scene."""
+    return [b.name or f"body{k}" for k, b in enumerate(bodies)]
+
+
 def _uniform(shape) -> tuple[float, np.ndarray, np.ndarray]:
     """Volume, centroid and inertia per unit mass about the centroid of a uniform ``shape``."""
     if isinstance(shape, Box):

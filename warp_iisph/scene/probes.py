@@ -6,7 +6,9 @@
   ``position = [x, z]``.
 - ``kind = "force"``: the force and moment the liquid exerts on the obstacle named ``obstacle``
   (its name, or its index in ``obstacles``), the moment about ``point`` (default: the centre of
-  the obstacle's bounds), pressure and viscous parts apart.
+  the obstacle's bounds), pressure and viscous parts apart; or on the free body named ``body``
+  (its name, ``body0``, ``body1``, ... unnamed, or its index in ``bodies``), the moment about its
+  centre of mass where the step started: the very load that moved it that step.
 
 How each is measured is the device's business (:mod:`warp_iisph.sph.probes`); what a probe writes
 is :func:`probe_columns`. No Warp here.
@@ -20,12 +22,17 @@ from typing import Optional, Union
 
 import numpy as np
 
+from .bodies import body_names
 from .checks import Record, floats, in_range, position, vec3
 
 PROBE_KINDS = ("pressure", "level", "force")
 # the keys each kind takes besides name and kind
-KIND_KEYS = {"pressure": ("position", "normal"), "level": ("position", "bottom"), "force": ("obstacle", "point")}
-REQUIRED = {"pressure": ("position", "normal"), "level": ("position",), "force": ("obstacle",)}
+KIND_KEYS = {
+    "pressure": ("position", "normal"),
+    "level": ("position", "bottom"),
+    "force": ("obstacle", "body", "point"),
+}
+REQUIRED = {"pressure": ("position", "normal"), "level": ("position",), "force": ()}  # a force: obstacle or body
 # a probe's name heads columns of probes.csv: letters, digits, _ - . only
 NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
 # a force probe's columns, after its name: the pressure and viscous parts of the force and moment
@@ -36,7 +43,7 @@ FORCE_PARTS = ("Fp", "Fv", "Mp", "Mv")
 class Probe(Record):
     """One sensor (see the module). ``position``: a point (m) for a pressure probe, ``[x, z]``
     (m) for a level gauge; ``bottom``: the height (m) a gauge measures from (default: the tank's
-    floor); ``obstacle``: a name or an index; ``point``: the moment's centre (m)."""
+    floor); ``obstacle`` or ``body``: a name or an index; ``point``: an obstacle's moment's centre (m)."""
 
     name: str
     kind: str
@@ -44,10 +51,11 @@ class Probe(Record):
     normal: Optional[tuple] = None
     bottom: Optional[float] = None
     obstacle: Optional[Union[str, int]] = None
+    body: Optional[Union[str, int]] = None
     point: Optional[tuple] = None
 
-    def validate(self, where: str, tank_bounds, obstacles: list) -> None:
-        """Check every value against the scene's tank and obstacles, and normalise it."""
+    def validate(self, where: str, tank_bounds, obstacles: list, bodies: tuple = ()) -> None:
+        """Check every value against the scene's tank, obstacles and bodies, and normalise it."""
         if not isinstance(self.name, str) or not NAME.match(self.name):
             raise ValueError(
                 f"{where}.name = {self.name!r}: must be 1-64 letters, digits, '_', '-' or '.' (it heads a column)"
@@ -55,7 +63,7 @@ class Probe(Record):
         if self.kind not in PROBE_KINDS:
             raise ValueError(f"{where}.kind = {self.kind!r}: must be one of {', '.join(PROBE_KINDS)}")
         allowed = KIND_KEYS[self.kind]
-        for key in ("position", "normal", "bottom", "obstacle", "point"):
+        for key in ("position", "normal", "bottom", "obstacle", "body", "point"):
             if getattr(self, key) is not None and key not in allowed:
                 raise ValueError(
                     f"{where}.{key}: not a key of a {self.kind} probe; it takes {', '.join(('name', 'kind') + allowed)}"
@@ -94,6 +102,12 @@ class Probe(Record):
             )
             if self.bottom >= hi[1]:
                 raise ValueError(f"{where}.bottom = {self.bottom!r}: must lie below the tank's top {hi[1]:g}")
+        elif (self.obstacle is None) == (self.body is None):
+            raise ValueError(f"{where}: a force probe takes exactly one of obstacle and body (a name or an index)")
+        elif self.body is not None:
+            if self.point is not None:
+                raise ValueError(f"{where}.point: a body's moment is about its centre of mass, which moves with it")
+            body_index(self.body, bodies, f"{where}.body")
         else:
             k = obstacle_index(self.obstacle, obstacles, f"{where}.obstacle")
             if self.point is None:
@@ -132,14 +146,30 @@ def obstacle_index(ref, obstacles: list, name: str) -> int:
     )
 
 
-def validate_probes(probes: list, tank_bounds, obstacles: list) -> None:
+def body_index(ref, bodies: list, name: str) -> int:
+    """The index in ``bodies`` of the free body ``ref`` names (its name, ``bodyK`` unnamed, or its index)."""
+    names = body_names(bodies)
+    if isinstance(ref, str):
+        if ref in names:
+            return names.index(ref)
+        raise ValueError(f"{name} = {ref!r}: no body has that name (the bodies: {', '.join(names) or 'none'})")
+    if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool) and 0 <= ref < len(bodies):
+        return int(ref)
+    raise ValueError(
+        f"{name} = {ref!r}: must be a body's name or its index in [0, {len(bodies) - 1}]"
+        if bodies
+        else f"{name} = {ref!r}: the scene has no bodies"
+    )
+
+
+def validate_probes(probes: list, tank_bounds, obstacles: list, bodies: tuple = ()) -> None:
     """Every probe checked (``ValueError`` naming ``probes[k].key``), names unique."""
     seen = set()
     for k, p in enumerate(probes):
         where = f"probes[{k}]"
         if not isinstance(p, Probe):
             raise ValueError(f"{where} = {p!r}: must be a probe")
-        p.validate(where, tank_bounds, obstacles)
+        p.validate(where, tank_bounds, obstacles, bodies)
         if p.name in seen:
             raise ValueError(f"{where}.name = {p.name!r}: another probe has that name")
         seen.add(p.name)
@@ -148,7 +178,8 @@ def validate_probes(probes: list, tank_bounds, obstacles: list) -> None:
 def probe_columns(probe: Probe) -> list[tuple[str, str]]:
     """The columns a probe writes, as (name, unit): one for a pressure probe (Pa) or a level
     gauge (m); for a force probe ``NAME.Fp_x`` .. ``NAME.Mv_z``: the pressure (p) and viscous (v)
-    parts of the force (N) and of the moment about its point (N m), component by component."""
+    parts of the force (N) and of the moment about its point or its body's centre of mass (N m),
+    component by component."""
     if probe.kind == "pressure":
         return [(probe.name, "Pa")]
     if probe.kind == "level":

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..scene.probes import obstacle_index, probe_columns
+from ..scene.probes import body_index, obstacle_index, probe_columns
 from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
 from ..sph.wall_forces import WallForces
 
@@ -71,17 +71,20 @@ def force_columns(
 class ProbeSampler:
     """The device side of a scene's probes on ``model`` (see the module); ``capacity`` rows, one
     per step of a loop (the time loop's log capacity). Columns: ``t`` then :attr:`columns`, the
-    probes' own in scene order within each kind: pressure probes, level gauges, force probes."""
+    probes' own in scene order within each kind: pressure probes, level gauges, force probes on
+    obstacles, then on bodies (``body_loads``: the free bodies' :class:`.wall_forces.WallForces`
+    the step moved them with, summed before the probes read)."""
 
-    def __init__(self, scene, model, solver, capacity: int):
+    def __init__(self, scene, model, solver, capacity: int, body_loads=None):
         self.model = model
         dev = model.device
         h, H = model.spacing, model.support_radius
         self.interval = float(scene.output.probe_interval)
         self.pressure = [p for p in scene.probes if p.kind == "pressure"]
         self.levels = [p for p in scene.probes if p.kind == "level"]
-        self.forces = [p for p in scene.probes if p.kind == "force"]
-        self.probes = self.pressure + self.levels + self.forces
+        self.forces = [p for p in scene.probes if p.kind == "force" and p.body is None]
+        self.body_forces = [p for p in scene.probes if p.kind == "force" and p.body is not None]
+        self.probes = self.pressure + self.levels + self.forces + self.body_forces
         self.columns = [c for p in self.probes for c in probe_columns(p)]
         self.log = wp.zeros((int(capacity), 1 + len(self.columns)), dtype=wp.float64, device=dev)
         self.due = wp.zeros(1, dtype=wp.int32, device=dev)
@@ -121,6 +124,13 @@ class ProbeSampler:
             dtype=wp.vec3d,
             device=dev,
         )
+        self.body_loads = body_loads
+        self.body_of_probe = wp.array(
+            np.array([body_index(p.body, scene.bodies, p.name) for p in self.body_forces], dtype=np.int32),
+            dtype=wp.int32,
+            device=dev,
+        )
+        self.no_shift = wp.zeros(max(1, len(self.body_forces)), dtype=wp.vec3d, device=dev)
         self.H, self.h = H, h
         self._around = None  # the Reach of the loop's dt and top speed, made once (see _reach)
 
@@ -202,6 +212,14 @@ class ProbeSampler:
                 force_columns,
                 dim=len(self.forces),
                 inputs=[self.loads.totals, self.slot_of_probe, self.shift, slot, column, self.log],
+                device=dev,
+            )
+            column += 12 * len(self.forces)
+        if self.body_forces:  # the loads the bodies' update summed this step, about their centres of mass
+            wp.launch(
+                force_columns,
+                dim=len(self.body_forces),
+                inputs=[self.body_loads.totals, self.body_of_probe, self.no_shift, slot, column, self.log],
                 device=dev,
             )
 

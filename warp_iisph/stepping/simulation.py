@@ -84,8 +84,11 @@ class Simulation:
         self.flows = Flows(self.scene, self.state, self.device)
         self.flows.emit(self.time)  # the layers due at the start are there from the start
         self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)
+        body_loads = self.loop.bodies.loads if self.loop.bodies is not None else None  # the free bodies'
         self.loop.probes = (
-            ProbeSampler(self.scene, self.model, self.solver, self.loop.capacity) if self.scene.probes else None
+            ProbeSampler(self.scene, self.model, self.solver, self.loop.capacity, body_loads)
+            if self.scene.probes
+            else None
         )
         # the probes' samples, as NumPy arrays by column name (empty for a scene without probes)
         self.probes = ProbeSamples(self.loop.probes.columns if self.loop.probes else [], probe_history)
