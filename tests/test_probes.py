@@ -89,6 +89,15 @@ def _probe(*lines):
             r"probes\[4\]\.obstacle = 3: must be an obstacle's name or its index in \[0, 0\]",
         ),
         (
+            _probe('kind = "force"', 'body = "raft"'),
+            r"probes\[4\]\.body = 'raft': no body has that name \(the bodies: none\)",
+        ),
+        (
+            _probe('kind = "force"', 'obstacle = "block"', "body = 0"),
+            r"probes\[4\]: a force probe takes exactly one of obstacle and body",
+        ),
+        (_probe('kind = "force"'), r"probes\[4\]: a force probe takes exactly one of obstacle and body"),
+        (
             '[[probes]]\nname = "gauge"\nkind = "level"\nposition = [0.2, 0.1]',
             r"probes\[4\]\.name = 'gauge': another probe has that name",
         ),
