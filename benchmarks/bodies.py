@@ -26,8 +26,10 @@ A_pool)`` (in a closed pool the level rises as the box sinks) and the added mass
 plate of the box's side at a free surface, half of its value in unbounded fluid (DNV-RP-H103,
 Appendix A, Table A-2: C_A = 0.579 on V_R = pi/4 a^2 b; the high-frequency limit, without the
 draft and the pool's walls, both of which add to it): an estimate, not a measurement. Then the
-same box in a 1.2 m pool (``OPEN_POOL``) at the first spacing, at the defaults and without
-viscosity (the liquid linear theory assumes), against linear potential flow for the box's own
+same box in a 1.2 m pool (the bundled ``heave`` scene: its walls 0.52 m from the box; the waves
+the heave radiates at 11 rad/s, group speed about 0.45 m/s, are back after about 2.3 s, long waves,
+sqrt(g h) = 1.4 m/s, after about 0.75 s), as the scene has it (viscosity 0.01), at the default
+viscosity and without viscosity (the liquid linear theory assumes), against linear potential flow for the box's own
 shape in open water (heave_reference.py: Capytaine's radiation solve and Cummins' equation,
 released from rest as far from rest as the box, and fitted the same way; skipped without
 Capytaine); the period of the first swing (twice the time between the first two crossings of
@@ -47,7 +49,7 @@ from pathlib import Path
 import numpy as np
 from common import RESULTS, header, pyplot, save, warm_up
 
-from warp_iisph import Box, Scene, Simulation
+from warp_iisph import Box, Physics, Scene, Simulation
 from warp_iisph.engine.launch import get_threads
 from warp_iisph.scene import load_scene
 from warp_iisph.scene.bodies import quaternion_matrix
@@ -196,10 +198,6 @@ def run_draft(spacing: float, density: float, settle: float, end: float) -> dict
 PARTS = ("flood", "drafts", "heave")
 HEAVE_DROP = 0.02  # m below the placed draft
 HEAVE_HOLD = 0.5  # s the box is held there while the liquid settles around it, then released
-# m: the open pool's width, its walls 0.52 m from the box: the waves the heave radiates at its 11
-# rad/s (group speed about 0.45 m/s) are back after about 2.3 s, past the 1.5 s fitted, but long
-# waves (sqrt(g h) = 1.4 m/s) after about 0.75 s (docs/performance.md, "Heave")
-OPEN_POOL = 1.2
 PLATE_CA = 0.579  # DNV-RP-H103 Table A-2, a square flat plate (b / a = 1), on V_R = pi / 4 a^2 b
 
 
@@ -220,18 +218,24 @@ def heave_estimate(width: float = 0.4, rho: float = 1000.0, g: float = 9.81) -> 
     }
 
 
-def run_heave(spacing: float, duration: float, width: float = 0.4, hold: float = HEAVE_HOLD, **physics) -> dict:
-    """The density 500 box of the pool ``width`` wide, placed HEAVE_DROP low and held there until
-    ``hold`` while the liquid settles around it, then released: its centre's height every 5 ms for
-    ``duration`` seconds from the release (times from it), the liquid's speeds at the release, and
-    a damped cosine fitted to it. ``physics``: settings changed from the defaults."""
+def lowered_pool(spacing: float, width: float = 0.4, hold: float = HEAVE_HOLD) -> Scene:
+    """``pool``'s density 500 box placed HEAVE_DROP below its draft, held there until ``hold``."""
     scene = pool(spacing, 500.0, width)
     b = scene.bodies[0].shape
     scene.bodies[0].shape = Box(np.add(b.lower, (0, -HEAVE_DROP, 0)), np.add(b.upper, (0, -HEAVE_DROP, 0)))
     scene.bodies[0].release_time = hold
+    return scene
+
+
+def run_heave(scene: Scene, duration: float, **physics) -> dict:
+    """``scene``'s first body, held until its ``release_time`` while the liquid settles around it,
+    then free: its centre's height every 5 ms for ``duration`` seconds from the release (times
+    from it), the liquid's speeds at the release, and a damped cosine fitted to it. ``physics``:
+    settings changed from the scene's."""
     for key, value in physics.items():
         setattr(scene.physics, key, value)
     scene.validate()
+    hold = scene.bodies[0].release_time
     sim = Simulation(scene, "cpu", history=1)
     t0 = time.perf_counter()
     sim.advance(hold)
@@ -244,11 +248,12 @@ def run_heave(spacing: float, duration: float, width: float = 0.4, hold: float =
     wall = time.perf_counter() - t0
     fit = fit_damped(t, y)
     fit["crossing_period"] = crossing_period(fit["t"], fit["y"], fit["equilibrium"])
+    lo, hi = scene.tank.bounds
     return {
-        "spacing": spacing,
-        "width": width,
+        "spacing": scene.spacing,
+        "width": float(hi[0] - lo[0]),
         "hold": hold,
-        "physics": physics,
+        "viscosity": scene.physics.viscosity,
         "particles": sim.n_particles,
         "liquid_speed_at_release": {"mean": float(speed.mean()), "max": float(speed.max())},
         **fit,
@@ -371,7 +376,7 @@ def chart(record: dict, path) -> None:
                 ),
             )
         ref = heave.get("reference")
-        for (name, run), color in zip(heave.get("open", {}).items(), ("tab:red", "tab:purple")):
+        for (name, run), color in zip(heave.get("open", {}).items(), ("tab:green", "tab:red", "tab:purple")):
             c.plot(
                 run["t"],
                 1e3 * (np.array(run["y"]) - run["equilibrium"]),
@@ -546,8 +551,9 @@ def heave_reference(run: dict) -> dict | None:
     }
 
 
-# the open pool's runs: the defaults, and the liquid linear theory assumes (no viscosity)
-OPEN_RUNS = {"defaults": {}, "inviscid": {"viscosity": 0.0}}
+# the open pool's runs: the bundled heave scene as it is (viscosity 0.01), at the default viscosity,
+# and in the liquid linear theory assumes (no viscosity)
+OPEN_RUNS = {"heave scene": {}, "defaults": {"viscosity": Physics().viscosity}, "inviscid": {"viscosity": 0.0}}
 
 
 def measure_heave(record: dict, spacings: list, duration: float, quick: bool) -> None:
@@ -555,7 +561,7 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
     hold = 0.2 if quick else HEAVE_HOLD
     runs = []
     for h in spacings:
-        r = run_heave(h, duration, hold=hold)
+        r = run_heave(lowered_pool(h, hold=hold), duration)
         r["natural_period_error_percent"] = 100.0 * (r["natural_period"] / estimate["period"] - 1.0)
         runs.append(r)
         print(
@@ -566,17 +572,23 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
             flush=True,
         )
     record["heave"] = {"drop": HEAVE_DROP, "hold": hold, "estimate": estimate, "runs": runs}
-    # the open pool against linear theory, at the defaults and without viscosity
-    h = spacings[0]
-    open_runs = {name: run_heave(h, duration, OPEN_POOL, hold, **physics) for name, physics in OPEN_RUNS.items()}
-    reference = None if quick else heave_reference(open_runs["defaults"])
+
+    # the bundled heave scene (the open pool) against linear theory, as it is, at the default
+    # viscosity and without viscosity; quick: coarser, held shorter
+    def heave_scene():
+        scene = load_scene("heave", [f"spacing={spacings[0]}"] if quick else [])
+        scene.bodies[0].release_time = hold if quick else scene.bodies[0].release_time
+        return scene
+
+    open_runs = {name: run_heave(heave_scene(), duration, **ph) for name, ph in OPEN_RUNS.items()}
+    reference = None if quick else heave_reference(open_runs["heave scene"])
     for name, run in open_runs.items():
         if reference is not None:
             for key in ("damped_period", "natural_period", "crossing_period"):
                 if run[key] is not None and reference[key] is not None:
                     run[f"{key}_error_percent"] = 100.0 * (run[key] / reference[key] - 1.0)
         print(
-            f"heave h {h:g} in a {OPEN_POOL:g} m pool, {name}, from its release: damped period "
+            f"heave h {run['spacing']:g} in a {run['width']:g} m pool, {name}, from its release: damped period "
             f"{run['damped_period']:.3f} s (first swing {seconds(run['crossing_period'])}), damping ratio "
             f"{run['damping_ratio']:.3f}, liquid at release: mean {1e3 * run['liquid_speed_at_release']['mean']:.1f}"
             f" mm/s, max {1e3 * run['liquid_speed_at_release']['max']:.0f} mm/s"
@@ -589,7 +601,7 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
             + f", {run['particles']} particles, {run['wall_seconds']:.0f} s",
             flush=True,
         )
-    record["heave"].update(open_pool=OPEN_POOL, open=open_runs, reference=reference)
+    record["heave"].update(open_pool=open_runs["heave scene"]["width"], open=open_runs, reference=reference)
     record["heave_date"] = record["date"]
 
 

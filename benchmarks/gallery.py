@@ -1,6 +1,7 @@
 """The README's scene gallery: every bundled scene run at its default resolution, and a still of one
 of its frames made by `warp-iisph preview`, into docs/gallery/NAME.png. Writes
-docs/gallery/gallery.json with each run's particles, steps, wall time and how it ended.
+docs/gallery/gallery.json with each run's particles, steps, wall time and how it ended (a scene
+not run keeps its saved row; each row has the date of its run).
 
     python benchmarks/gallery.py [--scenes dam_break,wake] [--device cpu] [--graph] [--quick]
 
@@ -85,6 +86,7 @@ def main():
                 "frame": frame,
                 "device": args.device,
                 "graph": args.graph,
+                "date": header("gallery")["date"],
             }
         )
         print(
@@ -92,7 +94,13 @@ def main():
             f"{t['simulated_time']:.2f} s simulated in {t['wall_seconds']:.0f} s "
             f"({record['ended']}) -> {still}"
         )
-    (out / "gallery.json").write_text(json.dumps(header("gallery", runs=rows, quick=args.quick), indent=2) + "\n")
+    saved = out / "gallery.json"
+    if saved.exists() and not args.quick:  # the scenes not run this time keep their saved rows
+        ran = {r["scene"] for r in rows}
+        old = json.loads(saved.read_text())
+        rows = [{"date": old["date"], **r} for r in old["runs"] if r["scene"] not in ran] + rows
+        rows.sort(key=lambda r: r["scene"])
+    saved.write_text(json.dumps(header("gallery", runs=rows, quick=args.quick), indent=2) + "\n")
 
 
 if __name__ == "__main__":

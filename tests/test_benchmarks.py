@@ -234,9 +234,10 @@ def test_neighbor_access_quick_mode(tmp_path):
 def test_soak_quick_mode(tmp_path):
     record = _quick("soak.py", tmp_path, "soak_quick")
     assert record["ended"] == "completed" and record["steps"] >= 600 and record["frames"] == 19
-    # every frame opens and closes its files: beyond the few a frame in flight holds, no handle
-    # accumulates (a leak of one per frame would add 19)
-    assert record["open_files_max"] - record["open_files_min"] <= 3
+    # every frame opens and closes its files: beyond the few the frames in flight hold (3, and 4 on
+    # a machine busy with other work, where the writer falls behind), no handle accumulates (a leak
+    # of one per frame would add 19)
+    assert record["open_files_max"] - record["open_files_min"] <= 6
 
 
 def test_dfsph_benchmark_quick_mode(tmp_path):

@@ -100,3 +100,22 @@ def test_flood_in_one_advance_passes_the_film_between_a_crate_and_a_wall():
     sim.advance(1.0, callback=lambda r: (check(r), fastest.append(r["max_velocity"])))  # diverged at 0.845 s
     assert abs(sim.time - 1.0) < 1e-9 and max(fastest) < 5.0, max(fastest)  # the wave's own speed, no runaway
     assert worst["inside"] == 0 and worst["beyond"] < 0.5 * scene.spacing, worst
+
+
+def test_heave_holds_the_box_then_lets_it_swing_about_its_draft():
+    """The heave decay test, coarse (4 cm) and held 0.2 s: still while held, its force probe reading
+    more than its weight (held below its draft), then up past its release and back: a swing."""
+    scene = load_scene("heave", ["spacing=0.04"])
+    scene.bodies[0].release_time = 0.2
+    sim = Simulation(scene, "cpu", history=1)
+    start = sim.bodies["position"][0].copy()
+    sim.advance(0.2)
+    assert np.array_equal(sim.bodies["position"][0], start)
+    weight = 500.0 * 0.16 * 0.08 * 0.16 * 9.81
+    held = sim.probes.time > 0.1
+    assert np.mean(sim.probes["box.Fp_y"][held]) > weight
+    heights = []
+    sim.advance(0.6, callback=lambda s: heights.append(sim.bodies["position"][0][1]))
+    top = int(np.argmax(heights))
+    assert heights[top] > start[1] + 0.015  # it rose past its draft (2 cm above the release)
+    assert min(heights[top:]) < heights[top] - 0.005  # and came back down
