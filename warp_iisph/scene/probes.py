@@ -132,33 +132,30 @@ def _pair(value, name: str) -> tuple:
 def obstacle_index(ref, obstacles: list, name: str) -> int:
     """The index in ``obstacles`` of the obstacle ``ref`` names (its ``name``, or its index)."""
     names = [getattr(o, "name", None) for o in obstacles]
-    if isinstance(ref, str):
-        if ref in names:
-            return names.index(ref)
-        known = ", ".join(repr(n) for n in names if n) or "none has a name"
-        raise ValueError(f"{name} = {ref!r}: no obstacle has that name (named: {known})")
-    if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool) and 0 <= ref < len(obstacles):
-        return int(ref)
-    raise ValueError(
-        f"{name} = {ref!r}: must be an obstacle's name or its index in [0, {len(obstacles) - 1}]"
-        if obstacles
-        else f"{name} = {ref!r}: the scene has no obstacles"
-    )
+    known = ", ".join(repr(n) for n in names if n) or "none has a name"
+    return _index(ref, names, "obstacle", f"named: {known}", name)
 
 
 def body_index(ref, bodies: list, name: str) -> int:
     """The index in ``bodies`` of the free body ``ref`` names (its name, ``bodyK`` unnamed, or its index)."""
     names = body_names(bodies)
+    return _index(ref, names, "body", f"the bodies: {', '.join(names) or 'none'}", name)
+
+
+def _index(ref, names: list, kind: str, known: str, name: str) -> int:
+    """The index of what ``ref`` names among ``names`` (a name, or an index), else one line saying why."""
     if isinstance(ref, str):
         if ref in names:
             return names.index(ref)
-        raise ValueError(f"{name} = {ref!r}: no body has that name (the bodies: {', '.join(names) or 'none'})")
-    if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool) and 0 <= ref < len(bodies):
+        raise ValueError(f"{name} = {ref!r}: no {kind} has that name ({known})")
+    if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool) and 0 <= ref < len(names):
         return int(ref)
+    plural = "bodies" if kind == "body" else f"{kind}s"
     raise ValueError(
-        f"{name} = {ref!r}: must be a body's name or its index in [0, {len(bodies) - 1}]"
-        if bodies
-        else f"{name} = {ref!r}: the scene has no bodies"
+        f"{name} = {ref!r}: must be {'an' if kind[0] in 'aeiou' else 'a'} {kind}'s name or its index in "
+        f"[0, {len(names) - 1}]"
+        if names
+        else f"{name} = {ref!r}: the scene has no {plural}"
     )
 
 
