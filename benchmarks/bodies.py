@@ -376,7 +376,8 @@ def chart(record: dict, path) -> None:
                 ),
             )
         ref = heave.get("reference")
-        for (name, run), color in zip(heave.get("open", {}).items(), ("tab:green", "tab:red", "tab:purple")):
+        colors = ("tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink")
+        for (name, run), color in zip(heave.get("open", {}).items(), colors):
             c.plot(
                 run["t"],
                 1e3 * (np.array(run["y"]) - run["equilibrium"]),

@@ -5,7 +5,7 @@ The box's heave added mass ``A(w)`` and radiation damping ``B(w)`` come from Cap
 boundary-element solver of the linear radiation problem, after Nemoh; the ``bench`` extra), on
 the box's wetted hull with a lid on its waterplane (which removes the irregular frequencies), in
 water as deep as the pool, at frequencies up to ``W_MAX`` and at infinite frequency. The free decay
-from rest at the simulation's first turning point follows from Cummins' equation, the time-domain
+from rest where the simulated box is released follows from Cummins' equation, the time-domain
 form of the same linear problem, for a body in water without walls:
 
     (M + A_inf) z'' + int_0^t K(t - s) z'(s) ds + k z = 0,   K(t) = (2 / pi) int_W_MIN^W_MAX B(w) cos(w t) dw,
@@ -13,8 +13,8 @@ form of the same linear problem, for a body in water without walls:
 with ``k`` the hydrostatic stiffness (the caller's: that of the simulated pool, whose level rises
 as the box sinks). It is fitted with the same damped cosine as the simulation's record, so that
 the two periods and damping ratios compare like with like. Linear theory holds for small motions
-from still water: the simulation's turning point is 3 cm below rest (three quarters of the box's
-draft) in water already moving, and the theory has no viscosity.
+from still water: the simulated box is released about 2 cm below rest (half of its draft), after
+a 0.5 s hold in water that has not quite settled, and the theory has no viscosity.
 """
 
 from __future__ import annotations
@@ -72,7 +72,8 @@ def free_decay(mass: float, stiffness: float, rad: dict, z0: float, t_end: float
     w = np.asarray(rad["omega"])
     b = np.clip(np.asarray(rad["damping"]), 0.0, None)  # a panel's small negative value at the top frequencies
     t = np.arange(0.0, t_end + 0.5 * dt, dt)
-    kernel = (2.0 / np.pi) * np.trapezoid(b[None, :] * np.cos(np.outer(t, w)), w, axis=1)
+    f = b[None, :] * np.cos(np.outer(t, w))
+    kernel = (2.0 / np.pi) * np.sum(0.5 * (f[:, 1:] + f[:, :-1]) * np.diff(w), axis=1)  # trapezoids (NumPy 1 too)
     inertia = mass + rad["added_mass_infinite"]
     z, v = np.zeros_like(t), np.zeros_like(t)
     z[0] = z0

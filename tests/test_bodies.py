@@ -79,6 +79,14 @@ def test_body_keys_are_validated(tmp_path):
         scene_from_dict(two)
     beside = {**base, "bodies": [ok, {**ok, "lower": [0.2, 0.1, 0.1], "upper": [0.3, 0.2, 0.2]}]}
     assert len(scene_from_dict(beside).bodies) == 2  # touching faces do not overlap
+    with pytest.raises(ValueError, match=r"bodies\[1\]\.name = 'box': another body has that name"):
+        scene_from_dict({**beside, "bodies": [{**b, "name": "box"} for b in beside["bodies"]]})
+    with pytest.raises(ValueError, match=r"bodies\[1\]\.name = 'body1': another body has that name \(the default"):
+        scene_from_dict({**beside, "bodies": [{**beside["bodies"][0], "name": "body1"}, beside["bodies"][1]]})
+    named = {**beside, "probes": [{"name": "F", "kind": "force", "body": 0}]}
+    named["bodies"] = [{**beside["bodies"][0], "name": 5}, beside["bodies"][1]]
+    with pytest.raises(ValueError, match=r"bodies\[0\]\.name = 5"):  # the body's own key, before a probe reads it
+        scene_from_dict(named)
 
 
 def _toml(data: dict) -> str:

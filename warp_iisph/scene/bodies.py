@@ -207,6 +207,13 @@ def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
             )
         if np.any(np.abs(lo) > MAX_COORDINATE) or np.any(np.abs(hi) > MAX_COORDINATE):
             raise ValueError(f"{name}: must lie within {MAX_COORDINATE:g} m of the origin")
+    names = body_names(bodies)  # bodies.csv's columns and force probes' body: each its own
+    for k, n in enumerate(names):
+        if n in names[:k]:
+            raise ValueError(
+                f"bodies[{k}].name = {n!r}: another body has that name"
+                + ("" if bodies[k].name else " (the default of an unnamed body: bodyK, K its place)")
+            )
     shapes = [(f"bodies[{k}]", b.shape) for k, b in enumerate(bodies)]
     others = [(f"obstacles[{k}]", o) for k, o in enumerate(obstacles) if o.motion is None]
     for i, (name, a) in enumerate(shapes):

@@ -140,8 +140,8 @@ class Scene(Record):
                     f"undefined; close it, or set {name}.shell = true to use it as a thin wall"
                 )
         _check_obstacle_names(self.obstacles)
+        check_bodies(self.bodies, self.obstacles, self.tank, self.spacing)  # before the probes name them
         validate_probes(self.probes, self.tank.bounds, self.obstacles, self.bodies)
-        check_bodies(self.bodies, self.obstacles, self.tank, self.spacing)
         for k, e in enumerate(self.emitters):
             name = f"emitters[{k}]"
             if not isinstance(e, Emitter):

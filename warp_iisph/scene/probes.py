@@ -139,7 +139,7 @@ def obstacle_index(ref, obstacles: list, name: str) -> int:
 def body_index(ref, bodies: list, name: str) -> int:
     """The index in ``bodies`` of the free body ``ref`` names (its name, ``bodyK`` unnamed, or its index)."""
     names = body_names(bodies)
-    return _index(ref, names, "body", f"the bodies: {', '.join(names) or 'none'}", name)
+    return _index(ref, names, "body", "the bodies: " + (", ".join(names) or "none"), name)
 
 
 def _index(ref, names: list, kind: str, known: str, name: str) -> int:

@@ -121,7 +121,7 @@ def advance(
         Rt = wp.transpose(R)
         free_v = c.linear_free[f]
         free_w = c.angular_free[f]
-        if time[0] < c.release[f]:  # held whole until its release
+        if time[0] < c.release[f] - wp.float64(1.0e-9):  # held: free from the first step starting at its release
             free_v = wp.vec3d(0.0)
             free_w = wp.vec3d(0.0)
         # the liquid's load and gravity, with the added-mass term of the partitioned coupling (the
@@ -176,7 +176,7 @@ class RigidBodies:
     holds per body a dict of its sampled data (``setup.bodies``): ``mass``, ``com``, ``inertia``
     (3x3, about the centre of mass), ``rest`` (its boundary particles from the centre of mass),
     ``depth`` (how deep each lies inside the surface), ``velocity``, ``angular_velocity``,
-    ``fixed_axes``, ``restitution``, ``friction``; ``first`` is its first boundary particle,
+    ``fixed_axes``, ``restitution``, ``friction``, ``release_time``; ``first`` is its first boundary particle,
     ``keyed`` the number of keyframed bodies before the free ones in the poses."""
 
     def __init__(self, bodies: list, first: list, keyed: int, gravity, spacing: float, box, partners: int, device):
