@@ -576,12 +576,8 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
 
     # the bundled heave scene (the open pool) against linear theory, as it is, at the default
     # viscosity and without viscosity; quick: coarser, held shorter
-    def heave_scene():
-        scene = load_scene("heave", [f"spacing={spacings[0]}"] if quick else [])
-        scene.bodies[0].release_time = hold if quick else scene.bodies[0].release_time
-        return scene
-
-    open_runs = {name: run_heave(heave_scene(), duration, **ph) for name, ph in OPEN_RUNS.items()}
+    overrides = [f"spacing={spacings[0]}", f"bodies.0.release_time={hold}"] if quick else []
+    open_runs = {name: run_heave(load_scene("heave", overrides), duration, **ph) for name, ph in OPEN_RUNS.items()}
     reference = None if quick else heave_reference(open_runs["heave scene"])
     for name, run in open_runs.items():
         if reference is not None:

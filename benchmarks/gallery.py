@@ -44,7 +44,7 @@ def main():
     wp.config.log_level = wp.LOG_WARNING
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows, today = [], header("gallery")["date"]
     for name in args.scenes.split(","):
         scene = load_scene(name)
         duration = scene.output.duration * (0.1 if args.quick else 1.0)
@@ -86,7 +86,7 @@ def main():
                 "frame": frame,
                 "device": args.device,
                 "graph": args.graph,
-                "date": header("gallery")["date"],
+                "date": today,
             }
         )
         print(

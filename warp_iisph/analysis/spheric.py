@@ -25,6 +25,8 @@ from importlib import resources
 
 import numpy as np
 
+from . import trapezoid
+
 MARIN = "spheric_test2_marin.csv"
 DEPTH = 0.55  # the water column's initial depth (m)
 IMPACT = 1000.0  # a first impact is the first rise above this (Pa)
@@ -67,9 +69,7 @@ def window_mean(t: np.ndarray, y: np.ndarray, window=PLATEAU) -> float | None:
     inside = (t >= window[0]) & (t <= window[1])
     if inside.sum() < 2:
         return None
-    ti, yi = t[inside], y[inside]
-    area = np.sum(0.5 * (yi[1:] + yi[:-1]) * np.diff(ti))  # by hand: np.trapezoid needs NumPy 2, the floor is 1.24
-    return float(area / (ti[-1] - ti[0]))
+    return float(trapezoid(y[inside], t[inside]) / (t[inside][-1] - t[inside][0]))
 
 
 def peak(t: np.ndarray, p: np.ndarray, window=(0.0, 2.0)) -> dict:

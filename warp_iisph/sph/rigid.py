@@ -206,7 +206,7 @@ class RigidBodies:
         c.samples = wp.array(np.asarray(self.counts or [1], np.int32), dtype=wp.int32, device=device)
         c.restitution = arr([b["restitution"] for b in bodies], wp.float64)
         c.friction = arr([b["friction"] for b in bodies], wp.float64)
-        c.release = arr([b.get("release_time", 0.0) for b in bodies], wp.float64)
+        c.release = arr([b["release_time"] for b in bodies], wp.float64)
         c.gravity = wp.vec3d(*[float(g) for g in gravity])
         c.keyed = self.keyed
         self.constants = c
