@@ -6,6 +6,8 @@ on the same cores: the wall time of the whole command, as a user types it.
    physics.boundary_viscosity 0, 0.1): in this process one after another, then with
    ``--workers N`` (a LocalCluster; its start and shut-down counted, some 4 s here). Target: at
    most 0.6 x.
+   Beside it: the CPU an idle LocalCluster takes (its scheduler's, nannies' and workers'
+   housekeeping), with the package's intervals and with Dask's own.
 2. ``warp-iisph render`` of 8 mesh frames of that dam break (640x360, 16 samples, as the
    command's defaults) one after another, then with ``--workers N``. Target: at most 0.6 x.
 
@@ -165,6 +167,38 @@ def sweep_timing(work: Path, workers: int, duration: float, repeats: int) -> dic
     }
 
 
+def housekeeping(workers: int, seconds: float = 10.0) -> dict:
+    """CPU seconds a LocalCluster of ``workers`` (this process, which holds its scheduler and
+    nannies, and its worker processes) uses in ``seconds`` with no task to run: with the package's
+    slowed housekeeping (run/cluster.py's LOCAL_CLUSTER_CONFIG) and with Dask's own intervals.
+    On cores kept busy by the tasks, that is CPU taken from them."""
+    import psutil
+
+    from warp_iisph.run import cluster
+
+    def idle(config: dict) -> float:
+        kept, cluster.LOCAL_CLUSTER_CONFIG = cluster.LOCAL_CLUSTER_CONFIG, config
+        try:
+            with cluster.open_workers(workers=workers):
+                time.sleep(2.0)  # the workers' start-up done
+                procs = [psutil.Process(), *psutil.Process().children(recursive=True)]
+                before = [sum(p.cpu_times()[:2]) for p in procs]
+                time.sleep(seconds)
+                return sum(sum(p.cpu_times()[:2]) - b for p, b in zip(procs, before))
+        finally:
+            cluster.LOCAL_CLUSTER_CONFIG = kept
+
+    slowed, default = idle(cluster.LOCAL_CLUSTER_CONFIG), idle({})
+    return {
+        "seconds": seconds,
+        "config": cluster.LOCAL_CLUSTER_CONFIG,
+        "cpu_seconds": slowed,
+        "cpu_seconds_dask_defaults": default,
+        "cores_taken": slowed / seconds,
+        "cores_taken_dask_defaults": default / seconds,
+    }
+
+
 def render_timing(work: Path, workers: int, resolution: str, spp: int, repeats: int) -> dict:
     run = work / "meshed"
     command("run", *SCENE, "--duration", str(7 / 30), "--fps", "30", "--mesh", "--out", str(run), "--no-progress")
@@ -264,6 +298,11 @@ def main():
         work = Path(tmp)
         # kernels compiled (and cached) before anything is timed
         command("run", *SCENE, "--duration", "0.1", "--mesh", "--out", str(work / "warm"), "--no-progress")
+        idle = housekeeping(args.workers, 3.0 if args.quick else 10.0)
+        print(
+            f"an idle LocalCluster of {args.workers} takes {idle['cores_taken']:.3f} cores "
+            f"({idle['cores_taken_dask_defaults']:.3f} at Dask's own intervals)"
+        )
         sweep = sweep_timing(work, args.workers, duration, repeats)
         print(
             f"sweep of {sweep['variants']} variants ({sweep['particles']} particles, {duration:g} s each): "
@@ -286,7 +325,7 @@ def main():
             )
     init_warp()  # without the no-driver warning of a machine with no GPU
     record = header("cluster", workers=args.workers, cores_available=len(os.sched_getaffinity(0)), target=TARGET)
-    record.update(sweep=sweep, render=render)
+    record.update(housekeeping=idle, sweep=sweep, render=render)
     chart(record, save(record, args.out, "cluster", args.quick))
 
 

@@ -232,6 +232,28 @@ def test_workers_run_without_dasks_profiler_and_one_task_each(scheduler):
         assert all(r == {SLOT: 1} for r in resources.values())
 
 
+def _intervals_ms(dask_worker=None, dask_scheduler=None) -> dict[str, float]:
+    server = dask_worker or dask_scheduler
+    return {name: float(callback.callback_time) for name, callback in server.periodic_callbacks.items()}
+
+
+def test_a_local_cluster_runs_its_housekeeping_slowed():
+    """A LocalCluster's scheduler and workers tick, and watch their systems and memory, at the
+    package's intervals (Dask's 20 ms tick took 6 % of a core while idle)."""
+    from dask.utils import parse_timedelta
+
+    from warp_iisph.run.cluster import LOCAL_CLUSTER_CONFIG, open_workers
+
+    ms = {key.split(".")[-2]: 1000 * parse_timedelta(value) for key, value in LOCAL_CLUSTER_CONFIG.items()}
+    with open_workers(workers=2, threads=1) as pool:
+        for worker in pool.client.run(_intervals_ms).values():
+            assert (worker["tick"], worker["monitor"]) == (ms["tick"], ms["system-monitor"])
+            assert worker["memory_monitor"] == ms["memory"]
+        scheduler = pool.client.run_on_scheduler(_intervals_ms)
+        assert (scheduler["tick"], scheduler["monitor"]) == (ms["tick"], ms["system-monitor"])
+    assert ms["tick"] > 20  # Dask's own
+
+
 def test_a_failing_variant_is_recorded_and_the_others_complete(tmp_path, scheduler, capsys):
     out = tmp_path / "sweep"
     code = main(

@@ -28,6 +28,15 @@ CONNECT_TIMEOUT = "10s"
 SLOT = "warp_iisph"  # the Dask resource of which each worker has one and each task takes one
 PROFILER_CALLBACKS = ("profile", "profile-cycle")  # a Dask worker's periodic callbacks of its profiler
 STOP_WAIT = 60.0  # seconds a stopped sweep waits for its running variants to record how they ended
+# A LocalCluster's housekeeping, slowed: at Dask's intervals (a tick check every 20 ms, the system
+# monitor every 0.5 s, the memory monitor every 0.1 s, in each process) an idle cluster of 2 took
+# 6 % of a core from the tasks, with these 1.2 % (benchmarks/cluster.py). They watch for blocked
+# event loops, feed the dashboard's charts and a worker's memory limit: none needs 20 ms.
+LOCAL_CLUSTER_CONFIG = {
+    "distributed.admin.tick.interval": "500ms",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
 
 
 class ClusterUnavailable(RuntimeError):
@@ -345,7 +354,9 @@ def open_workers(
                     workers = gpus
                 extra["resources"] = {"GPU": 1}
             threads = threads or max(1, available_cores() // workers)
-            with _children_ignore_sigint():
+            import dask
+
+            with _children_ignore_sigint(), dask.config.set(LOCAL_CLUSTER_CONFIG):
                 cluster = LocalCluster(
                     n_workers=workers,
                     threads_per_worker=1,
