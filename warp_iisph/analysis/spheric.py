@@ -95,9 +95,11 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
     experiment, beside the experiment's own values; each target's pass or fail."""
     ref = reference if reference is not None else load_marin()
     out = {}
+    # the experiment's front at each downstream gauge; a sensor's transit counts from the first
+    fronts = {name: arrival(ref["t"], ref[name], FRONT) for name in DOWNSTREAM}
     start = DOWNSTREAM[0]
     front_sim = arrival(*series[start], FRONT) if start in series else None
-    front_exp = arrival(ref["t"], ref[start], FRONT)
+    front_exp = fronts[start]
     for name in PRESSURES:
         if name not in series:
             continue
@@ -127,7 +129,7 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
         rms = gauge_rms(t, h, ref["t"], ref[name])
         out[name] = {"rms": rms, "rms_ok": rms is not None and rms <= GAUGE_TOLERANCE[name]}
         if name in DOWNSTREAM:
-            front = {"sim": arrival(t, h, FRONT), "experiment": arrival(ref["t"], ref[name], FRONT)}
+            front = {"sim": arrival(t, h, FRONT), "experiment": fronts[name]}
             out[name]["front"] = front
             if front["sim"] is not None:
                 out[name]["front_error"] = front["sim"] - front["experiment"]
