@@ -57,7 +57,7 @@ def test_body_keys_are_validated(tmp_path):
         ({"colour": "red"}, "bodies[0].colour: unknown key"),
         ({"density": None, "mass": 0.0}, "bodies[0].mass"),
         ({"angular_velocity": [0.0, 2000.0, 0.0]}, "bodies[0].angular_velocity"),
-        ({"shell": True}, "bodies[0].shell"),
+        ({"shell": True}, "bodies[0].shell: a key of shape = 'mesh', not of 'box'"),
         ({"shape": "cone"}, "bodies[0].shape"),
         ({"shape": "sphere", **NO_BOX, "center": [0.2, 0.2, 0.2], "radius": -0.1}, "bodies[0].radius"),
         ({"shape": "mesh", **NO_BOX, "path": "missing.obj"}, "missing.obj"),

@@ -170,6 +170,10 @@ def test_probes_are_the_same_bits_on_every_path_and_leave_the_run_unchanged(tmp_
     assert np.all(plain.probes["wall"] > 0.0) and plain.probes["gauge"][-1] > 0.2
     assert np.any(plain.probes["load.Fv_x"] != 0.0) and np.any(plain.probes["load.Fp_x"] > 1.0)  # the water hit it
     assert np.all(plain.probes["face"][: plain.probes.time.searchsorted(0.1)] == 0.0)  # dry until the water comes
+    load = plain.probes["load"]  # a force probe by its name: its twelve columns
+    assert load.shape == (len(reference), 12) and np.array_equal(load[:, 3], plain.probes["load.Fv_x"])
+    with pytest.raises(KeyError, match="no such probe"):
+        plain.probes["loa"]
 
 
 def test_probe_interval_samples_the_first_step_at_or_after_each_multiple(tmp_path):

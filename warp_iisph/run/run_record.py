@@ -27,6 +27,14 @@ def versions() -> dict:
     }
 
 
+def _recorded_scene(scene, plan) -> dict:
+    """The scene as a table, its ``output`` saying the frames this run writes (``--duration`` and
+    ``--fps`` override the scene file's)."""
+    table = scene_to_dict(scene)
+    table["output"].update(duration=plan.requested, fps=plan.fps)
+    return table
+
+
 class RunRecord:
     """The record of a run of ``scene`` by ``sim`` into ``run`` (a resumed run's record ``before``
     goes on: its id, its list of resumptions): :attr:`data` is what ``run.json`` holds,
@@ -44,7 +52,7 @@ class RunRecord:
             "run_id": before["run_id"] if before is not None else new_run_id(),
             "ended": "running",
             "message": "",
-            "scene": scene_to_dict(scene),
+            "scene": _recorded_scene(scene, plan),
             "device": str(sim.device),
             "graph": graph,
             "versions": versions(),

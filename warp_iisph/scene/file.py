@@ -104,7 +104,11 @@ def _shape(table, where: str, allowed: tuple, base_dir: Path, movable: bool = Fa
     kind = table.get("shape", "box")
     if kind not in allowed:
         raise ValueError(f"{where}.shape = {kind!r}: must be one of {', '.join(allowed)}")
-    _check_keys(table, extra | SHAPE_KEYS[kind] | (boxed if kind == "box" else set()), where)
+    own = extra | SHAPE_KEYS[kind] | (boxed if kind == "box" else set())
+    others = sorted(set(table) - own)
+    if others:  # a key of another shape (the first check passed it)
+        shapes = [s for s in allowed if others[0] in SHAPE_KEYS[s] or (s == "box" and others[0] in boxed)]
+        raise ValueError(f"{where}.{others[0]}: a key of shape = {' or '.join(map(repr, shapes))}, not of {kind!r}")
     missing = [
         k for k in sorted(SHAPE_KEYS[kind]) if k not in table and k in ("lower", "upper", "center", "radius", "path")
     ]

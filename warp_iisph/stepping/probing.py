@@ -276,9 +276,14 @@ class ProbeSamples:
         return self.array()[:, 0]
 
     def __getitem__(self, name: str) -> np.ndarray:
-        if name not in self.names:
-            raise KeyError(f"{name!r}: no such probe column ({', '.join(self.names)})")
-        return self.array()[:, 1 + self.names.index(name)]
+        """A column's samples, or a force probe's twelve (``NAME``: samples x 12, in the columns'
+        order ``NAME.Fp_x .. NAME.Mv_z``)."""
+        if name in self.names:
+            return self.array()[:, 1 + self.names.index(name)]
+        of_probe = [1 + k for k, n in enumerate(self.names) if n.startswith(name + ".")]
+        if not of_probe:
+            raise KeyError(f"{name!r}: no such probe or probe column ({', '.join(self.names)})")
+        return self.array()[:, of_probe]
 
     def as_dict(self) -> dict[str, np.ndarray]:
         """``{"t": times, name: values, ...}``."""
