@@ -9,6 +9,7 @@ import pytest
 import warp_iisph.engine.launch as launch
 from warp_iisph import Box, Probe, Scene, Simulation
 from warp_iisph.cli import main
+from warp_iisph.run.lock import FolderLock
 from warp_iisph.run.probe_file import read_probes
 from warp_iisph.scene import SceneFileError, load_scene, scene_from_dict, scene_to_dict
 
@@ -107,6 +108,10 @@ def _probe(*lines):
         ),
         (_probe('kind = "level"', "position = [0.2, 0.1]", "colour = 1"), r"probes\[4\]\.colour: unknown key"),
         (
+            '[[probes]]\nname = "load.Fp_x"\nkind = "level"\nposition = [0.2, 0.1]',
+            r"probes\[4\]\.name = 'load.Fp_x': probe 'load' already writes a column 'load\.Fp_x'",
+        ),
+        (
             _probe('kind = "level"', "position = [0.2, 0.1]", "bottom = 0.6"),
             r"probes\[4\]\.bottom = 0\.6: must be in \[0, 0\.5\]",
         ),
@@ -202,6 +207,17 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
     assert (whole / "probes.png").stat().st_size > 10_000
     assert main(["plot", str(tmp_path / "nowhere")]) == 2
     assert "no such run folder" in capsys.readouterr().err
+    (tmp_path / "folder").mkdir()
+    for out, message in [("folder", "is a folder"), ("chart", "must end in .png"), ("chart.txt", "must end in .png")]:
+        assert main(["plot", str(whole), "--out", str(tmp_path / out)]) == 2
+        assert f"--out {tmp_path / out}: {message}" in capsys.readouterr().err
+    chart = (whole / "probes.png").read_bytes()
+    with FolderLock(whole):  # a run still writing into it: one writer per folder
+        assert main(["plot", str(whole)]) == 2
+        assert "in use by" in capsys.readouterr().err and (whole / "probes.png").read_bytes() == chart
+        assert main(["plot", str(whole), "--out", str(tmp_path / "new" / "elsewhere.png")]) == 0  # reads it as it is
+    assert (tmp_path / "new" / "elsewhere.png").stat().st_size > 10_000
+    assert not [p for p in whole.iterdir() if p.name.endswith(".tmp.png")]  # written beside and renamed in
 
 
 def test_water_at_rest_reads_its_depth_and_its_pressure_as_the_numpy_sensors_do():

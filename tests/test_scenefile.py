@@ -91,6 +91,17 @@ BAD = {
         GOOD + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.7, 0.7]\nradius = 0.1\nupper = [1, 1, 1]\n',
         "obstacles[0].upper: a key of shape = 'box', not of 'sphere'",
     ),
+    "rest density too small": (GOOD + "[physics]\nrho0 = 1e-200\n", "physics.rho0 = 1e-200: must be in [1, 100000]"),
+    "gravity too strong": (
+        GOOD + "[physics]\ngravity = [0, -1e300, 0]\n",
+        "physics.gravity = [0.0, -1e+300, 0.0]: its magnitude must be at most 1000 m/s^2",
+    ),
+    "max_particles below the start": ("max_particles = 5\n" + GOOD, "max_particles = 5: below the"),
+    "a rectangle emitter given a radius": (
+        GOOD + '[[emitters]]\nshape = "rectangle"\ncenter = [0.7, 0.7, 0.5]\ndirection = [0, -1, 0]\n'
+        "speed = 1.0\nsize = [0.1, 0.1]\nradius = 0.1\n",
+        "emitters[0].radius: a key of shape = 'disc', not of 'rectangle'",
+    ),
     "bad toml": ("spacing = = 1\n", "not valid TOML"),
     "too many particles": (
         GOOD.replace("spacing = 0.05", "spacing = 0.0002"),
@@ -115,6 +126,10 @@ def test_bad_scene_file_is_one_line_exit_2(case, tmp_path, capsys):
 
 def test_bad_override_is_clear(tmp_path):
     path = _write(tmp_path, GOOD)
+    with pytest.raises(SceneFileError, match=r"s\.toml, --set physics\.cfl=9: physics\.cfl = 9: must be in"):
+        load_scene(path, ["physics.eta=0.01", "physics.cfl=9"])  # the value named where it came from
+    with pytest.raises(SceneFileError, match=r"--set fluids\.0\.lower=\[5,5,5\]: fluids\[0\]: upper"):
+        load_scene(path, ["fluids.0.lower=[5,5,5]"])
     with pytest.raises(SceneFileError, match="must be KEY=VALUE"):
         load_scene(path, ["spacing"])
     with pytest.raises(SceneFileError, match="fluids.3"):

@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 from ..scene import load_scene
+from ..scene.file import parse_value
 from ..scene.library import bundled_scenes, resolve_scene
 from .atomic import write_json
 from .folder import RECORD, RunError
@@ -80,7 +81,8 @@ def parse_vary(specs: list[str], sets: list[str] = ()) -> dict[str, list[str]]:
         values = split_values(text)
         if any(not v for v in values):
             raise ValueError(f"--vary {spec!r}: an empty value (values are separated by commas)")
-        if len(set(values)) != len(values):
+        # the same value written twice, or as two spellings of one number (0.001 and 1e-3)
+        if len({json.dumps(parse_value(v), sort_keys=True) for v in values}) != len(values):
             raise ValueError(f"--vary {spec!r}: a value given twice")
         if key in vary:
             raise ValueError(f"--vary {key}: given twice (put all its values in one --vary)")

@@ -57,7 +57,10 @@ def read_time_series(path, kind: str) -> tuple[list[str], np.ndarray]:
     """A time series file as (its header's cells after the time, rows): rows an (n, 1 + columns)
     array, time first; an incomplete last row is left out. ``kind`` names the file in errors."""
     path = Path(path)
-    lines = path.read_text().splitlines()
+    try:
+        lines = path.read_text().splitlines()
+    except UnicodeDecodeError:
+        raise FileFormatError(f"{path}: not a {kind} (not text)") from None
     if not lines or not lines[0].startswith("t [s]"):
         raise FileFormatError(f"{path}: not a {kind} (its first line must start with 't [s]')")
     cells = lines[0].split(",")[1:]

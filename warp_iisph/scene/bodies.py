@@ -173,7 +173,7 @@ def _inertia(value, name: str) -> tuple:
     moments = np.linalg.eigvalsh(_tensor(arr))
     if moments[0] <= 0.0 or moments[0] + moments[1] < moments[2] * (1.0 - 1.0e-9):
         raise ValueError(
-            f"{name} = {list(arr)}: must be positive definite with principal moments meeting "
+            f"{name} = {list(floats(arr))}: must be positive definite with principal moments meeting "
             "I1 + I2 >= I3 (a rigid body's)"
         )
     return floats(arr)

@@ -147,7 +147,7 @@ def folder_name(value, name: str) -> str:
     elif any(unicodedata.category(c) in ("Cc", "Cs", "Zl", "Zp") for c in value):
         why = "must not contain control characters or line breaks"
     elif len(value) > MAX_NAME or len(value.encode("utf-8", "surrogatepass")) > 2 * MAX_NAME:
-        why = f"must be at most {MAX_NAME} characters"
+        why = f"must be at most {MAX_NAME} characters and {2 * MAX_NAME} bytes in UTF-8"
     if why:
         raise ValueError(f"{name} = {value[: 2 * MAX_NAME]!r}: {why}; it names the output folder runs/NAME")
     return value

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -53,7 +54,7 @@ OBSTACLE_KEYS = {"name"}
 BOX_OBSTACLE_KEYS = {"sampling"}
 
 
-def _parse_value(text: str):
+def parse_value(text: str):
     """A --set value as TOML (numbers, booleans, arrays, quoted strings), else a bare string."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
@@ -83,7 +84,7 @@ def apply_override(data: dict, assignment: str) -> None:
     last = parts[-1]
     if isinstance(node, list):
         raise SceneFileError(f"--set {key.strip()}: cannot replace a whole list item")
-    node[last] = _parse_value(text.strip())
+    node[last] = parse_value(text.strip())
 
 
 def _check_keys(table, allowed: set, where: str) -> dict:
@@ -306,4 +307,18 @@ def load_scene(path, overrides=()) -> Scene:
     except SceneFileError:
         raise
     except (ValueError, TypeError) as e:
-        raise SceneFileError(f"{path}: {e}") from None
+        given = _override_named(str(e), overrides)
+        raise SceneFileError(f"{path}{f', --set {given}' if given else ''}: {e}") from None
+
+
+def _override_named(message: str, overrides) -> str | None:
+    """The ``--set`` assignment whose key, or the list entry holding it, a validation message names
+    first (``obstacles.1.name`` is shown as ``obstacles[1].name``, its entry as ``obstacles[1]``),
+    so that the message says where the value came from."""
+    for assignment in overrides:
+        key = assignment.split("=", 1)[0].strip()
+        shown = re.sub(r"\.(\d+)(?=\.|$)", r"[\1]", key)
+        for named in [shown, *(shown[: m.end()] for m in reversed(list(re.finditer(r"\[\d+\]", shown))))]:
+            if re.match(re.escape(named) + r"(\s|:|\.|\[|$)", message):
+                return assignment
+    return None

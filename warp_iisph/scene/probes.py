@@ -160,8 +160,9 @@ def _index(ref, names: list, kind: str, known: str, name: str) -> int:
 
 
 def validate_probes(probes: list, tank_bounds, obstacles: list, bodies: tuple = ()) -> None:
-    """Every probe checked (``ValueError`` naming ``probes[k].key``), names unique."""
-    seen = set()
+    """Every probe checked (``ValueError`` naming ``probes[k].key``), names unique, and so are the
+    columns they head (a probe named ``a.Fp_x`` beside a force probe ``a`` is refused)."""
+    seen, columns = set(), {}
     for k, p in enumerate(probes):
         where = f"probes[{k}]"
         if not isinstance(p, Probe):
@@ -170,6 +171,12 @@ def validate_probes(probes: list, tank_bounds, obstacles: list, bodies: tuple = 
         if p.name in seen:
             raise ValueError(f"{where}.name = {p.name!r}: another probe has that name")
         seen.add(p.name)
+        for column, _ in probe_columns(p):
+            if column in columns:
+                raise ValueError(
+                    f"{where}.name = {p.name!r}: probe {columns[column]!r} already writes a column {column!r}"
+                )
+            columns[column] = p.name
 
 
 def probe_columns(probe: Probe) -> list[tuple[str, str]]:

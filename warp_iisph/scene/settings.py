@@ -13,6 +13,7 @@ METHODS = ("iisph", "wcsph", "dfsph")
 
 WALL_PRESSURES = ("extrapolated", "fluid")  # physics.wall_pressure: see Physics
 WARM_STARTS = ("hydrostatic", "half", "half_hydrostatic")  # physics.warm_start: see Physics
+MAX_GRAVITY = 1000.0  # m/s^2, a hundred g: a centrifuge's liquid, not a typo's
 HYDROSTATIC_STARTS = ("hydrostatic", "half_hydrostatic")  # the starts that need gravity along an axis
 
 SMOOTHING = ("laplacian", "taubin", "none")
@@ -234,7 +235,7 @@ class Physics(Record):
     def validate(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"physics.method = {self.method!r}: must be one of {', '.join(METHODS)}")
-        self.rho0 = positive(self.rho0, "physics.rho0", "kg/m^3")
+        self.rho0 = in_range(self.rho0, "physics.rho0", 1.0, 1.0e5, "kg/m^3")
         self.viscosity = in_range(self.viscosity, "physics.viscosity", 0.0, 1.0, "m^2/s")
         self.boundary_viscosity = in_range(self.boundary_viscosity, "physics.boundary_viscosity", 0.0, 1.0, "m^2/s")
         if self.wall_pressure not in WALL_PRESSURES:
@@ -242,6 +243,10 @@ class Physics(Record):
                 f"physics.wall_pressure = {self.wall_pressure!r}: must be one of {', '.join(WALL_PRESSURES)}"
             )
         self.gravity = floats(vec3(self.gravity, "physics.gravity"))
+        if max(map(abs, self.gravity)) > MAX_GRAVITY or float(np.linalg.norm(self.gravity)) > MAX_GRAVITY:
+            raise ValueError(
+                f"physics.gravity = {list(self.gravity)}: its magnitude must be at most {MAX_GRAVITY:g} m/s^2"
+            )
         self.eta = in_range(self.eta, "physics.eta", 0.0, 0.5, "fraction of rho0, e.g. 0.001", lo_open=True)
         self.eta_divergence = in_range(
             self.eta_divergence,

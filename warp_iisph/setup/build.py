@@ -75,6 +75,8 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
     # A box tank's walls start h/2 outside its faces; a mesh container's cells reach h outside.
     margin = 0.5 * h if isinstance(scene.tank, Box) else 2.0 * h
     n = len(xf)
+    if scene.max_particles is not None and n > scene.max_particles:
+        raise ValueError(f"max_particles = {scene.max_particles}: below the {n} fluid particles the scene starts with")
     capacity = max(n, int(np.ceil(scene.capacity_estimate(h, n, until))), 1)
     _check_memory(capacity, len(xb) + n_moving, device)
     model = Model(

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..scene.probes import body_index, obstacle_index, probe_columns
+from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_columns
 from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
 from ..sph.wall_forces import WallForces
 
@@ -280,7 +280,8 @@ class ProbeSamples:
         order ``NAME.Fp_x .. NAME.Mv_z``)."""
         if name in self.names:
             return self.array()[:, 1 + self.names.index(name)]
-        of_probe = [1 + k for k, n in enumerate(self.names) if n.startswith(name + ".")]
+        force = {f"{name}.{part}_{axis}" for part in FORCE_PARTS for axis in "xyz"}
+        of_probe = [1 + k for k, n in enumerate(self.names) if n in force]
         if not of_probe:
             raise KeyError(f"{name!r}: no such probe or probe column ({', '.join(self.names)})")
         return self.array()[:, of_probe]

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..run.atomic import atomic_write
 from ..run.folder import RunError, RunFolder
+from ..run.lock import writing_into
 from ..run.probe_file import read_probes
 
 # the panels, by unit: what each holds
@@ -17,6 +19,13 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
     ``RUN_DIR/probes.png``); returns the path. Pressures in kPa; a force probe's components
     ``x``, ``y``, ``z``, pressure parts solid and viscous parts dashed."""
     run = RunFolder.existing(run_dir)
+    out = Path(out) if out is not None else run.path / "probes.png"
+    if out.is_dir():
+        raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / 'probes.png'}")
+    if out.suffix.lower() != ".png":
+        raise RunError(f"--out {out}: must end in .png")
+    if run.holds_as_its_own(out):
+        raise RunError(f"--out {out}: inside one of the run's frame folders; put the chart elsewhere")
     if not run.probes.is_file():
         raise RunError(f"{run.probes}: no probe samples (the scene has no [[probes]], or no step was taken)")
     names, units, rows = read_probes(run.probes)
@@ -46,7 +55,11 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
     axes[0, 0].set_title(f"{run.path.name}: {len(t)} samples, {rate:.0f} per second")
     fig.tight_layout()
-    out = Path(out) if out is not None else run.path / "probes.png"
-    fig.savefig(out, dpi=dpi)
-    plt.close(fig)
+    try:
+        with writing_into(run.path, out):  # one writer in the run folder (a chart put elsewhere reads it as it is)
+            atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
+    except OSError as e:
+        raise RunError(f"--out {out}: cannot write: {e.strerror or e}") from None
+    finally:
+        plt.close(fig)
     return out
