@@ -99,7 +99,9 @@ def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict
             raise RunError(f"{run.record_path}: not the record of a warp-iisph run; there is nothing to resume")
         checkpoint = load_checkpoint(run)
         if abs(run.fps(before) - plan.fps) > 1e-9 * plan.fps:
-            raise ValueError(f"--fps = {plan.fps:g}: a resumed run keeps its {run.fps(before):g} frames/s")
+            raise ValueError(
+                f"--fps (or --set output.fps) = {plan.fps:g}: a resumed run keeps its {run.fps(before):g} frames/s"
+            )
         if run.particle_format != scene.output.format:
             raise ValueError(f"--set output.format: a resumed run keeps its {run.particle_format} frames")
         check_checkpoint(checkpoint, run, before, scene, plan.fps)
