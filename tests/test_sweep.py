@@ -133,6 +133,8 @@ def test_a_measure_is_a_path_or_a_name_in_the_summary():
         (["martin_moyce", "--vary", "spacing=0.04,"], "an empty value"),
         (["martin_moyce", "--vary", "spacing=0.04,0.04"], "a value given twice"),
         (["martin_moyce", "--vary", "physics.eta=0.001,1e-3"], "a value given twice"),  # one number, two spellings
+        (["martin_moyce", "--vary", "physics.rho0=1000,1000.0"], "a value given twice"),
+        (["martin_moyce", "--vary", "name=2024-01-01,2024-01-02"], "variant name="),  # TOML dates: not names
         (["martin_moyce", "--vary", "spacing=0.04", "--set", "spacing=0.05"], "also given with --set"),
         (["martin_moyce", "--vary", "physics.eta=0.01,-1"], "variant physics.eta=-1: "),
         (["martin_moyce", "--vary", "physics.nothing=1,2"], "unknown key"),

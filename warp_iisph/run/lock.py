@@ -1,7 +1,7 @@
 """One writer per folder: an OS file lock (``fcntl.flock``) held while a command writes there.
 
 ``FOLDER/.warp-iisph.lock`` says who holds it (PID and command line), so that a refusal names the
-holder. run, resume, mesh, preview, render, usd and blender-script take it before they write into
+holder. run, resume, mesh, preview, render, plot, usd and blender-script take it before they write into
 a run folder and keep it until they end (the OS drops it with the process, however it ends). The
 holder removes the file while it still holds the lock, and a taker checks that the file it locked
 is still the one at that path, so two processes never both hold a folder.

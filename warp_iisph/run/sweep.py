@@ -68,6 +68,15 @@ def split_values(text: str) -> list[str]:
     return values
 
 
+def _comparable(value):
+    """A parsed ``--vary`` value with its numbers as floats (1000 and 1000.0 are one value)."""
+    if isinstance(value, list):
+        return [_comparable(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _comparable(v) for k, v in value.items()}
+    return float(value) if isinstance(value, int) and not isinstance(value, bool) else value
+
+
 def parse_vary(specs: list[str], sets: list[str] = ()) -> dict[str, list[str]]:
     """``--vary KEY=V1,V2,...`` options as {key: [value texts]}, in the order given; ``ValueError``
     naming the option for a malformed one, a key given twice, or a key also given with ``--set``."""
@@ -82,7 +91,7 @@ def parse_vary(specs: list[str], sets: list[str] = ()) -> dict[str, list[str]]:
         if any(not v for v in values):
             raise ValueError(f"--vary {spec!r}: an empty value (values are separated by commas)")
         # the same value written twice, or as two spellings of one number (0.001 and 1e-3)
-        if len({json.dumps(parse_value(v), sort_keys=True) for v in values}) != len(values):
+        if len({json.dumps(_comparable(parse_value(v)), sort_keys=True, default=str) for v in values}) != len(values):
             raise ValueError(f"--vary {spec!r}: a value given twice")
         if key in vary:
             raise ValueError(f"--vary {key}: given twice (put all its values in one --vary)")

@@ -315,10 +315,10 @@ def _override_named(message: str, overrides) -> str | None:
     """The ``--set`` assignment whose key, or the list entry holding it, a validation message names
     first (``obstacles.1.name`` is shown as ``obstacles[1].name``, its entry as ``obstacles[1]``),
     so that the message says where the value came from."""
-    for assignment in overrides:
-        key = assignment.split("=", 1)[0].strip()
-        shown = re.sub(r"\.(\d+)(?=\.|$)", r"[\1]", key)
-        for named in [shown, *(shown[: m.end()] for m in reversed(list(re.finditer(r"\[\d+\]", shown))))]:
-            if re.match(re.escape(named) + r"(\s|:|\.|\[|$)", message):
+    shown = {a: re.sub(r"\.(\d+)(?=\.|$)", r"[\1]", a.split("=", 1)[0].strip()) for a in overrides}
+    entries = {a: [k[: m.end()] for m in reversed(list(re.finditer(r"\[\d+\]", k)))] for a, k in shown.items()}
+    for candidates in ({a: [k] for a, k in shown.items()}, entries):  # the key itself first, then its entry
+        for assignment, names in candidates.items():
+            if any(re.match(re.escape(n) + r"(\s|:|\.|\[|$)", message) for n in names):
                 return assignment
     return None

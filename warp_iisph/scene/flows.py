@@ -54,9 +54,8 @@ class Emitter(Record):
             for v in (w, h):
                 in_range(v, f"{name}.size", 0.0, MAX_COORDINATE, "metres", lo_open=True)
             self.size = (w, h)
-        other, its = ("size", "rectangle") if self.shape == "disc" else ("radius", "disc")
-        if getattr(self, other) is not None:
-            raise ValueError(f"{name}.{other}: a key of shape = {its!r}, not of {self.shape!r}")
+        # the other nozzle's key is left out (a --set that switches the shape cannot remove it)
+        setattr(self, "size" if self.shape == "disc" else "radius", None)
         self.start = in_range(self.start, f"{name}.start", 0.0, 1.0e6, "seconds")
         if self.end is not None:
             self.end = in_range(self.end, f"{name}.end", self.start, 1.0e6, "seconds, > start", lo_open=True)
