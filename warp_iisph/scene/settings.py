@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -243,7 +244,7 @@ class Physics(Record):
                 f"physics.wall_pressure = {self.wall_pressure!r}: must be one of {', '.join(WALL_PRESSURES)}"
             )
         self.gravity = floats(vec3(self.gravity, "physics.gravity"))
-        if max(map(abs, self.gravity)) > MAX_GRAVITY or float(np.linalg.norm(self.gravity)) > MAX_GRAVITY:
+        if math.hypot(*self.gravity) > MAX_GRAVITY:  # hypot: no overflow for huge components
             raise ValueError(
                 f"physics.gravity = {list(self.gravity)}: its magnitude must be at most {MAX_GRAVITY:g} m/s^2"
             )

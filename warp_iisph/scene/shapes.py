@@ -57,6 +57,12 @@ class Box(Record):
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(self.lower, dtype=np.float64), np.asarray(self.upper, dtype=np.float64)
 
+    def too_thin_for_faces(self, h: float) -> bool:
+        """Whether a side is shorter than the 3 spacings ``sampling = "faces"`` needs (two
+        staggered layers inside each face, apart from the opposite face's)."""
+        lo, hi = self.bounds
+        return bool(np.any(hi - lo < 3.0 * h - 1e-9))
+
 
 @dataclass
 class Sphere(Record):

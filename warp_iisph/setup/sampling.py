@@ -90,7 +90,7 @@ def sample_box_faces(box: Box, h: float) -> np.ndarray:
     a face is one spacing from the inner layer and its volume ends at the face, and the weights
     ``psi`` calibrated on the tank's walls hold for it. Needs every side at least 3 h long."""
     lo, hi = box.bounds
-    if np.any(hi - lo < 3.0 * h - 1e-9):
+    if box.too_thin_for_faces(h):
         raise ValueError(
             f"sampling = 'faces': every side of the box must be at least 3 spacings ({3 * h:g} m) long; "
             f"it is {floats(hi - lo)}"
