@@ -153,6 +153,43 @@ def test_bad_sweep_input_is_one_line_and_touches_nothing(tmp_path, capsys, args,
     assert not out.exists()
 
 
+@pytest.mark.parametrize("measure", ["totals.x", "totals.emitted", "particles", "device", "nothing"])
+def test_a_measure_no_variant_will_have_is_refused_before_any_variant_runs(tmp_path, monkeypatch, capsys, measure):
+    """A key that names no number of the variants' run.json summaries (``totals.emitted``: the
+    scene has no emitter or sink; ``particles``, ``device``: not numbers) is refused in one line
+    naming --measure, the key and the keys there are, before a variant runs: nothing written."""
+    monkeypatch.chdir(tmp_path)  # the default sweeps/NAME would be here too
+    monkeypatch.setattr(sw, "run_variant", lambda *a, **k: pytest.fail("a variant ran"))
+    out = tmp_path / "sweep"
+    args = ["sweep", "martin_moyce", "--vary", "physics.eta=0.01,0.001", "--measure", measure, "--out", str(out)]
+    assert exit_status([*args, *SMALL]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"warp-iisph: error: --measure {measure}: no such number"), err
+    assert "totals.mean_iterations, " in err and "particles.fluid" in err and "Traceback" not in err
+    assert "totals.emitted" not in err.partition("give one of ")[2]  # not offered: no variant will have it
+    assert not list(tmp_path.iterdir())  # no sweep folder, no run folder, no sweep.json, no chart
+
+
+def test_the_measures_checked_before_a_sweep_are_the_ones_its_runs_write(tmp_path):
+    """What --measure is checked against before a variant runs (:func:`sweep.blank_summary`) has
+    the names of a real run's summary, with and without emitters and sinks; a sweep of a scene
+    with an emitter takes totals.emitted."""
+    from warp_iisph import Box, Scene
+    from warp_iisph.run.runner import plan_frames, run_scene
+    from warp_iisph.scene import Emitter, Sink, load_scene
+
+    jet = Scene(spacing=0.04, tank=Box((0, 0, 0), (0.8, 0.5, 0.3)), name="jet")
+    jet.add_emitter(Emitter(center=(0.1, 0.3, 0.15), direction=(1.0, 0.0, 0.0), speed=1.0, radius=0.06))
+    jet.add_sink(Sink((0.6, 0.0, 0.0), (0.8, 0.1, 0.3)))
+    for scene in (load_scene("martin_moyce", ["spacing=0.04"]), jet):
+        real = sw.summary(run_scene(scene, tmp_path / scene.name, 0.05, progress=False))
+        blank = sw.blank_summary(scene, plan_frames(scene, 0.05))
+        assert charts.numbers_in(blank) == charts.numbers_in(real) and list(blank) == list(real)
+        assert ("totals.emitted" in charts.numbers_in(blank)) == (scene is jet)
+    record, _ = sw.plan_sweep("pour", ["physics.eta=0.01,0.001"], out=tmp_path / "pour", measure="totals.emitted")
+    assert record["measure"] == "totals.emitted" and not (tmp_path / "pour").exists()
+
+
 def test_a_sweep_folder_is_resumed_with_its_own_settings_or_not_at_all(tmp_path, capsys):
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "keep.txt").write_text("mine")
@@ -193,11 +230,17 @@ def test_a_serial_sweep_repeats_charts_and_resumes_nothing_when_complete(tmp_pat
     assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
     assert "0 run now, 4 complete before" in capsys.readouterr().out
     assert {e["name"]: run_json(out / e["name"])["run_id"] for e in record["variants"]} == ids
-    # a measure no variant has: said, and no chart (not the other measure's)
-    assert main(["sweep", "--resume", str(out), "--no-progress", "--measure", "totals.nothing"]) == 0
+    # a measure no variant has: refused before anything runs, the sweep and its chart as they were
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    assert main(["sweep", "--resume", str(out), "--no-progress", "--measure", "totals.nothing"]) == 2
     err = capsys.readouterr().err
-    assert "--measure totals.nothing: no variant has it" in err and "totals.mean_compression" in err
-    assert json.loads((out / "sweep.json").read_text())["chart"] is None and not (out / "sweep.png").exists()
+    assert err.count("\n") == 1 and "--measure totals.nothing: no such number" in err
+    assert "totals.mean_compression" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    # another measure they have: the chart redrawn with it, nothing run again
+    assert main(["sweep", "--resume", str(out), "--no-progress", "--measure", "particles.fluid"]) == 0
+    assert "(chart sweep.png: particles.fluid)" in capsys.readouterr().out
+    assert json.loads((out / "sweep.json").read_text())["measure"] == "particles.fluid"
 
 
 # --- on a LocalCluster of 2 workers ----------------------------------------------------------------

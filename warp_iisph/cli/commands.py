@@ -272,7 +272,7 @@ def _sweep(args) -> int:
             raise ValueError(f"--resume SWEEP_DIR: runs that sweep with its own settings; give no {', '.join(given)}")
         record, out = sw.load_sweep(args.resume), args.resume
         if args.measure:
-            record["measure"] = charts.check_measure(args.measure)
+            record["measure"] = sw.resumed_measure(record, args.measure)
     elif not args.scene:
         raise ValueError("SCENE: required (a scene file or a bundled scene's name), or --resume SWEEP_DIR")
     else:
@@ -303,8 +303,7 @@ def _sweep(args) -> int:
         if e["ended"] not in sw.DONE:
             print(f"warp-iisph: warning: variant {e['name']} {e['ended']}: {e['message']}", file=sys.stderr)
     if record["chart"] is None:
-        names = next((charts.numbers_in(e["summary"]) for e in variants if e["summary"]), [])
-        names.sort(key=lambda n: not n.startswith("totals."))  # the totals first: what a study measures
+        names = charts.measure_names(e["summary"] for e in variants if e["summary"])
         print(
             f"warp-iisph: warning: --measure {record['measure']}: no variant has it, no chart"
             + (f" (the variants have {', '.join(names)})" if names else ""),

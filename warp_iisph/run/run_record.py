@@ -98,6 +98,31 @@ class RunRecord:
         self.run.write_record(self.refresh(frames, mesher, queue))
 
 
+class _Unstarted:
+    """A simulation before its first step, for :func:`blank_record`: the attributes given, and 0
+    for every count or size it is asked for (``model`` and ``flows`` stand-ins of their own)."""
+
+    def __init__(self, **known):
+        self.__dict__.update(known)
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return 0
+
+
+def blank_record(scene, plan, device: str = "cpu") -> dict:
+    """The ``run.json`` that a run of ``scene`` over ``plan`` on ``device`` writes, every count 0
+    and its clock at the plan's end, made before anything is built or run: the same names and
+    parts as a real run's, from the code that writes them (what a sweep checks ``--measure``
+    against before its first variant runs)."""
+    from ..stepping.flows import has_flows
+
+    flows = _Unstarted() if has_flows(scene) else None
+    sim = _Unstarted(physics=scene.physics, device=device, time=plan.duration, model=_Unstarted(), flows=flows)
+    return RunRecord(scene, sim, None, plan, False, False, None, 0).refresh(0)
+
+
 class StepTotals:
     """Sums over a run's step records, kept as they come (the records themselves go to disk)."""
 

@@ -34,6 +34,7 @@ from ..scene.library import bundled_scenes, resolve_scene
 from .atomic import write_json
 from .folder import RECORD, RunError
 from .progress import frame_bar
+from .run_record import blank_record
 from .runner import Terminated, plan_frames
 from .sweep_chart import DEFAULT_MEASURE, DONE, SUMMARY, _bare, chart, check_measure
 
@@ -186,13 +187,16 @@ def plan_sweep(
         "sessions": [],
         "variants": variants(vary, repeat),
     }
+    blanks = []  # the summaries the variants will have, for --measure
     for entry in record["variants"]:
         if entry["repeat"] > 1:
             continue  # a repeat builds the same scene as the first
         try:
-            plan_frames(load_scene(scene, overrides(record, entry)), duration, fps)
+            built = load_scene(scene, overrides(record, entry))
+            blanks.append(blank_summary(built, plan_frames(built, duration, fps), device))
         except ValueError as e:
             raise ValueError(f"variant {entry['name']}: {e}") from None
+    check_measure(measure, blanks)
     names = [e["name"] for e in record["variants"]]
     if len(set(names)) != len(names):  # only a hash collision could do it
         raise ValueError("--vary: two variants would share a folder name")
@@ -203,6 +207,29 @@ def plan_sweep(
         hint = "; --resume it to run what it has left" if (out / SWEEP).is_file() else ""
         raise ValueError(f"--out {out}: folder exists and is not empty{hint}")
     return record, out
+
+
+def blank_summary(scene, plan, device: str = "cpu") -> dict:
+    """The summary a variant's entry will keep of a run of ``scene`` over ``plan``, before it
+    runs: its names and parts as the run will write them, every count 0
+    (:func:`~warp_iisph.run.run_record.blank_record`)."""
+    return summary(blank_record(scene, plan, device))
+
+
+def resumed_measure(record: dict, measure: str) -> str:
+    """``measure`` for a resumed sweep's chart, checked as :func:`plan_sweep` checks a new
+    sweep's against the summaries its variants will have (a variant whose scene no longer
+    builds is left out: it fails when it runs, and says why)."""
+    blanks = []
+    for entry in record["variants"]:
+        if entry.get("repeat", 1) > 1:
+            continue
+        try:
+            built = load_scene(record["scene"], overrides(record, entry))
+            blanks.append(blank_summary(built, plan_frames(built, record["duration"], record["fps"]), record["device"]))
+        except ValueError:
+            continue
+    return check_measure(measure, blanks)
 
 
 def load_sweep(path) -> dict:

@@ -23,11 +23,22 @@ def _bare(value: str) -> str:
     return value
 
 
-def check_measure(measure: str) -> str:
+def check_measure(measure: str, summaries=None) -> str:
+    """``measure`` when it is a dotted name and, given ``summaries`` (the variants' summaries, or
+    those they will have: :func:`~warp_iisph.run.sweep.blank_summary`), a number in one of them by
+    :func:`measure_value`, the chart's own look-up; ``ValueError`` naming ``--measure``, the key
+    and the names there are otherwise."""
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*", measure or ""):
         raise ValueError(
             f"--measure {measure!r}: must name a value of a run's run.json, e.g. totals.mean_compression "
             f"or mean_iterations (looked up in {', '.join(SUMMARY)})"
+        )
+    summaries = list(summaries or ())
+    if summaries and all(measure_value(s, measure) is None for s in summaries):
+        raise ValueError(
+            f"--measure {measure}: no such number in a variant's run.json; give one of "
+            f"{', '.join(measure_names(summaries))} (by its dotted path, or its last name alone: "
+            f"mean_iterations for totals.mean_iterations)"
         )
     return measure
 
@@ -54,6 +65,13 @@ def numbers_in(summary: dict, prefix: str = "") -> list[str]:
         elif isinstance(value, (int, float)) and not isinstance(value, bool):
             names.append(f"{prefix}{key}")
     return names
+
+
+def measure_names(summaries) -> list[str]:
+    """The names ``--measure`` may take in any of ``summaries``, the totals first (what a study
+    measures), each once."""
+    names = dict.fromkeys(n for s in summaries for n in numbers_in(s))
+    return sorted(names, key=lambda n: not n.startswith("totals."))
 
 
 def require_chart() -> None:

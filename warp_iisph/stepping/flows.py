@@ -74,11 +74,19 @@ def emit_layer(
     ids[i] = first_id + k
 
 
+def has_flows(scene) -> bool:
+    """Whether ``scene`` has emitters or sinks: what its :class:`Flows` is true for (and a run's
+    totals then count what came in and went out)."""
+    return bool(scene.emitters or scene.sinks)
+
+
 class Flows:
-    """The scene's emitters and sinks acting on a :class:`~warp_iisph.setup.model.State`."""
+    """The scene's emitters and sinks acting on a :class:`~warp_iisph.setup.model.State`; true
+    when there are any (:func:`has_flows`)."""
 
     def __init__(self, scene, state, device):
         h = scene.spacing
+        self.active = has_flows(scene)
         self.emitters = scene.emitters
         self.sinks = [s.bounds for s in scene.sinks]
         # sink checks: every `thinnest / (2 v)` seconds for the top speed v (check_sinks' `speed`)
@@ -99,7 +107,7 @@ class Flows:
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
 
     def __bool__(self) -> bool:
-        return bool(self.emitters or self.sinks)
+        return self.active
 
     def next_emission(self) -> float:
         """When the next layer is due (inf: never again)."""
