@@ -58,6 +58,77 @@ def test_preview_bad_input_is_one_line(tiny_run, tmp_path, capsys):
     assert "no such run folder" in err[0] and "even" in err[1] and "0..3" in err[2]
 
 
+# --- the viewers' --out: one rule (view/out_file.py) -------------------------------------------------
+
+VIEWS = {  # command: the suffix its --out takes, and what else it needs here
+    "preview": (".mp4", ["--resolution", "64x36", "--no-progress"]),
+    "usd": (".usdc", ["--no-progress"]),
+    "blender-script": (".py", []),
+    "plot": (".png", []),
+}
+
+
+def files_in(*folders) -> dict:
+    return {p: p.read_bytes() for folder in folders for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("command", list(VIEWS))
+@pytest.mark.parametrize(
+    "where, says",
+    [
+        (lambda run, tmp, suffix: tmp / "folder", "is a folder; give a file name ending in {suffix}"),
+        (lambda run, tmp, suffix: tmp / "view.txt", "must end in {suffix}"),
+        (lambda run, tmp, suffix: tmp / f"view{suffix}.bak", "must end in {suffix}"),
+        (lambda run, tmp, suffix: run / "particles" / f"view{suffix}", "one of the run's own files"),
+        (lambda run, tmp, suffix: run / "mesh" / f"frame_00001{suffix}", "one of the run's own files"),
+        (lambda run, tmp, suffix: tmp / "a_file" / f"view{suffix}", "a_file is a file, not a folder"),
+        (lambda run, tmp, suffix: tmp / "a_file" / "deeper" / f"view{suffix}", "a_file is a file, not a folder"),
+        (lambda run, tmp, suffix: "", "--out '': empty; give a file name ending in {suffix}"),
+    ],
+    ids=["folder", "suffix", "double-suffix", "frame-folder", "frame-file", "under-a-file", "deeper", "empty"],
+)
+def test_every_view_refuses_the_same_bad_out_in_one_line(tiny_run, tmp_path, capsys, command, where, says):
+    """preview, usd, blender-script and plot apply one rule to --out: no folder, their suffix, none
+    of the run's own files or frame folders, no file in a folder's place, not empty; each refusal
+    one line naming --out and what is allowed (exit 2), nothing written anywhere."""
+    if command == "usd":
+        pytest.importorskip("pxr", reason="the usd extra (usd-core) is not installed")
+    suffix, extra = VIEWS[command]
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "a_file").write_text("mine")
+    out = where(tiny_run, tmp_path, suffix)
+    before = files_in(tiny_run, tmp_path)
+    capsys.readouterr()
+    assert main([command, str(tiny_run), "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("warp-iisph: error: --out ") and "Traceback" not in err, err
+    assert says.format(suffix=suffix) in err, err
+    assert files_in(tiny_run, tmp_path) == before
+
+
+@pytest.mark.parametrize("command", [c for c in VIEWS if c != "plot"])  # plot: the tiny run has no probes
+def test_every_view_waits_for_the_run_folders_writer_and_takes_any_case_of_its_suffix(
+    tiny_run, tmp_path, capsys, command
+):
+    """A view into the run folder another command writes is refused naming the holder; put
+    elsewhere it reads the run as it is; its suffix in capitals is its suffix."""
+    from warp_iisph.run.lock import FolderLock
+
+    if command == "usd":
+        pytest.importorskip("pxr", reason="the usd extra (usd-core) is not installed")
+    suffix, extra = VIEWS[command]
+    with FolderLock(tiny_run):
+        before = {p: b for p, b in files_in(tiny_run).items() if p.name != ".warp-iisph.lock"}
+        capsys.readouterr()
+        assert main([command, str(tiny_run), "--out", str(tiny_run / f"view{suffix}"), *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "in use by" in err and "with --out" in err, err
+        assert {p: b for p, b in files_in(tiny_run).items() if p.name != ".warp-iisph.lock"} == before
+        out = tmp_path / f"VIEW{suffix.upper()}"
+        assert main([command, str(tiny_run), "--out", str(out), *extra]) == 0
+        assert out.stat().st_size > 0
+
+
 def test_frame_selection():
     files = [type("P", (), {"stem": f"frame_{k:05d}"})() for k in range(10)]
     assert (

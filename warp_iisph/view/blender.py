@@ -20,6 +20,7 @@ from ..run.folder import MESHES, RunError, RunFolder, frame_index, select_frames
 from ..run.lock import writing_into
 from .camera import framing_box, run_camera
 from .materials import THICKNESS, material_color
+from .out_file import view_file
 
 ASPECT = 16 / 9  # the script's render resolution, 1920 x 1080
 
@@ -209,11 +210,7 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
         raise RunError(
             f"{run.path}: has no run.usdc (or .usda, .usd) for --usd; write it with `warp-iisph usd {run.path}`"
         )
-    out = Path(out) if out else run.path / "blender_scene.py"
-    if out.is_dir():
-        raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / 'blender_scene.py'}")
-    if out.suffix != ".py" or run.holds_as_its_own(out):
-        raise RunError(f"--out {out}: must be a .py file outside the run's own files and frame folders")
+    out = view_file(run, out, "blender_scene.py", (".py",), "script")
     # Blender's volume absorption: transmittance exp(-density * (1 - colour) * d); pick the density
     # that gives the preset's colour through THICKNESS for the most absorbed channel.
     k = max(range(3), key=lambda c: -math.log(color[c]))

@@ -9,6 +9,7 @@ from ..run.atomic import atomic_write
 from ..run.folder import RunError, RunFolder
 from ..run.lock import writing_into
 from ..run.probe_file import read_probes
+from .out_file import view_file
 
 # the panels, by unit: what each holds
 PANELS = {"Pa": "pressure (kPa)", "m": "water level (m)", "N": "force (N)", "N m": "moment (N m)"}
@@ -19,13 +20,7 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
     ``RUN_DIR/probes.png``); returns the path. Pressures in kPa; a force probe's components
     ``x``, ``y``, ``z``, pressure parts solid and viscous parts dashed."""
     run = RunFolder.existing(run_dir)
-    out = Path(out) if out is not None else run.path / "probes.png"
-    if out.is_dir():
-        raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / 'probes.png'}")
-    if out.suffix.lower() != ".png":
-        raise RunError(f"--out {out}: must end in .png")
-    if run.holds_as_its_own(out):
-        raise RunError(f"--out {out}: inside one of the run's frame folders; put the chart elsewhere")
+    out = view_file(run, out, "probes.png", (".png",), "chart")
     if not run.probes.is_file():
         raise RunError(f"{run.probes}: no probe samples (the scene has no [[probes]], or no step was taken)")
     names, units, rows = read_probes(run.probes)

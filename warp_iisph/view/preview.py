@@ -15,6 +15,7 @@ from ..run.folder import MAX_FPS, MESHES, PARTICLES, RunError, RunFolder, frame_
 from ..run.lock import writing_into
 from ..run.progress import frame_bar
 from ..scene.checks import in_range
+from .out_file import view_file
 from .video import parse_resolution, write_video
 
 # Speed colour ramp (slow -> fast): deep blue, blue, cyan, pale yellow, orange.
@@ -175,13 +176,14 @@ def preview_run(
     fps = run.fps(record) if fps is None else _option(fps, "--fps", 0.0, MAX_FPS, "frames per second", lo_open=True)
     yaw = _option(yaw, "--yaw", -1e6, 1e6, "degrees")
     pitch = _option(pitch, "--pitch", -90.0, 90.0, "degrees")
-    out = Path(out) if out else run.path / ("preview.gif" if gif else "preview.mp4")
-    if out.is_dir():
-        raise RunError(f"--out {out}: is a folder; give a video file name (.{'gif' if gif else 'mp4'}) or a .png")
-    if out.suffix.lower() not in (".mp4", ".gif", ".png") or (gif and out.suffix.lower() == ".mp4"):
-        raise RunError(f"--out {out}: must end in .mp4, .gif (with --gif) or .png (one frame's still)")
-    if run.holds_as_its_own(out):
-        raise RunError(f"--out {out}: one of the run's own files or frame folders; put the preview elsewhere")
+    out = view_file(
+        run,
+        out,
+        "preview.gif" if gif else "preview.mp4",
+        (".gif", ".png") if gif else (".mp4", ".gif", ".png"),
+        "preview",
+        "with --gif; .png: one frame's still" if gif else ".png: one frame's still",
+    )
     gif = gif or out.suffix.lower() == ".gif"
     with writing_into(run.path, out):  # one writer in the run folder (a preview put elsewhere reads it as it is)
         return _preview(run, record, files, source, out, width, height, fps, gif, yaw, pitch, progress)

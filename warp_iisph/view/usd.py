@@ -19,6 +19,7 @@ from ..run.lock import writing_into
 from ..run.progress import frame_bar
 from .camera import camera_up, framing_box, run_camera
 from .materials import IOR, material_color
+from .out_file import view_file
 
 EXTRA = "pip install 'warp_iisph[usd]'  (usd-core)"
 SUFFIXES = (".usdc", ".usda", ".usd")  # binary crate, text, either (crate)
@@ -183,18 +184,6 @@ def _add_particles(stage, files: dict, frames: list[int], h: float, progress: bo
     return points
 
 
-def usd_path(run: RunFolder, out=None) -> Path:
-    """Where the stage goes: ``out`` (``.usdc``, ``.usda`` or ``.usd``) or ``RUN_DIR/run.usdc``."""
-    out = Path(out) if out else run.path / USD
-    if out.is_dir():
-        raise RunError(f"--out {out}: is a folder; give a file name, e.g. {out / USD}")
-    if out.suffix.lower() not in SUFFIXES:
-        raise RunError(f"--out {out}: must end in {', '.join(SUFFIXES)}")
-    if run.holds_as_its_own(out):
-        raise RunError(f"--out {out}: inside one of the run's frame folders; put the stage elsewhere")
-    return out
-
-
 def export_usd(
     run_dir,
     out=None,
@@ -210,7 +199,7 @@ def export_usd(
     record = run.record()
     files = select_frames(run.frames(MESHES), frames)
     color = material_color(material)
-    out = usd_path(run, out)
+    out = view_file(run, out, USD, SUFFIXES, "stage")
     with writing_into(run.path, out):  # one writer in the run folder (a stage put elsewhere reads it as it is)
         return _write_stage(run, record, files, color, out, particles, progress)
 
