@@ -14,6 +14,14 @@ clamp at zero), so applying that share of this iteration's update gives the upda
 at eta. The result then does not jump with the integer iteration count from step to step, which
 moved resting water's pressure by percents (docs/physics.md 4.12). ``blend`` is negative where the
 whole update applies.
+
+Relaxed Jacobi on IISPH's system with extrapolated wall pressures has a slowly growing long-wave
+mode where every particle is near a wall (a column four spacings deep between two walls: 2.3 % an
+iteration, ahead of the decaying ones from about 150 iterations on; docs/pressure_solve.md). A
+density solve therefore also stops where its mean error, above eta, has grown to ``GROWTH`` times
+the least it reached, and keeps that iteration's input pressures (``blend`` 0), as a solve stopped
+by ``max_iterations`` keeps its last: the step goes on with the error it logs, instead of pressures
+that run away to 1e30 Pa.
 """
 
 from __future__ import annotations
@@ -23,6 +31,8 @@ from collections.abc import Callable
 import warp as wp
 
 from ...engine.reduce import sum_into
+
+GROWTH = wp.constant(2.0)  # a density solve whose error grows to this many times its least stops (module docstring)
 
 
 @wp.kernel
@@ -36,20 +46,28 @@ def convergence_test(
     iterations: wp.array(dtype=wp.int32),
     keep_going: wp.array(dtype=wp.int32),
     last_error_sum: wp.array(dtype=wp.float64),
+    least_error_sum: wp.array(dtype=wp.float64),
     blend: wp.array(dtype=float),
 ):
     """Count the iteration; stop once the mean error is at most eta (after ``min_iterations``) or at
     ``max_iterations``. With ``ends_at_eta``, where the error crossed eta in this iteration,
     ``blend`` is the share of the way from the last iterate to this one at which it reaches eta
     and the error sum reported is eta's; otherwise (and always without ``ends_at_eta``) ``blend``
-    is negative."""
+    is negative. With ``ends_at_eta`` it also stops where the error, above eta, has grown to
+    ``GROWTH`` times the least of this solve (``least_error_sum``), with ``blend`` 0: the input
+    pressures kept."""
     it = iterations[0] + 1
     iterations[0] = it
     mean = error_sum[0] / wp.float64(n)
     converged = it >= min_iterations and mean <= eta
-    keep_going[0] = wp.where(converged or it >= max_iterations, 0, 1)
+    least = wp.min(least_error_sum[0], error_sum[0])
+    least_error_sum[0] = least
+    growing = ends_at_eta != 0 and mean > eta and error_sum[0] > wp.float64(GROWTH) * least
+    keep_going[0] = wp.where(converged or growing or it >= max_iterations, 0, 1)
     b = float(-1.0)
-    if ends_at_eta != 0:
+    if growing:
+        b = float(0.0)
+    elif ends_at_eta != 0:
         last = last_error_sum[0] / wp.float64(n)
         if converged and it > 1 and last > eta and last > mean:
             b = float((last - eta) / (last - mean))
@@ -73,6 +91,7 @@ class IterativeSolve:
         self.iterations = wp.zeros(1, dtype=wp.int32, device=device)
         self.keep_going = wp.zeros(1, dtype=wp.int32, device=device)
         self._last_error_sum = wp.zeros(1, dtype=wp.float64, device=device)
+        self._least_error_sum = wp.zeros(1, dtype=wp.float64, device=device)
         self.blend = wp.zeros(1, dtype=float, device=device)
 
     def run(
@@ -87,6 +106,7 @@ class IterativeSolve:
         """Iterate until converged (see the class and module docstrings); on the device."""
         self.iterations.zero_()
         self._last_error_sum.zero_()
+        self._least_error_sum.fill_(1.0e300)
         self.keep_going.fill_(1)
         test = [
             self.error_sum,
@@ -96,7 +116,7 @@ class IterativeSolve:
             int(max_iterations),
             int(self.ends_at_eta),
         ]
-        state = [self.iterations, self.keep_going, self._last_error_sum, self.blend]
+        state = [self.iterations, self.keep_going, self._last_error_sum, self._least_error_sum, self.blend]
 
         def body():
             iterate()
