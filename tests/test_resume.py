@@ -147,3 +147,156 @@ def test_resume_refuses_what_it_cannot_do(whole, tmp_path, capsys):
     )
     assert main(["run", "--resume", str(nock), "--no-progress"]) == 2
     assert "no checkpoint to resume from" in capsys.readouterr().err
+
+
+# --- what a resume keeps: the run folder must still hold what the run wrote up to its checkpoint ------
+
+KEPT_SCENE = """
+name = "kept"
+spacing = 0.04
+[tank]
+lower = [0.0, 0.0, 0.0]
+upper = [0.6, 0.4, 0.2]
+[[fluids]]
+lower = [0.0, 0.0, 0.0]
+upper = [0.24, 0.32, 0.2]
+[[bodies]]
+name = "crate"
+shape = "box"
+lower = [0.36, 0.0, 0.04]
+upper = [0.48, 0.08, 0.16]
+density = 500.0
+[output]
+fps = 20
+[[probes]]
+name = "wall"
+kind = "pressure"
+position = [0.0, 0.05, 0.1]
+normal = [1.0, 0.0, 0.0]
+[[probes]]
+name = "gauge"
+kind = "level"
+position = [0.1, 0.1]
+"""
+
+
+@pytest.fixture(scope="module")
+def kept_scene(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("kept") / "kept.toml"
+    path.write_text(KEPT_SCENE)
+    return path
+
+
+@pytest.fixture(scope="module")
+def kept_run(kept_scene) -> Path:
+    """A finished run (frames 0 .. 3, the checkpoint at 3) with meshes, a free body and probes:
+    every kind of file a resume keeps."""
+    out = kept_scene.parent / "run"
+    assert main(["run", str(kept_scene), "--out", str(out), "--duration", "0.15", "--mesh", "--no-progress"]) == 0
+    return out
+
+
+@pytest.fixture
+def kept_copy(kept_run, tmp_path) -> Path:
+    import shutil
+
+    out = tmp_path / "run"
+    shutil.copytree(kept_run, out)
+    return out
+
+
+def _drop_lines(path: Path, which) -> None:
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(line for k, line in enumerate(lines) if not which(k, len(lines))))
+
+
+@pytest.mark.parametrize(
+    "damage, file, words",
+    [
+        (lambda r: (r / "particles" / "frame_00001.ply").unlink(), "particles/frame_00001.ply", "missing"),
+        (lambda r: (r / "particles" / "frame_00003.ply").write_bytes(b""), "particles/frame_00003.ply", "empty"),
+        (lambda r: (r / "mesh" / "frame_00002.obj").unlink(), "mesh/frame_00002.obj", "warp-iisph mesh"),
+        (lambda r: (r / "obstacles" / "frame_00000.obj").unlink(), "obstacles/frame_00000.obj", "a hole"),
+        (lambda r: (r / "obstacles.obj").unlink(), "obstacles.obj", "missing"),
+        (lambda r: (r / "stats.jsonl").unlink(), "stats.jsonl", "missing"),
+        (lambda r: _drop_lines(r / "stats.jsonl", lambda k, n: k >= n - 5), "stats.jsonl", "up to step 25"),
+        (lambda r: _drop_lines(r / "stats.jsonl", lambda k, n: k == 7), "stats.jsonl", "step 8 belongs"),
+        (lambda r: (r / "probes.csv").unlink(), "probes.csv", "missing"),
+        (lambda r: _drop_lines(r / "probes.csv", lambda k, n: k >= n - 3), "probes.csv", "the checkpoint counted 30"),
+        (lambda r: _drop_lines(r / "probes.csv", lambda k, n: k == 4), "probes.csv", "holds 29 probe samples"),
+        (lambda r: _drop_lines(r / "probes.csv", lambda k, n: k == 0), "probes.csv", "not the header"),
+        (lambda r: _drop_lines(r / "bodies.csv", lambda k, n: k == n - 1), "bodies.csv", "one per frame makes 4"),
+    ],
+)
+def test_a_resume_refuses_a_folder_that_lost_what_the_run_wrote(kept_copy, capsys, damage, file, words):
+    """Frame files deleted, or step records or rows cut from the time series, since the run
+    stopped: the resume is refused in one line naming the file, and nothing in the folder changes."""
+    from test_reliability import one_line, snapshot
+
+    damage(kept_copy)
+    before = snapshot(kept_copy)
+    capsys.readouterr()
+    assert main(["run", "--resume", str(kept_copy), "--duration", "0.3", "--no-progress"]) == 2
+    one_line(capsys.readouterr().err.strip().splitlines(), str(kept_copy / file), words, "--overwrite")
+    assert snapshot(kept_copy) == before
+
+
+def test_a_refusal_is_one_line_on_the_real_stderr(kept_copy):
+    from test_reliability import one_line, snapshot
+
+    _drop_lines(kept_copy / "stats.jsonl", lambda k, n: k == n - 1)
+    before = snapshot(kept_copy)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "warp_iisph.cli",
+            "run",
+            "--resume",
+            str(kept_copy),
+            "--duration",
+            "0.3",
+            "--no-progress",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert p.returncode == 2
+    one_line([line for line in p.stderr.splitlines() if line.strip()], str(kept_copy / "stats.jsonl"), "step 29")
+    assert snapshot(kept_copy) == before
+
+
+def test_an_intact_folder_resumes_again_and_again_and_a_mesh_made_again_lets_it(kept_scene, kept_copy, capsys):
+    """What a killed run wrote after its checkpoint is no loss (it goes); a folder resumed twice,
+    with meshes off for a stretch, still resumes and equals the run that never stopped (the frames
+    of a stretch that wrote no meshes need none); a mesh deleted and made again by `warp-iisph
+    mesh` lets the resume go on."""
+    from test_reliability import one_line
+
+    whole = kept_scene.parent / "whole"
+    assert main(["run", str(kept_scene), "--out", str(whole), "--duration", "0.45", "--mesh", "--no-progress"]) == 0
+    with open(kept_copy / "probes.csv", "a") as f:  # rows a run killed after its checkpoint had written
+        f.write("0.2,1,2\n0.21,1")
+    with open(kept_copy / "stats.jsonl", "a") as f:
+        f.write('{"step": 31, "t": 0.155, "iterations": 1, "density_error": 0, "compression": 0}\n{"step": 3')
+    resume = ["run", "--resume", str(kept_copy), "--no-progress"]
+    assert main([*resume, "--duration", "0.3", "--set", "output.mesh=false"]) == 0
+    record = json.loads((kept_copy / "run.json").read_text())
+    assert record["resumed"][0]["output_before"] == {"particles": True, "mesh": True}
+    assert main([*resume, "--duration", "0.45", "--set", "output.mesh=true"]) == 0
+    meshes = sorted(p.name for p in (kept_copy / "mesh").glob("frame_*.obj"))
+    assert meshes == [f"frame_{k:05d}.obj" for k in (0, 1, 2, 3, 7, 8, 9)]  # frames 4 .. 6 were written without
+    same_run(kept_copy, whole)
+    for name in ("probes.csv", "bodies.csv"):
+        assert (kept_copy / name).read_text() == (whole / name).read_text(), name
+    record = json.loads((kept_copy / "run.json").read_text())
+    assert [(r["frame"], r["output_before"]["mesh"]) for r in record["resumed"]] == [(3, True), (6, False)]
+    (kept_copy / "mesh" / "frame_00001.obj").unlink()
+    capsys.readouterr()
+    assert main([*resume, "--duration", "0.5"]) == 2
+    one_line(capsys.readouterr().err.strip().splitlines(), str(kept_copy / "mesh" / "frame_00001.obj"), "mesh")
+    assert main(["mesh", str(kept_copy), "--no-progress"]) == 0  # made again from its particle frame
+    assert main([*resume, "--duration", "0.5"]) == 0

@@ -28,7 +28,8 @@ def _parser():
         metavar="RUN_DIR",
         default=None,
         help="continue a stopped, interrupted or diverged (then --set fixed) run from its last checkpoint, "
-        "bitwise as it would have run; --duration may extend it",
+        "bitwise as it would have run; --duration may extend it; refused while a file the run wrote up to "
+        "the checkpoint is missing or cut",
     )
     run.add_argument(
         "--duration", type=float, default=None, help="simulated seconds (default: the scene's output.duration)"

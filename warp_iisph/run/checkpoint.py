@@ -1,14 +1,16 @@
 """A run's checkpoint (``checkpoint.npz``): the state to resume from, whose it is, and whether it
 makes sense, checked before a resume trusts it.
 
-Besides the simulation's arrays (``Simulation.checkpoint``) and the frame it was taken at, a
-checkpoint holds its run's ``run_id``, the fingerprint of the scene it was taken of (a hash of the
-geometry and of each mesh file's contents, ``scene_fingerprint``), its format and the version of
-warp-iisph that wrote it. A resume refuses, in one line naming the file, a checkpoint of another
-run, of a scene whose geometry or meshes changed, of another format or version, one with keys
-missing or of the wrong shape, and values that make no sense (a time that is not its frame's,
-more frames than the run was asked for, fewer steps than frames, non-finite particles, ids
-repeated or beyond the next one, free bodies' state missing or not one finite row per body).
+Besides the simulation's arrays (``Simulation.checkpoint``) and the frame it was taken at (and,
+for a scene with probes, how many rows ``probes.csv`` held then), a checkpoint holds its run's
+``run_id``, the fingerprint of the scene it was taken of (a hash of the geometry and of each mesh
+file's contents, ``scene_fingerprint``), its format and the version of warp-iisph that wrote it.
+A resume refuses, in one line naming the file, a checkpoint of another run, of a scene whose
+geometry or meshes changed, of another format or version, one with keys missing or of the wrong
+shape, and values that make no sense (a time that is not its frame's, more frames than the run was
+asked for, fewer steps than frames, more probe samples than steps, non-finite particles, ids
+repeated or beyond the next one, free bodies' state missing or not one finite row per body); what
+the run folder must still hold besides is :mod:`.kept`'s.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ FORMAT = 2  # what a checkpoint holds (1: before it said whose it is)
 OWNER_KEYS = ("run_id", "fingerprint", "format", "warp_iisph")
 STATE_KEYS = (*PARTICLE_FIELDS, "max_speed2", "sub_left", "sub_done", "time", "step_count", "method")
 KEYS = (*STATE_KEYS, "next_id", "frame", *OWNER_KEYS)
+# the rows probes.csv held when the checkpoint was taken (a scene with probes; older checkpoints: none)
+PROBE_SAMPLES = "probe_samples"
 # a scene with free bodies: their state (Simulation.checkpoint), by key and width
 BODY_KEYS = {
     "bodies_position": 3,
@@ -137,6 +141,10 @@ def _check_values(state: dict, fps: float, duration: float, scene) -> None:
             _array(state, key, (len(scene.bodies), width))
         if np.any(np.abs(np.linalg.norm(state["bodies_orientation"], axis=1) - 1.0) > 1e-6):
             raise ValueError("bodies_orientation holds quaternions that are not of unit length")
+    if PROBE_SAMPLES in state:  # the rows probes.csv held at the checkpoint: at most one per step
+        samples = _scalar(state, PROBE_SAMPLES, "int")
+        if not 0 <= samples <= steps:
+            raise ValueError(f"{PROBE_SAMPLES} = {samples}: must be in [0, step_count = {steps}]")
     if scene.emitters or scene.sinks:
         for key in ("flows_next_time", "flows_next_check", "flows_counts"):
             if key not in state:

@@ -8,18 +8,19 @@ import numpy as np
 
 from ..setup.model import PARTICLE_FIELDS, id_order
 from . import formats
-from .checkpoint import stage_checkpoint
+from .checkpoint import PROBE_SAMPLES, stage_checkpoint
 
 
 class FrameWriter:
     """Frames of ``sim`` into ``run`` as ``scene.output`` asks, on ``queue``; ``mesher`` meshes the
     surface (None: no meshes), ``solids`` writes the obstacles' and bodies' frames, ``owner_keys``
-    go into every checkpoint (whose run it is), ``times`` take the main thread's download time.
-    :attr:`written` counts the frames whose files are all on disk."""
+    go into every checkpoint (whose run it is), ``times`` take the main thread's download time,
+    ``probes`` is the writer of ``probes.csv`` (None: no probes), whose row count every checkpoint
+    records. :attr:`written` counts the frames whose files are all on disk."""
 
-    def __init__(self, sim, run, scene, frames: int, queue, mesher, solids, owner_keys: dict, times):
+    def __init__(self, sim, run, scene, frames: int, queue, mesher, solids, owner_keys: dict, times, probes=None):
         self.sim, self.run, self.output, self.frames = sim, run, scene.output, frames
-        self.queue, self.mesher, self.solids = queue, mesher, solids
+        self.queue, self.mesher, self.solids, self.probes = queue, mesher, solids, probes
         self.owner_keys, self.times = owner_keys, times
         self.written = 0
 
@@ -40,6 +41,8 @@ class FrameWriter:
         every = self.output.checkpoint_every
         if every and (k % every == 0 or k == self.frames - 1):
             state = {**sim.checkpoint(), "frame": np.int64(k), **self.owner_keys}
+            if self.probes is not None:  # its rows are flushed before the frame is handed over
+                state[PROBE_SAMPLES] = np.int64(self.probes.rows)
             files.append(lambda: staged.append(stage_checkpoint(run, state)))
             then.append(lambda: staged[0].commit())
 

@@ -15,6 +15,11 @@ from ..scene import scene_to_dict
 from .folder import new_run_id
 from .frame_queue import FrameQueue
 
+# the frame files a run writes as its ``output`` says (``output.particles``, ``output.mesh``)
+FRAME_KINDS = ("particles", "mesh")
+# what every step record holds that the totals sum
+STEP_SUMS = ("iterations", "density_error", "compression")
+
 
 def versions() -> dict:
     import warp as wp
@@ -70,6 +75,10 @@ class RunRecord:
         }
         if before is not None:
             resumption = {"frame": first - 1, "t": sim.time, "step": sim.step_count}
+            # the frame files the run wrote up to here (since its start or its last resumption),
+            # which a later resume checks are still there (:mod:`.kept`)
+            wrote = before.get("output") or {}
+            resumption["output_before"] = {k: bool(wrote[k]) for k in FRAME_KINDS if k in wrote}
             self.data["resumed"] = before.get("resumed", []) + [resumption]
             self.data.update({k: before[k] for k in ("obstacles", "bodies") if k in before})
 
@@ -129,7 +138,7 @@ class StepTotals:
     def __init__(self, physics):
         self.physics = physics
         self.steps = 0
-        self.sums = {"iterations": 0.0, "density_error": 0.0, "compression": 0.0}
+        self.sums = dict.fromkeys(STEP_SUMS, 0.0)
         self.corrections = {"wall_corrections": 0, "obstacle_corrections": 0}
         self.corrected_steps = 0
         self.substeps = 0  # steps that were pieces of a fixed dt cut into substeps

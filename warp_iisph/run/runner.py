@@ -35,9 +35,10 @@ from .folder import (
     frame_files,
     frame_index,
 )
-from .formats import StatsWriter, read_stats
+from .formats import StatsWriter
 from .frame_queue import FrameQueue
 from .frame_writer import FrameWriter
+from .kept import check_kept
 from .lock import FolderLock
 from .meshing import FrameMesher, mesh_settings
 from .probe_file import open_probe_file
@@ -87,8 +88,10 @@ def scene_inputs(scene: Scene) -> list[Path]:
     return [Path(s.base_dir) / s.path for s in shapes if isinstance(s, MeshShape)]
 
 
-def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict, dict, FolderLock]:
-    """The run folder to resume, locked, with its record and its checkpoint, checked (nothing written)."""
+def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict, dict, list[dict], FolderLock]:
+    """The run folder to resume, locked, with its record, its checkpoint and the step records it
+    keeps, checked: the checkpoint, and that the folder holds what the run wrote up to it
+    (:mod:`.kept`); nothing written."""
     path = resolved(out, "--resume")
     recover(path)
     run = RunFolder.existing(path)
@@ -105,6 +108,7 @@ def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict
         if run.particle_format != scene.output.format:
             raise ValueError(f"--set output.format: a resumed run keeps its {run.particle_format} frames")
         check_checkpoint(checkpoint, run, before, scene, plan.fps)
+        kept_steps = check_kept(run, before, checkpoint, scene)
         frame = int(checkpoint["frame"])
         if plan.frames - 1 < frame:
             raise ValueError(
@@ -120,7 +124,7 @@ def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict
     except BaseException:
         lock.release()
         raise
-    return run, before, checkpoint, lock
+    return run, before, checkpoint, kept_steps, lock
 
 
 def _failure(e: BaseException) -> str:
@@ -161,9 +165,10 @@ def run_scene(
     held = []  # the locks (and the target) released when the run ends, however it ends
     staging = None  # a new run's folder and lock, until it takes its place
     before = None  # a resumed run's record
+    kept_steps = None  # and the step records it keeps
     try:
         if resume:
-            run, before, checkpoint, lock = _open_to_resume(out, scene, plan)
+            run, before, checkpoint, kept_steps, lock = _open_to_resume(out, scene, plan)
             held.append(lock)
             out = run.path
         else:
@@ -184,7 +189,9 @@ def run_scene(
             staging = stage(target)
             run = RunFolder(staging[0], scene.output.format)
         place = None if resume else (lambda: commit(target, *staging))
-        record = _simulate(scene, sim, run, plan, first, t_start, background_output, progress, graph, before, place)
+        record = _simulate(
+            scene, sim, run, plan, first, t_start, background_output, progress, graph, (before, kept_steps), place
+        )
         if staging is not None and run.path == staging[0]:  # the new run never got its first frame in place
             discard(*staging, target)
         return record
@@ -197,13 +204,15 @@ def run_scene(
             h.release()
 
 
-def _simulate(scene, sim, run, plan, first, t_start, background_output, progress, graph, before, place) -> dict:
-    """The run itself, from frame ``first`` (0, or the one after a resumed run's checkpoint, whose
-    record is ``before``); ``place`` moves a new run's folder into its place once its first frame
-    is on disk. Returns the run record, whose ``ended`` says how it ended; every ending is written
-    to ``run.json`` (except where the run never got in place, and the old folder stays as it was)."""
+def _simulate(scene, sim, run, plan, first, t_start, background_output, progress, graph, resumed, place) -> dict:
+    """The run itself, from frame ``first`` (0, or the one after a resumed run's checkpoint:
+    ``resumed`` is its record and the step records it keeps, else ``(None, None)``); ``place``
+    moves a new run's folder into its place once its first frame is on disk. Returns the run
+    record, whose ``ended`` says how it ended; every ending is written to ``run.json`` (except
+    where the run never got in place, and the old folder stays as it was)."""
     from ..stepping import DivergenceError
 
+    before, kept_steps = resumed
     resume = before is not None
     record = RunRecord(scene, sim, run, plan, graph, background_output, before, first)
     record.started = t_start
@@ -216,13 +225,13 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
         mesher = FrameMesher(scene.spacing, scene.surface, sim.device) if scene.output.mesh else None
         queue = FrameQueue(background=background_output)
         if resume:
-            steps, solids, probes = _continue_logs(run, sim, scene, plan, first, record)
+            steps, solids, probes = _continue_logs(run, sim, scene, plan, first, record, kept_steps)
         else:
             steps, solids = StatsWriter(run.stats), SolidFiles(run, scene, plan.fps)
             probes = open_probe_file(run.probes, sim)
         logs += [steps, solids, probes]
         owner_keys = owner(record.run_id, scene)
-        frames = FrameWriter(sim, run, scene, plan.frames, queue, mesher, solids, owner_keys, record.times)
+        frames = FrameWriter(sim, run, scene, plan.frames, queue, mesher, solids, owner_keys, record.times, probes)
 
         def on_step(step: dict) -> None:
             steps.write(step)
@@ -246,10 +255,10 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
         for k in range(first, plan.frames):
             steps_before, wall_before = sim.step_count, time.perf_counter()
             sim.advance(k / plan.fps - sim.time, callback=on_step)
-            frames.write(k)
-            for log in (steps, probes):
+            for log in (steps, probes):  # in the file before the frame's checkpoint says they are
                 if log is not None:
                     log.flush()
+            frames.write(k)
             record.write(frames.written, mesher, queue)
             rate = (sim.step_count - steps_before) / max(time.perf_counter() - wall_before, 1e-9)
             last = sim.stats[-1] if sim.stats else {}
@@ -293,13 +302,13 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
     return record.data
 
 
-def _continue_logs(run: RunFolder, sim, scene, plan, first: int, record: RunRecord) -> tuple:
+def _continue_logs(run: RunFolder, sim, scene, plan, first: int, record: RunRecord, kept: list[dict]) -> tuple:
     """A resumed run's growing files, cut back to its checkpoint (frame ``first - 1``): what the
     stopped run wrote after it goes, and what a killed run staged; the step records up to its step
-    stay (and go into the totals), the solids' and the probes' rows up to its time."""
+    (``kept``, checked by :func:`.kept.check_kept`) stay and go into the totals, the solids' and
+    the probes' rows up to its time."""
     for old in _frames_after(run, first - 1) + run.temporary_files():
         old.unlink()
-    kept = [r for r in read_stats(run.stats) if r["step"] <= sim.step_count] if run.stats.exists() else []
     for r in kept:
         record.totals.add(r)
     steps = StatsWriter(run.stats, keep=kept)

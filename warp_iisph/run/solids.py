@@ -49,6 +49,7 @@ class BodyWriter(TimeSeriesWriter):
     def write(self, line: str) -> None:
         self._f.write(line + "\n")
         self._f.flush()
+        self.rows += 1
 
 
 def read_bodies(path) -> tuple[list[str], np.ndarray]:
@@ -56,6 +57,12 @@ def read_bodies(path) -> tuple[list[str], np.ndarray]:
     body the :data:`QUANTITIES`; an incomplete last row (a run cut off while writing it) is left out."""
     cells, rows = read_time_series(path, "bodies.csv")
     return list(dict.fromkeys(c.rsplit(".", 2)[0] for c in cells)), rows
+
+
+def solids_move(scene) -> bool:
+    """Whether a run of ``scene`` writes its solids at every frame (``obstacles/frame_NNNNN.obj``):
+    it has free bodies or moving obstacles."""
+    return bool(scene.bodies) or any(o.motion is not None for o in scene.obstacles)
 
 
 def solids_mesh(scene, time: float, bodies: dict | None = None):
@@ -75,7 +82,7 @@ class SolidFiles:
 
     def __init__(self, run, scene, fps: float, keep_until: float | None = None):
         self.run, self.scene, self.fps = run, scene, fps
-        self.moving = bool(scene.bodies) or any(o.motion is not None for o in scene.obstacles)
+        self.moving = solids_move(scene)
         self.writer = BodyWriter(run.bodies, body_names(scene.bodies), keep_until) if scene.bodies else None
 
     def start(self) -> dict:
