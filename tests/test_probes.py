@@ -189,7 +189,7 @@ def test_probe_interval_samples_the_first_step_at_or_after_each_multiple(tmp_pat
     assert np.allclose(t, expected, rtol=0, atol=1e-12) and len(t) == 10
 
 
-def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys):
+def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys, monkeypatch):
     path = scene_file(tmp_path)
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert main(["run", str(path), "--out", str(whole), "--no-progress"]) == 0
@@ -218,6 +218,17 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
         assert main(["plot", str(whole), "--out", str(tmp_path / "new" / "elsewhere.png")]) == 0  # reads it as it is
     assert (tmp_path / "new" / "elsewhere.png").stat().st_size > 10_000
     assert not [p for p in whole.iterdir() if p.name.endswith(".tmp.png")]  # written beside and renamed in
+    import matplotlib.figure
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full)
+    capsys.readouterr()
+    assert main(["plot", str(whole)]) == 1  # a failure at run time, not bad input
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot write: No space left on device" in err[0]
+    assert (whole / "probes.png").read_bytes() == chart  # the last chart kept
 
 
 def test_water_at_rest_reads_its_depth_and_its_pressure_as_the_numpy_sensors_do():

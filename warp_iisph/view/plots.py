@@ -54,7 +54,8 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
         with writing_into(run.path, out):  # one writer in the run folder (a chart put elsewhere reads it as it is)
             atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
     except OSError as e:
-        raise RunError(f"--out {out}: cannot write: {e.strerror or e}") from None
+        # a failure at run time (exit 1), not bad input
+        raise OSError(e.errno, f"--out {out}: cannot write: {e.strerror or e}") from None
     finally:
         plt.close(fig)
     return out
