@@ -19,9 +19,9 @@ Relaxed Jacobi on IISPH's system with extrapolated wall pressures has a slowly g
 mode where every particle is near a wall (a column four spacings deep between two walls: 2.3 % an
 iteration, ahead of the decaying ones from about 150 iterations on; docs/pressure_solve.md). A
 density solve therefore also stops where its mean error, above eta, has grown to ``GROWTH`` times
-the least it reached, and keeps that iteration's input pressures (``blend`` 0), as a solve stopped
-by ``max_iterations`` keeps its last: the step goes on with the error it logs, instead of pressures
-that run away to 1e30 Pa.
+the least it reached (never before ``min_iterations``), and keeps that iteration's input
+pressures (``blend`` 0), as a solve stopped by ``max_iterations`` keeps its last: the step goes on
+with the error it logs, instead of pressures that run away to 1e30 Pa.
 """
 
 from __future__ import annotations
@@ -53,16 +53,16 @@ def convergence_test(
     ``max_iterations``. With ``ends_at_eta``, where the error crossed eta in this iteration,
     ``blend`` is the share of the way from the last iterate to this one at which it reaches eta
     and the error sum reported is eta's; otherwise (and always without ``ends_at_eta``) ``blend``
-    is negative. With ``ends_at_eta`` it also stops where the error, above eta, has grown to
-    ``GROWTH`` times the least of this solve (``least_error_sum``), with ``blend`` 0: the input
-    pressures kept."""
+    is negative. With ``ends_at_eta`` it also stops (after ``min_iterations``) where the error,
+    above eta, has grown to ``GROWTH`` times the least of this solve (``least_error_sum``), with
+    ``blend`` 0: the input pressures kept."""
     it = iterations[0] + 1
     iterations[0] = it
     mean = error_sum[0] / wp.float64(n)
     converged = it >= min_iterations and mean <= eta
     least = wp.min(least_error_sum[0], error_sum[0])
     least_error_sum[0] = least
-    growing = ends_at_eta != 0 and mean > eta and error_sum[0] > wp.float64(GROWTH) * least
+    growing = ends_at_eta != 0 and it >= min_iterations and mean > eta and error_sum[0] > wp.float64(GROWTH) * least
     keep_going[0] = wp.where(converged or growing or it >= max_iterations, 0, 1)
     b = float(-1.0)
     if growing:
