@@ -369,3 +369,17 @@ def test_cluster_benchmark_quick_mode_measures_its_bounds(tmp_path):
     if render is not None:  # with the render extra
         assert render["same_results"] and render["frames"] == 8
         assert 0.5 < render["serial_cores_busy"] <= os.cpu_count() + 0.2 and 0.0 < render["floor"] <= 1.1
+
+
+def test_pressure_operator_quick_mode(tmp_path):
+    """The release column at nx 10, 4 spacings deep: its operator's least eigenvalue is positive with
+    either walls (relaxed Jacobi converges there; at nx 20 it does not, docs/pressure_solve.md), and
+    the uniform pressure compresses the layers between the side walls only with extrapolated walls."""
+    (case,) = _quick("pressure_operator.py", tmp_path, "pressure_operator_quick")["cases"]
+    assert case["particles"] == 800
+    for walls in ("extrapolated", "akinci"):
+        assert 0.0 < case[walls]["least_eigenvalue"][0] < 0.05
+        assert case[walls]["jacobi_factor"] < 1.0
+    assert case["extrapolated"]["uniform_between"] < 0.0 < case["akinci"]["uniform_between"]
+    assert -0.07 < case["side_wall_gradient_sum"] < -0.03
+    assert (tmp_path / "pressure_operator_quick.png").stat().st_size > 0
