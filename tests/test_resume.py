@@ -210,6 +210,14 @@ def _drop_lines(path: Path, which) -> None:
     path.write_text("".join(line for k, line in enumerate(lines) if not which(k, len(lines))))
 
 
+def _swap_header(path: Path, a: int, b: int) -> None:
+    """The header's cells a and b swapped: the same columns in another order."""
+    head, rest = path.read_text().split("\n", 1)
+    cells = head.split(",")
+    cells[a], cells[b] = cells[b], cells[a]
+    path.write_text(",".join(cells) + "\n" + rest)
+
+
 @pytest.mark.parametrize(
     "damage, file, words",
     [
@@ -225,6 +233,7 @@ def _drop_lines(path: Path, which) -> None:
         (lambda r: _drop_lines(r / "probes.csv", lambda k, n: k >= n - 3), "probes.csv", "the checkpoint counted 30"),
         (lambda r: _drop_lines(r / "probes.csv", lambda k, n: k == 4), "probes.csv", "holds 29 probe samples"),
         (lambda r: _drop_lines(r / "probes.csv", lambda k, n: k == 0), "probes.csv", "not the header"),
+        (lambda r: _swap_header(r / "probes.csv", 1, 2), "probes.csv", "not the header"),
         (lambda r: _drop_lines(r / "bodies.csv", lambda k, n: k == n - 1), "bodies.csv", "one per frame makes 4"),
     ],
 )

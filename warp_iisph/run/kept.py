@@ -26,7 +26,7 @@ import math
 from pathlib import Path
 
 from ..scene.bodies import body_names
-from ..scene.probes import probe_columns
+from ..scene.probes import probe_columns, sampled_order
 from ..scene.settings import MESH_FORMATS
 from .checkpoint import PROBE_SAMPLES
 from .folder import MESHES, PARTICLES, RunError, RunFolder
@@ -52,12 +52,10 @@ def check_kept(run: RunFolder, record: dict, state: dict, scene) -> list[dict]:
     _check_frames(run, record, scene, frame, at)
     kept = _kept_steps(run, steps, t, at)
     if scene.probes:
-        columns = [c for p in scene.probes for c in probe_columns(p)]
+        columns = [c for p in sampled_order(scene.probes) for c in probe_columns(p)]
         cells = ["t [s]", *(f"{n} [{u}]" for n, u in columns)]
         counted = int(state[PROBE_SAMPLES]) if PROBE_SAMPLES in state else None
-        _check_rows(
-            run.probes, cells, counted, t, at, "probe samples", f"the checkpoint counted {counted}", any_order=True
-        )
+        _check_rows(run.probes, cells, counted, t, at, "probe samples", f"the checkpoint counted {counted}")
     if scene.bodies:
         cells = bodies_header(body_names(scene.bodies)).split(",")
         _check_rows(run.bodies, cells, frame + 1, t, at, "body rows", f"one per frame makes {frame + 1}")
@@ -179,12 +177,10 @@ def _number(v, integer: bool = False, finite: bool = True) -> bool:
     return not finite or math.isfinite(v)
 
 
-def _check_rows(
-    path: Path, cells, expected: int | None, t: float, at: str, what: str, why: str, any_order: bool = False
-):
-    """A time series (``probes.csv``, ``bodies.csv``) headed ``cells`` (``any_order``: in some
-    order) that holds ``expected`` rows up to time ``t`` (``None``: not known, not counted; ``why``
-    says where the number comes from)."""
+def _check_rows(path: Path, cells, expected: int | None, t: float, at: str, what: str, why: str):
+    """A time series (``probes.csv``, ``bodies.csv``) headed ``cells``, in that order (the writer
+    keeps rows only under its own header), that holds ``expected`` rows up to time ``t`` (``None``:
+    not known, not counted; ``why`` says where the number comes from)."""
     if not path.is_file():
         if expected == 0:  # nothing to keep: the resume writes it anew
             return
@@ -193,7 +189,7 @@ def _check_rows(
         head, rows = rows_until(path, t)
     except (OSError, UnicodeDecodeError) as e:
         raise RunError(f"{path}: cannot be read ({' '.join(str(e).split())})") from None
-    if (sorted(head.split(",")) != sorted(cells)) if any_order else head.split(",") != list(cells):
+    if head.split(",") != list(cells):
         raise RunError(
             f"{path}: its first line is not the header of this run's {what} ({len(cells) - 1} columns after t [s]); "
             f"a resume would drop its rows: {OVER}"

@@ -179,6 +179,19 @@ def validate_probes(probes: list, tank_bounds, obstacles: list, bodies: tuple = 
             columns[column] = p.name
 
 
+def sampled_order(probes) -> list[Probe]:
+    """The probes in the order their samples are laid out (``sim.probes``, probes.csv's columns):
+    pressure sensors, level gauges, forces on obstacles, forces on bodies, each in scene order."""
+    probes = list(probes)
+    force = [p for p in probes if p.kind == "force"]
+    return (
+        [p for p in probes if p.kind == "pressure"]
+        + [p for p in probes if p.kind == "level"]
+        + [p for p in force if p.body is None]
+        + [p for p in force if p.body is not None]
+    )
+
+
 def probe_columns(probe: Probe) -> list[tuple[str, str]]:
     """The columns a probe writes, as (name, unit): one for a pressure probe (Pa) or a level
     gauge (m); for a force probe ``NAME.Fp_x`` .. ``NAME.Mv_z``: the pressure (p) and viscous (v)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_columns
+from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_columns, sampled_order
 from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
 from ..sph.wall_forces import WallForces
 
@@ -84,7 +84,7 @@ class ProbeSampler:
         self.levels = [p for p in scene.probes if p.kind == "level"]
         self.forces = [p for p in scene.probes if p.kind == "force" and p.body is None]
         self.body_forces = [p for p in scene.probes if p.kind == "force" and p.body is not None]
-        self.probes = self.pressure + self.levels + self.forces + self.body_forces
+        self.probes = sampled_order(scene.probes)  # the groups above, in that order (probes.csv's)
         self.columns = [c for p in self.probes for c in probe_columns(p)]
         self.log = wp.zeros((int(capacity), 1 + len(self.columns)), dtype=wp.float64, device=dev)
         self.due = wp.zeros(1, dtype=wp.int32, device=dev)
