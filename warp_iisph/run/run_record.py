@@ -6,6 +6,7 @@ from __future__ import annotations
 import platform
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -107,19 +108,6 @@ class RunRecord:
         self.run.write_record(self.refresh(frames, mesher, queue))
 
 
-class _Unstarted:
-    """A simulation before its first step, for :func:`blank_record`: the attributes given, and 0
-    for every count or size it is asked for (``model`` and ``flows`` stand-ins of their own)."""
-
-    def __init__(self, **known):
-        self.__dict__.update(known)
-
-    def __getattr__(self, name: str):
-        if name.startswith("_"):
-            raise AttributeError(name)
-        return 0
-
-
 def blank_record(scene, plan, device: str = "cpu") -> dict:
     """The ``run.json`` that a run of ``scene`` over ``plan`` on ``device`` writes, every count 0
     and its clock at the plan's end, made before anything is built or run: the same names and
@@ -127,8 +115,13 @@ def blank_record(scene, plan, device: str = "cpu") -> dict:
     against before its first variant runs)."""
     from ..stepping.flows import has_flows
 
-    flows = _Unstarted() if has_flows(scene) else None
-    sim = _Unstarted(physics=scene.physics, device=device, time=plan.duration, model=_Unstarted(), flows=flows)
+    # a simulation before its first step: exactly what a record reads of one, each count 0 (a field
+    # read from anything else fails here, in the sweep's check, rather than reading 0)
+    flows = SimpleNamespace(emitted=0, removed=0, refused=0, blocked=0) if has_flows(scene) else None
+    model = SimpleNamespace(capacity=0, n_boundary=0)
+    sim = SimpleNamespace(
+        physics=scene.physics, device=device, time=plan.duration, n_particles=0, step_count=0, model=model, flows=flows
+    )
     return RunRecord(scene, sim, None, plan, False, False, None, 0).refresh(0)
 
 
