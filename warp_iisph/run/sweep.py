@@ -187,16 +187,7 @@ def plan_sweep(
         "sessions": [],
         "variants": variants(vary, repeat),
     }
-    blanks = []  # the summaries the variants will have, for --measure
-    for entry in record["variants"]:
-        if entry["repeat"] > 1:
-            continue  # a repeat builds the same scene as the first
-        try:
-            built = load_scene(scene, overrides(record, entry))
-            blanks.append(blank_summary(built, plan_frames(built, duration, fps), device))
-        except ValueError as e:
-            raise ValueError(f"variant {entry['name']}: {e}") from None
-    check_measure(measure, blanks)
+    check_measure(measure, variant_blanks(record, skip_broken=False))
     names = [e["name"] for e in record["variants"]]
     if len(set(names)) != len(names):  # only a hash collision could do it
         raise ValueError("--vary: two variants would share a folder name")
@@ -216,20 +207,28 @@ def blank_summary(scene, plan, device: str = "cpu") -> dict:
     return summary(blank_record(scene, plan, device))
 
 
-def resumed_measure(record: dict, measure: str) -> str:
-    """``measure`` for a resumed sweep's chart, checked as :func:`plan_sweep` checks a new
-    sweep's against the summaries its variants will have (a variant whose scene no longer
-    builds is left out: it fails when it runs, and says why)."""
+def variant_blanks(record: dict, skip_broken: bool) -> list[dict]:
+    """The summaries the variants of sweep ``record`` will have (:func:`blank_summary`; a repeat's
+    is its first's), for ``--measure``. A variant whose scene does not build is a ``ValueError``
+    naming it, or with ``skip_broken`` left out (a resumed sweep: it fails when it runs, and says
+    why)."""
     blanks = []
     for entry in record["variants"]:
         if entry.get("repeat", 1) > 1:
-            continue
+            continue  # a repeat builds the same scene as the first
         try:
             built = load_scene(record["scene"], overrides(record, entry))
             blanks.append(blank_summary(built, plan_frames(built, record["duration"], record["fps"]), record["device"]))
-        except ValueError:
-            continue
-    return check_measure(measure, blanks)
+        except ValueError as e:
+            if not skip_broken:
+                raise ValueError(f"variant {entry['name']}: {e}") from None
+    return blanks
+
+
+def resumed_measure(record: dict, measure: str) -> str:
+    """``measure`` for a resumed sweep's chart, checked as :func:`plan_sweep` checks a new
+    sweep's against the summaries its variants will have."""
+    return check_measure(measure, variant_blanks(record, skip_broken=True))
 
 
 def load_sweep(path) -> dict:
