@@ -110,8 +110,9 @@ def test_every_view_refuses_the_same_bad_out_in_one_line(tiny_run, tmp_path, cap
 def test_every_view_waits_for_the_run_folders_writer_and_takes_any_case_of_its_suffix(
     tiny_run, tmp_path, capsys, command
 ):
-    """A view into the run folder another command writes is refused naming the holder; put
-    elsewhere it reads the run as it is; its suffix in capitals is its suffix."""
+    """A view into the run folder another command writes, or into another run's folder that its
+    writer holds, is refused naming the holder; put elsewhere it reads the run as it is; its
+    suffix in capitals is its suffix."""
     from warp_iisph.run.lock import FolderLock
 
     if command == "usd":
@@ -127,6 +128,17 @@ def test_every_view_waits_for_the_run_folders_writer_and_takes_any_case_of_its_s
         out = tmp_path / f"VIEW{suffix.upper()}"
         assert main([command, str(tiny_run), "--out", str(out), *extra]) == 0
         assert out.stat().st_size > 0
+    # into another run's folder, which its own writer holds: refused the same way, naming that folder
+    import shutil
+
+    other = tmp_path / "other_run"
+    shutil.copytree(tiny_run, other)
+    with FolderLock(other):
+        capsys.readouterr()
+        assert main([command, str(tiny_run), "--out", str(other / "sub" / f"view{suffix}"), *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "in use by" in err and str(other) in err, err
+        assert not (other / "sub").exists()
 
 
 def test_frame_selection():

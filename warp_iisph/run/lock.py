@@ -12,10 +12,10 @@ from __future__ import annotations
 import errno
 import os
 import sys
-from contextlib import nullcontext
+from contextlib import ExitStack, nullcontext
 from pathlib import Path
 
-from .folder import RunError
+from .folder import RECORD, RunError
 
 try:
     import fcntl
@@ -137,12 +137,32 @@ def check_free(folder, what: str = "run folder") -> None:
 
 
 def writing_into(folder, *outputs):
-    """The lock a command that writes ``outputs`` takes, as a context manager: ``folder``'s, when
-    any output lies in it; none when all go elsewhere (a view of a run that is still being
+    """The locks a command that reads run ``folder`` and writes ``outputs`` takes, as a context
+    manager: the lock of every run folder (a folder with a run.json, ``folder`` itself or another
+    run's) that an output lies in; none when all go elsewhere (a view of a run that is still being
     written, put beside it, reads it without taking its lock)."""
     root = Path(os.path.realpath(folder))
+    runs = []
     for out in outputs:
         target = Path(os.path.realpath(out))
-        if target == root or root in target.parents:
-            return FolderLock(folder, hint="or write to a file outside it with --out")
-    return nullcontext()
+        inside = root if (target == root or root in target.parents) else _run_folder_above(target)
+        if inside is not None and inside not in runs:
+            runs.append(inside)
+    if not runs:
+        return nullcontext()
+    stack = ExitStack()
+    try:
+        for run in runs:
+            stack.enter_context(FolderLock(run, hint="or write to a file outside it with --out"))
+    except BaseException:
+        stack.close()
+        raise
+    return stack
+
+
+def _run_folder_above(path: Path) -> Path | None:
+    """The nearest folder above ``path`` (or ``path`` itself) that holds a run's run.json."""
+    for folder in (path, *path.parents):
+        if (folder / RECORD).is_file():
+            return folder
+    return None
