@@ -2,6 +2,7 @@
 
 import math
 import sys
+from pathlib import Path
 
 import imageio.v2 as imageio
 import numpy as np
@@ -104,6 +105,30 @@ def test_every_view_refuses_the_same_bad_out_in_one_line(tiny_run, tmp_path, cap
     assert err.count("\n") == 1 and err.startswith("warp-iisph: error: --out ") and "Traceback" not in err, err
     assert says.format(suffix=suffix) in err, err
     assert files_in(tiny_run, tmp_path) == before
+
+
+@pytest.mark.parametrize("command", list(VIEWS))
+def test_every_view_refuses_an_out_folder_it_may_not_write_before_any_work(
+    tiny_run, tmp_path, capsys, monkeypatch, command
+):
+    """A folder this process may not write to (here: os.access says so, as it does for a read-only
+    folder of another user's; root may write anywhere) is refused up front, in one line, exit 2."""
+    import os
+
+    import warp_iisph.view.out_file as out_file
+
+    if command == "usd":
+        pytest.importorskip("pxr", reason="the usd extra (usd-core) is not installed")
+    suffix, extra = VIEWS[command]
+    locked = tmp_path / "read_only"
+    locked.mkdir()
+    real = os.access
+    monkeypatch.setattr(out_file.os, "access", lambda p, mode: False if Path(p) == locked else real(p, mode))
+    capsys.readouterr()
+    assert main([command, str(tiny_run), "--out", str(locked / "deeper" / f"view{suffix}"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is not writable" in err and str(locked) in err, err
+    assert list(locked.iterdir()) == []
 
 
 @pytest.mark.parametrize("command", [c for c in VIEWS if c != "plot"])  # plot: the tiny run has no probes

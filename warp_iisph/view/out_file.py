@@ -5,6 +5,7 @@ while the file is written into it, is :func:`~warp_iisph.run.lock.writing_into`'
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from ..run.folder import RunError, RunFolder
@@ -14,8 +15,8 @@ def view_file(run: RunFolder, out, default: str, suffixes: tuple[str, ...], what
     """Where a view of ``run`` writes: ``out`` as given (``--out``; ``None``: ``RUN_DIR/default``).
     ``RunError`` naming ``--out`` when it is empty, a folder, not ending in one of ``suffixes``
     (in any case; ``note`` says more of them), one of the run's own files or in a folder of its
-    frames (``what``: the view, as the refusal names it), or under a file instead of a folder.
-    Nothing is written."""
+    frames (``what``: the view, as the refusal names it), under a file instead of a folder, or in
+    a folder this process may not write to. Nothing is written."""
     allowed = ", ".join(suffixes) + (f" ({note})" if note else "")
     if out is not None and not str(out):
         raise RunError(f"--out '': empty; give a file name ending in {allowed}")
@@ -31,4 +32,6 @@ def view_file(run: RunFolder, out, default: str, suffixes: tuple[str, ...], what
         parent = parent.parent
     if parent.exists() and not parent.is_dir():
         raise RunError(f"--out {path}: {parent} is a file, not a folder")
+    if parent.is_dir() and not os.access(parent, os.W_OK | os.X_OK):  # found now, not after the work
+        raise RunError(f"--out {path}: {parent} is not writable; put the {what} where you may write")
     return path
