@@ -20,6 +20,13 @@ def _umask() -> int:
 FILE_MODE = 0o666 & ~_umask()
 
 
+def flush_to_disk(f) -> None:
+    """An appended log's lines on the disk, not only in the OS's cache: flushed and fsynced, so a
+    checkpoint written after (fsynced too) never outlives them, even through a power cut."""
+    f.flush()
+    os.fsync(f.fileno())
+
+
 def atomic_write(path: Path, write) -> None:
     """``write(tmp)`` to a temporary file beside ``path``, flushed to disk, then renamed into
     place: a file that exists is whole."""

@@ -15,7 +15,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from .atomic import atomic_write, jsonable
+from .atomic import atomic_write, flush_to_disk, jsonable
 from .obj_text import obj_chunks
 
 
@@ -140,7 +140,7 @@ class StatsWriter:
         self._f.write(json.dumps(record, default=jsonable) + "\n")
 
     def flush(self) -> None:
-        self._f.flush()
+        flush_to_disk(self._f)
 
     def close(self) -> None:
         self._f.close()

@@ -1,7 +1,7 @@
 """``probes.csv``: a run's probe samples, one row per sample, the time first and then one column per
 probe (a force probe has twelve), each headed ``name [unit]``. Rows are appended as the samples
-come and flushed at every frame; a resumed run keeps the rows up to its checkpoint's time (as
-``stats.jsonl`` keeps the steps up to it) and appends to them.
+come and written to the disk at every frame (before its checkpoint); a resumed run keeps the rows
+up to its checkpoint's time (as ``stats.jsonl`` keeps the steps up to it) and appends to them.
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..scene import obstacles_mesh
 from ..scene.bodies import bodies_mesh, body_names
+from .atomic import flush_to_disk
 from .folder import BODIES, OBSTACLES
 from .formats import write_obj
 from .time_series import TimeSeriesWriter, read_time_series
@@ -48,7 +49,7 @@ class BodyWriter(TimeSeriesWriter):
 
     def write(self, line: str) -> None:
         self._f.write(line + "\n")
-        self._f.flush()
+        flush_to_disk(self._f)
         self.rows += 1
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
+from .atomic import atomic_write, flush_to_disk
 from .formats import FileFormatError
 
 # a kept row's time may exceed the checkpoint's by this much (s), or by this fraction of it: what
@@ -64,7 +64,7 @@ class TimeSeriesWriter:
         self.rows += len(rows)
 
     def flush(self) -> None:
-        self._f.flush()
+        flush_to_disk(self._f)
 
     def close(self) -> None:
         self._f.close()
