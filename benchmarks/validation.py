@@ -586,7 +586,7 @@ def _num(value, scale: float, fmt: str, unit: str) -> str:
 
 def save_record(args, parts: list, done: dict, t_max: float):
     """validation.json: this run's parts, the others kept from the file there (same --quick); SPHERIC
-    runs by spacing."""
+    runs by spacing; ``part_dates``: the day each part was last measured."""
     stem = "validation_quick" if args.quick else "validation"
     old = Path(args.out) / f"{stem}.json"
     record = json.loads(old.read_text()) if old.is_file() else {}
@@ -613,6 +613,10 @@ def save_record(args, parts: list, done: dict, t_max: float):
             kept = [r for r in record.get(key, []) if r["spacing"] not in fresh_runs]
             record[key] = sorted(kept + list(fresh_runs.values()), key=lambda r: -r["spacing"])
     record.setdefault("peer_runs", [])
+    # the file's date is its last run's; each part keeps the date it was measured on (absent: before
+    # part dates were recorded)
+    dates = record.setdefault("part_dates", {})
+    dates.update({part: fresh["date"] for part in parts})
     return save(record, args.out, "validation", args.quick)
 
 

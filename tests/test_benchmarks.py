@@ -71,6 +71,7 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         assert run["error_a_1125"] is not None and run["error_a_2250"] is not None
         rest = record["resting_tank"]  # hydrostatics: pressure grows as rho0 g depth, the water stays at rest
         assert abs(rest["slope_mean"] - 1.0) < 0.1 and rest["mean_speed_max"] < 0.02
+        assert record["part_dates"] == {"martin_moyce": record["date"], "rest": record["date"]}  # the quick parts
 
 
 def test_a_benchmark_on_two_workers_measures_what_it_measures_alone(tmp_path):
