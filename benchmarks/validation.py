@@ -616,7 +616,7 @@ def save_record(args, parts: list, done: dict, t_max: float):
     # the file's date is its last run's; each part keeps the date it was measured on (absent: before
     # part dates were recorded)
     dates = record.setdefault("part_dates", {})
-    dates.update({part: fresh["date"] for part in parts})
+    dates.update(dict.fromkeys(parts, fresh["date"]))
     return save(record, args.out, "validation", args.quick)
 
 

@@ -201,6 +201,31 @@ def test_a_sweep_folder_is_resumed_with_its_own_settings_or_not_at_all(tmp_path,
     assert [p.name for p in (tmp_path / "taken").iterdir()] == ["keep.txt"]
 
 
+@pytest.mark.parametrize("name", ["../victim", "ABS", "..", ".", "sub/dir", "", 7, "twice"])
+def test_a_resumed_sweep_whose_variant_names_were_edited_is_refused_and_touches_nothing(tmp_path, capsys, name):
+    """Each variant's folder is overwritten when it runs: a sweep.json whose variant name is not one
+    plain folder inside the sweep's (a path out of it, absolute, hidden, not a string, twice) is
+    refused in one line before anything runs, and the folder it names is left as it was."""
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "run.json").write_text("{}")
+    (victim / "NOTES.txt").write_text("mine")
+    out = tmp_path / "sweep"
+    out.mkdir()
+    name = str(victim) if name == "ABS" else name
+    names = [name, name] if name == "twice" else [name]
+    entries = [{"name": n, "settings": {"physics.eta": "0.01"}, "repeat": 1, "ended": "pending"} for n in names]
+    record = {"scene": "martin_moyce", "set": [], "vary": {"physics.eta": ["0.01"]}, "repeat": 1, "duration": 0.1}
+    record.update(fps=None, device="cpu", graph=False, measure="totals.mean_compression", variants=entries)
+    (out / "sweep.json").write_text(json.dumps(record))
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "variants[" in err and "the file was edited" in err, err
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
 def test_without_dask_the_cluster_options_say_what_to_install(tmp_path, monkeypatch, capsys, tiny_run):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed now raises ImportError
     frames = (tiny_run / "frames").exists()

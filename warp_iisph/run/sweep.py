@@ -102,6 +102,10 @@ def parse_vary(specs: list[str], sets: list[str] = ()) -> dict[str, list[str]]:
     return vary
 
 
+# what variant_name makes: one folder name, never ".", ".." or hidden, never a path
+FOLDER_NAME = re.compile(r"(?!\.)(?!.*\.\.)[A-Za-z0-9._=,+~-]+")
+
+
 def variant_name(settings: dict[str, str], repeat: int | None = None) -> str:
     """The folder of a variant: ``key=value`` pairs joined by commas (``repeat=k`` last for a
     repeated one), with any character but letters, digits and ``._=,+-`` replaced, no leading
@@ -245,6 +249,18 @@ def load_sweep(path) -> dict:
         raise RunError(f"{file}: not valid JSON ({e.msg}, line {e.lineno})") from None
     except (KeyError, AttributeError):
         raise RunError(f"{file}: not a sweep record") from None
+    names = set()
+    for k, entry in enumerate(record["variants"]):
+        # each variant's folder is overwritten when it runs: its name must be one folder inside the sweep's
+        name = entry.get("name") if isinstance(entry, dict) else None
+        if not isinstance(name, str) or not FOLDER_NAME.fullmatch(name) or name in names:
+            raise RunError(
+                f"{file}: variants[{k}].name = {name!r:.80}: not a variant folder's name "
+                "(letters, digits and ._=,+~- in one folder inside the sweep's, each once); the file was edited"
+            )
+        if not isinstance(entry.get("settings"), dict):
+            raise RunError(f"{file}: variants[{k}].settings: not a variant's settings; the file was edited")
+        names.add(name)
     return record
 
 
