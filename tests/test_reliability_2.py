@@ -192,6 +192,29 @@ def test_overwrite_replaces_only_a_run_that_holds_none_of_its_inputs(made, tmp_p
     assert leftovers(tmp_path) == []
 
 
+def test_a_new_run_or_sweep_inside_a_run_folder_or_an_empty_out_is_refused(made, tmp_path, capsys):
+    """A run (or a sweep's runs) inside another run's folder would bar that run's --overwrite, and
+    an empty --out is no folder (it used to mean runs/NAME): each refused in one line, nothing written."""
+    import shutil
+
+    host = tmp_path / "host"
+    shutil.copytree(made, host)
+    before = snapshot(host)
+    for out in (host / "sub", host / "particles" / "deeper"):
+        capsys.readouterr()
+        assert main(["run", str(scene_file(tmp_path)), "--out", str(out), *QUICK]) == 2
+        one_line(capsys.readouterr().err.strip().splitlines(), f"inside the run folder {host}")
+    assert (
+        main(["sweep", str(scene_file(tmp_path)), "--vary", "physics.eta=0.01", "--out", str(host / "s"), *QUICK]) == 2
+    )
+    one_line(capsys.readouterr().err.strip().splitlines(), f"inside the run folder {host}")
+    assert snapshot(host) == before
+    for args in (["run", str(scene_file(tmp_path)), "--out", ""], ["run", "--resume", str(host), "--out", ""]):
+        assert main([*args, *QUICK]) == 2
+        assert "--out" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists() and snapshot(host) == before
+
+
 def test_overwrite_through_a_link_replaces_the_run_it_points_to(run_copy, tmp_path):
     link = tmp_path / "link"
     link.symlink_to(run_copy.name)

@@ -147,8 +147,10 @@ def _run(args) -> int:
         overrides.append("output.mesh=true")
     if args.format:
         overrides.append(f'output.format="{args.format}"')
+    if args.out is not None and not args.out:
+        raise ValueError("--out '': empty; give the run folder's path (default: runs/NAME)")
     if args.resume:
-        if args.scene or args.out or args.overwrite:
+        if args.scene or args.out is not None or args.overwrite:
             raise ValueError(
                 "--resume RUN_DIR: continues that run with its own scene and folder; "
                 "give no SCENE, --out or --overwrite"

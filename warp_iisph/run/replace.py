@@ -186,6 +186,9 @@ def prepare(out, overwrite: bool, inputs=(), what: str = "--out") -> Target:
     leftovers of processes that are gone are recovered first); a folder there is locked."""
     given = out
     path = resolved(out, what)
+    for folder in path.parents:  # a run inside another's folder would bar that one's --overwrite
+        if RunFolder(folder).is_run():
+            raise OutputExistsError(f"{what} {given}: inside the run folder {folder}; put the new run elsewhere")
     recover(path)
     if path.exists() and not path.is_dir():
         raise OutputExistsError(f"{what} {given}: is a file, not a folder")

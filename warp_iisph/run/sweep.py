@@ -23,6 +23,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import re
 import sys
 import time
@@ -32,7 +33,7 @@ from ..scene import load_scene
 from ..scene.file import parse_value
 from ..scene.library import bundled_scenes, resolve_scene
 from .atomic import write_json
-from .folder import RECORD, RunError
+from .folder import RECORD, RunError, RunFolder
 from .progress import frame_bar
 from .run_record import blank_record
 from .runner import Terminated, plan_frames
@@ -198,6 +199,9 @@ def plan_sweep(
     out = Path(out) if out is not None else Path("sweeps") / load_scene(scene, list(sets)).name
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: is a file, not a folder")
+    inside = next((f for f in Path(os.path.realpath(out)).parents if RunFolder(f).is_run()), None)
+    if inside is not None:  # its variants' runs would sit inside another run's folder
+        raise ValueError(f"--out {out}: inside the run folder {inside}; put the sweep elsewhere")
     if out.is_dir() and any(out.iterdir()):
         hint = "; --resume it to run what it has left" if (out / SWEEP).is_file() else ""
         raise ValueError(f"--out {out}: folder exists and is not empty{hint}")
