@@ -96,6 +96,10 @@ def test_a_finished_run_extends_bitwise(whole, tmp_path):
     # a checkpoint staged by a run killed mid-frame (written beside its place, never renamed in)
     stale = out / ".checkpoint.npz.k1ll3d.tmp.npz"
     stale.write_bytes(b"half a checkpoint")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p != stale}
+    for extra in ([], ["--duration", "0.1"], ["--mesh"]):  # nothing left to run: refused, nothing changed
+        assert main(["run", "--resume", str(out), *extra, "--no-progress"]) == 2
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p != stale} == before
     assert main(["run", "--resume", str(out), "--duration", "0.4", "--no-progress"]) == 0
     same_run(out, whole)
     assert not stale.exists()

@@ -115,6 +115,11 @@ def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict
                 f"--duration = {plan.requested:g}: the run has already reached frame {frame} "
                 f"(t = {frame / plan.fps:g} s) and a resumed run goes on from there; give a longer one"
             )
+        if plan.frames - 1 == frame and before.get("ended") == "completed":  # nothing to run, nothing to change
+            raise ValueError(
+                f"--resume {out}: the run is complete at frame {frame} (t = {frame / plan.fps:g} s); "
+                "give a longer --duration to extend it"
+            )
         inputs = {Path(os.path.realpath(p)) for p in scene_inputs(scene)}
         doomed = [f for f in _frames_after(run, frame) if Path(os.path.realpath(f)) in inputs]
         if doomed:
