@@ -20,6 +20,7 @@ from .checks import MAX_COORDINATE, Record, position, vec3
 
 INTERPOLATIONS = ("linear", "smooth")
 MAX_KEYS = 256
+MAX_ANGLE = 1.0e6  # degrees: thousands of turns; beyond it the velocities the keys give leave float32
 
 
 @dataclass
@@ -56,6 +57,8 @@ class Motion(Record):
             keys[key] = np.array([vec3(row, f"{name}.{key}[{j}]") for j, row in enumerate(v)])
         if np.any(np.abs(keys["translate"]) > MAX_COORDINATE):
             raise ValueError(f"{name}.translate: must stay within {MAX_COORDINATE:g} m")
+        if np.any(np.abs(keys["rotate"]) > MAX_ANGLE):
+            raise ValueError(f"{name}.rotate: angles must stay within {MAX_ANGLE:g} degrees")
         if self.interpolation not in INTERPOLATIONS:
             raise ValueError(
                 f"{name}.interpolation = {self.interpolation!r}: must be one of {', '.join(INTERPOLATIONS)}"
