@@ -97,7 +97,7 @@ def test_motion_errors_are_one_line():
         ({"times": [0.0, 1.0], "interpolation": "cubic"}, "motion.interpolation = 'cubic'"),
         ({"times": [0.0, 1.0], "speed": 2}, "motion.speed: unknown key"),
         ({"translate": [[0, 0, 0]]}, "motion.times: required"),
-        ({"times": [0.0, 1.0], "rotate": [[0, 0, 0], [1e300, 0, 0]]}, "motion.rotate: angles must stay within 1e.06 degrees"),
+        ({"times": [0.0, 1.0], "rotate": [[0, 0, 0], [1e300, 0, 0]]}, "motion.rotate: angles must stay within 1e.06"),
         ({"times": [0.0, 1.0], "translate": [[0, 0, 0], [0, -2e3, 0]]}, "motion.translate: must stay within"),
     ]
     for motion, message in bad:

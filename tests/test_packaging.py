@@ -41,3 +41,13 @@ def test_wheel_ships_bundled_scenes_and_their_meshes(tmp_path):
     )
     assert len(list((elsewhere / "runs" / "dam_break" / "particles").glob("frame_*.ply"))) == 2
     assert (elsewhere / "runs" / "dam_break" / "obstacles.obj").is_file()
+
+
+def test_python_dash_m_runs_the_command_line():
+    """``python -m warp_iisph`` is the command line, as ``python -m warp_iisph.cli`` is."""
+    import subprocess
+    import sys
+
+    for module in ("warp_iisph", "warp_iisph.cli"):
+        proc = subprocess.run([sys.executable, "-m", module, "scenes"], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0 and "martin_moyce" in proc.stdout, proc.stderr
