@@ -214,6 +214,12 @@ def _drop_lines(path: Path, which) -> None:
     path.write_text("".join(line for k, line in enumerate(lines) if not which(k, len(lines))))
 
 
+def _cut(path: Path, by: int | None) -> None:
+    """The file cut ``by`` bytes short (``None``: to its first 100, inside its header)."""
+    data = path.read_bytes()
+    path.write_bytes(data[:100] if by is None else data[:-by])
+
+
 def _swap_header(path: Path, a: int, b: int) -> None:
     """The header's cells a and b swapped: the same columns in another order."""
     head, rest = path.read_text().split("\n", 1)
@@ -227,6 +233,8 @@ def _swap_header(path: Path, a: int, b: int) -> None:
     [
         (lambda r: (r / "particles" / "frame_00001.ply").unlink(), "particles/frame_00001.ply", "missing"),
         (lambda r: (r / "particles" / "frame_00003.ply").write_bytes(b""), "particles/frame_00003.ply", "empty"),
+        (lambda r: _cut(r / "particles" / "frame_00002.ply", 5), "particles/frame_00002.ply", "cut short"),
+        (lambda r: _cut(r / "particles" / "frame_00001.ply", None), "particles/frame_00001.ply", "no PLY header"),
         (lambda r: (r / "mesh" / "frame_00002.obj").unlink(), "mesh/frame_00002.obj", "warp-iisph mesh"),
         (lambda r: (r / "obstacles" / "frame_00000.obj").unlink(), "obstacles/frame_00000.obj", "a hole"),
         (lambda r: (r / "obstacles.obj").unlink(), "obstacles.obj", "missing"),

@@ -56,6 +56,40 @@ def write_particles(path, positions, velocities, densities, pressures, ids=None)
         atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format="vtu", binary=True, compression=None))
 
 
+PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2}
+PLY_SIZES.update({"int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8})
+
+
+def cut_short(path) -> str | None:
+    """Why the particle frame ``path`` (as :func:`write_particles` writes it) is not whole, or
+    ``None``: a binary PLY shorter or longer than its header's vertices make it, a VTU that does not
+    end its XML. Reads the header and the last bytes only (a run's resume checks every frame)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            if path.suffix.lower() == ".vtu":
+                f.seek(max(path.stat().st_size - 64, 0))
+                return None if f.read().rstrip().endswith(b"</VTKFile>") else "its XML is cut off"
+            head = f.read(4096)
+    except OSError as e:
+        return f"cannot be read ({e.strerror})"
+    end = head.find(b"end_header\n")
+    if not head.startswith(b"ply\n") or end < 0:
+        return "no PLY header"
+    size, count, row = end + len(b"end_header\n"), 0, 0
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if words[:1] == ["element"] and len(words) == 3:
+            size, count, row = size + count * row, int(words[2]) if words[2].isdigit() else -1, 0
+        elif words[:1] == ["property"] and len(words) == 3 and words[1] in PLY_SIZES:
+            row += PLY_SIZES[words[1]]
+        elif words[:1] == ["property"] or (words[:1] == ["format"] and "binary_little_endian" not in words):
+            return None  # list properties or ASCII: not ours, and not sized here
+    size += count * row
+    actual = path.stat().st_size
+    return None if count >= 0 and actual == size else f"{actual} bytes where its header makes {size}"
+
+
 def read_points(path) -> "meshio.Mesh":
     """Any point file meshio reads (PLY, VTK, VTU, ...); ``FileFormatError`` naming the file and
     what is wrong, never meshio's own exit."""

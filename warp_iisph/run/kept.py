@@ -30,7 +30,7 @@ from ..scene.probes import probe_columns, sampled_order
 from ..scene.settings import MESH_FORMATS
 from .checkpoint import PROBE_SAMPLES
 from .folder import MESHES, PARTICLES, RunError, RunFolder
-from .formats import FileFormatError, read_stats
+from .formats import FileFormatError, cut_short, read_stats
 from .run_record import FRAME_KINDS, STEP_SUMS
 from .solids import header as bodies_header
 from .solids import solids_move
@@ -82,7 +82,8 @@ def _stretches(run: RunFolder, record: dict, frame: int) -> list[tuple[range, di
 
 
 def _check_frames(run: RunFolder, record: dict, scene, frame: int, at: str) -> None:
-    """Every frame file the run wrote up to ``frame`` is there and not empty."""
+    """Every frame file the run wrote up to ``frame`` is there and not empty, and each particle
+    frame whole (its size as its header says, :func:`.formats.cut_short`)."""
     for frames, wrote in _stretches(run, record, frame):
         for kind in FRAME_KINDS:
             if wrote.get(kind) is not True:
@@ -90,6 +91,12 @@ def _check_frames(run: RunFolder, record: dict, scene, frame: int, at: str) -> N
             for k in frames:
                 if kind == PARTICLES:
                     _frame_there(run.particle_frame(k), at)
+                    why = cut_short(run.particle_frame(k))
+                    if why is not None:
+                        raise RunError(
+                            f"{run.particle_frame(k)}: cut short ({why}), though the run had written it whole by "
+                            f"{at}; a resume would keep a broken frame: {OVER}"
+                        )
                 else:
                     candidates = [run.path / MESHES / f"frame_{k:05d}.{e}" for e in MESH_FORMATS]
                     if not any(_size(p) for p in candidates):
