@@ -4,8 +4,8 @@ The solve predicts each particle's density from the pressures, ``rho_pred = rho_
 relaxed Jacobi converges only if every eigenvalue of ``D^-1 A`` (``D``: the diagonal it divides by)
 has a positive real part. Here ``A`` is built column by column in the first step of a column of
 water at rest from the hydrostatic start, from the solver's own kernels (the pressures of a set of
-particles at least 9 spacings apart raised by 1 Pa at a time, each one's response read within its
-reach of 4 spacings), for the default extrapolated wall pressures and, in the same state, Akinci's
+particles more than 8 spacings apart raised by 100 Pa at a time, each one's response read within
+its reach of 4 spacings), for the default extrapolated wall pressures and, in the same state, Akinci's
 walls. Reported for each case:
 
 - the eigenvalue of ``D^-1 A`` with the least real part (ARPACK), and the factor ``|1 - omega
@@ -34,6 +34,7 @@ from common import RESULTS, header, pyplot, save
 import warp_iisph.sph.solvers.iisph as iisph
 
 REACH = 4  # spacings: how far a pressure reaches in one prediction (two support radii of 2 spacings)
+DELTA = 100.0  # Pa: the raise that measures a column (the operator is linear but for the walls' clip at 0)
 COLOUR = 9  # spacings between particles raised together: more than twice the reach
 CASES = [  # (name, spacing, tank size, fluid size): the fluid box sits in the tank's corner at the origin
     ("column nx 10, 4 deep", 0.01, (0.4, 0.3, 0.04), (0.1, 0.2, 0.04)),
@@ -59,11 +60,31 @@ def predicted_density(
     p: wp.array(dtype=float),
     out: wp.array(dtype=float),
 ):
-    """``rho_adv + a_ii p + s_i``: the density the pressures ``p`` predict (the solve's own
-    ``jacobi_sigma``), not clipped at rest density as the error is."""
+    """``a_ii p + s_i``: the density change the pressures ``p`` predict (the solve's own
+    ``jacobi_sigma``; the predicted density less ``rho_adv``, so that float32 keeps the small
+    differences the operator's columns are)."""
     i = wp.tid()
     sigma = iisph.jacobi_sigma(i, fluid, nf, nb, walls, terms, rho, p)
-    out[i] = terms.rho_adv[i] + terms.a_ii[i] * p[i] + sigma
+    out[i] = terms.a_ii[i] * p[i] + sigma
+
+
+def colour_classes(x: np.ndarray, cell: np.ndarray, spacing: float) -> list[np.ndarray]:
+    """The particles in sets whose members lie more than twice the reach apart, so that raising a
+    set's pressures together gives each member's column of ``A`` apart: the cells modulo
+    :data:`COLOUR`, each set split further where particles moved off the lattice came closer."""
+    colour = (cell[:, 0] % COLOUR) * COLOUR * COLOUR + (cell[:, 1] % COLOUR) * COLOUR + cell[:, 2] % COLOUR
+    apart = (2.0 * REACH * spacing) ** 2
+    sets = []
+    for c in np.unique(colour):
+        left = list(np.flatnonzero(colour == c))
+        while left:
+            chosen, rest = [], []
+            for i in left:
+                far = all(((x[i] - x[j]) ** 2).sum() > apart for j in chosen)
+                (chosen if far else rest).append(i)
+            sets.append(np.asarray(chosen))
+            left = rest
+    return sets
 
 
 def first_step_operators(spacing: float, tank: tuple, fluid: tuple, settle: float = 0.0) -> dict:
@@ -99,17 +120,18 @@ def first_step_operators(spacing: float, tank: tuple, fluid: tuple, settle: floa
 
         x = state.x.numpy()[:n].astype(np.float64)
         cell = np.floor((x - x.min(0)) / spacing + 0.5).astype(int)
-        colour = (cell[:, 0] % COLOUR) * COLOUR * COLOUR + (cell[:, 1] % COLOUR) * COLOUR + cell[:, 2] % COLOUR
         factor = walls.pressure_factor
         for name, f in (("extrapolated", factor), ("akinci", 0.0)):
             base = predict(p0, f)
             rows, cols, vals = [], [], []
-            for c in np.unique(colour):
-                raised = np.flatnonzero(colour == c)
-                response = predict(p0 + (colour == c), f) - base
+            for raised in colour_classes(x, cell, spacing):
+                q = p0.copy()
+                q[raised] += DELTA
+                response = (predict(q, f) - base) / DELTA
                 near = np.flatnonzero(response != 0.0)
-                # each responding particle answers to the raised one within reach (9 spacings apart)
+                # each responding particle answers to the one raised particle within its reach
                 d2 = ((x[near, None, :] - x[None, raised, :]) ** 2).sum(-1)
+                assert np.all(d2.min(axis=1) <= (1.001 * REACH * spacing) ** 2), "a response beyond the reach"
                 owner = raised[np.argmin(d2, axis=1)]
                 rows.append(near), cols.append(owner), vals.append(response[near])
             caught[name] = (np.concatenate(rows), np.concatenate(cols), np.concatenate(vals))

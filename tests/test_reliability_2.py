@@ -209,9 +209,21 @@ def test_a_new_run_or_sweep_inside_a_run_folder_or_an_empty_out_is_refused(made,
     )
     one_line(capsys.readouterr().err.strip().splitlines(), f"inside the run folder {host}")
     assert snapshot(host) == before
-    for args in (["run", str(scene_file(tmp_path)), "--out", ""], ["run", "--resume", str(host), "--out", ""]):
+    for args in (
+        ["run", str(scene_file(tmp_path)), "--out", ""],
+        ["run", "--resume", str(host), "--out", ""],
+        ["sweep", str(scene_file(tmp_path)), "--vary", "physics.eta=0.01", "--out", ""],
+    ):
         assert main([*args, *QUICK]) == 2
         assert "--out" in capsys.readouterr().err
+    # a sweep folder put inside a run folder afterwards: its resume is refused once, not per variant
+    moved = host / "moved_sweep"
+    moved.mkdir()
+    (moved / "sweep.json").write_text('{"scene": "martin_moyce", "variants": []}')
+    assert main(["sweep", "--resume", str(moved), "--no-progress"]) == 2
+    one_line(capsys.readouterr().err.strip().splitlines(), f"inside the run folder {host}")
+    (moved / "sweep.json").unlink()
+    moved.rmdir()
     assert not (tmp_path / "runs").exists() and snapshot(host) == before
 
 

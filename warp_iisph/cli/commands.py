@@ -254,6 +254,8 @@ def _sweep(args) -> int:
         raise ValueError(f"sweep: {e}") from None
     if args.threads is not None and not 1 <= args.threads <= 1024:
         raise ValueError(f"--threads {args.threads}: must be in [1, 1024]")
+    if args.out is not None and not args.out:
+        raise ValueError("--out '': empty; give the sweep folder's path (default: sweeps/NAME)")
     if args.resume:
         given = [
             name
@@ -266,7 +268,7 @@ def _sweep(args) -> int:
                 ("--fps", args.fps is not None),
                 ("--device", args.device != "cpu"),
                 ("--graph", args.graph is not None),
-                ("--out", args.out),
+                ("--out", args.out is not None),
             )
             if value
         ]

@@ -86,7 +86,10 @@ def cut_short(path) -> str | None:
         elif words[:1] == ["property"] or (words[:1] == ["format"] and "binary_little_endian" not in words):
             return None  # list properties or ASCII: not ours, and not sized here
     size += count * row
-    actual = path.stat().st_size
+    try:
+        actual = path.stat().st_size
+    except OSError as e:
+        return f"cannot be read ({e.strerror})"
     return None if count >= 0 and actual == size else f"{actual} bytes where its header makes {size}"
 
 

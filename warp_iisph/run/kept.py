@@ -9,14 +9,17 @@ its frames, so a resume refuses, in one line naming the first such file, a folde
 - a frame file the run wrote up to the checkpoint is missing or empty: ``particles/`` and
   ``mesh/`` for the stretches of the run whose ``output`` wrote them (run.json's ``output`` and
   each resumption's ``output_before``), ``obstacles/`` when the solids move, and ``obstacles.obj``;
+- a particle frame is cut short (its size is not what its header makes it; :func:`.formats.cut_short`);
 - ``stats.jsonl`` does not hold the step records 1 .. the checkpoint's step, in order, the last at
   the checkpoint's time;
-- ``probes.csv`` (a scene with probes) is missing, has other columns than the scene's probes, or
+- ``probes.csv`` (a scene with probes) is missing, has other columns than the scene's probes (in
+  their order), or
   holds another number of rows up to the checkpoint's time than the checkpoint counted;
 - ``bodies.csv`` (a scene with free bodies) is missing, has other columns than the bodies', or does
   not hold one row per frame up to the checkpoint's.
 
-The checks read no frame (one ``stat`` each) and the step records and rows once; a time series
+The checks read a particle frame's header and last bytes and a mesh frame's size only, and the
+step records and rows once; a time series
 that the checkpoint says is empty and that is missing is made again by the resume (exactly).
 """
 

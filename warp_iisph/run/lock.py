@@ -15,7 +15,7 @@ import sys
 from contextlib import ExitStack, nullcontext
 from pathlib import Path
 
-from .folder import RECORD, RunError
+from .folder import RunError, enclosing_run
 
 try:
     import fcntl
@@ -138,14 +138,14 @@ def check_free(folder, what: str = "run folder") -> None:
 
 def writing_into(folder, *outputs):
     """The locks a command that reads run ``folder`` and writes ``outputs`` takes, as a context
-    manager: the lock of every run folder (a folder with a run.json, ``folder`` itself or another
-    run's) that an output lies in; none when all go elsewhere (a view of a run that is still being
-    written, put beside it, reads it without taking its lock)."""
+    manager: the lock of every run folder that an output lies in (``folder`` itself, or another
+    run's: :func:`~.folder.enclosing_run`); none when all go elsewhere (a view of a run that is
+    still being written, put beside it, reads it without taking its lock)."""
     root = Path(os.path.realpath(folder))
     runs = []
     for out in outputs:
         target = Path(os.path.realpath(out))
-        inside = root if (target == root or root in target.parents) else _run_folder_above(target)
+        inside = root if (target == root or root in target.parents) else enclosing_run(target)
         if inside is not None and inside not in runs:
             runs.append(inside)
     if not runs:
@@ -158,11 +158,3 @@ def writing_into(folder, *outputs):
         stack.close()
         raise
     return stack
-
-
-def _run_folder_above(path: Path) -> Path | None:
-    """The nearest folder above ``path`` (or ``path`` itself) that holds a run's run.json."""
-    for folder in (path, *path.parents):
-        if (folder / RECORD).is_file():
-            return folder
-    return None

@@ -80,11 +80,11 @@ class ProbeSampler:
         dev = model.device
         h, H = model.spacing, model.support_radius
         self.interval = float(scene.output.probe_interval)
-        self.pressure = [p for p in scene.probes if p.kind == "pressure"]
-        self.levels = [p for p in scene.probes if p.kind == "level"]
-        self.forces = [p for p in scene.probes if p.kind == "force" and p.body is None]
-        self.body_forces = [p for p in scene.probes if p.kind == "force" and p.body is not None]
-        self.probes = sampled_order(scene.probes)  # the groups above, in that order (probes.csv's)
+        self.probes = sampled_order(scene.probes)  # probes.csv's order: the groups below, one after another
+        self.pressure = [p for p in self.probes if p.kind == "pressure"]
+        self.levels = [p for p in self.probes if p.kind == "level"]
+        self.forces = [p for p in self.probes if p.kind == "force" and p.body is None]
+        self.body_forces = [p for p in self.probes if p.kind == "force" and p.body is not None]
         self.columns = [c for p in self.probes for c in probe_columns(p)]
         self.log = wp.zeros((int(capacity), 1 + len(self.columns)), dtype=wp.float64, device=dev)
         self.due = wp.zeros(1, dtype=wp.int32, device=dev)
