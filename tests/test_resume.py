@@ -235,6 +235,7 @@ def _swap_header(path: Path, a: int, b: int) -> None:
         (lambda r: (r / "particles" / "frame_00003.ply").write_bytes(b""), "particles/frame_00003.ply", "empty"),
         (lambda r: _cut(r / "particles" / "frame_00002.ply", 5), "particles/frame_00002.ply", "cut short"),
         (lambda r: _cut(r / "particles" / "frame_00001.ply", None), "particles/frame_00001.ply", "no PLY header"),
+        (lambda r: _cut(r / "mesh" / "frame_00002.obj", 3), "mesh/frame_00002.obj", "its last line is cut off"),
         (lambda r: (r / "mesh" / "frame_00002.obj").unlink(), "mesh/frame_00002.obj", "warp-iisph mesh"),
         (lambda r: (r / "obstacles" / "frame_00000.obj").unlink(), "obstacles/frame_00000.obj", "a hole"),
         (lambda r: (r / "obstacles.obj").unlink(), "obstacles.obj", "missing"),

@@ -61,18 +61,25 @@ PLY_SIZES.update({"int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "flo
 
 
 def cut_short(path) -> str | None:
-    """Why the particle frame ``path`` (as :func:`write_particles` writes it) is not whole, or
-    ``None``: a binary PLY shorter or longer than its header's vertices make it, a VTU that does not
-    end its XML. Reads the header and the last bytes only (a run's resume checks every frame)."""
+    """Why the frame file ``path`` (as this package writes particle and mesh frames) is not whole,
+    or ``None``: a binary PLY shorter or longer than its header's elements make it (a mesh's
+    faces triangles), a VTU that does not end its XML, an OBJ whose last line is not the end of its
+    last element. Reads the header and the last bytes only (a resume checks every frame); a file
+    not of ours is not judged."""
     path = Path(path)
+    kind = path.suffix.lower()
     try:
+        size_on_disk = path.stat().st_size
         with open(path, "rb") as f:
-            if path.suffix.lower() == ".vtu":
-                f.seek(max(path.stat().st_size - 64, 0))
-                return None if f.read().rstrip().endswith(b"</VTKFile>") else "its XML is cut off"
             head = f.read(4096)
+            f.seek(max(size_on_disk - 256, 0))
+            tail = f.read()
     except OSError as e:
         return f"cannot be read ({e.strerror})"
+    if kind == ".vtu":
+        return None if tail.rstrip().endswith(b"</VTKFile>") else "its XML is cut off"
+    if kind == ".obj":
+        return _obj_cut_short(head, tail)
     end = head.find(b"end_header\n")
     if not head.startswith(b"ply\n") or end < 0:
         return "no PLY header"
@@ -83,14 +90,26 @@ def cut_short(path) -> str | None:
             size, count, row = size + count * row, int(words[2]) if words[2].isdigit() else -1, 0
         elif words[:1] == ["property"] and len(words) == 3 and words[1] in PLY_SIZES:
             row += PLY_SIZES[words[1]]
+        elif words[:2] == ["property", "list"] and words[2:4] == ["uchar", "int"]:
+            row += 1 + 3 * PLY_SIZES["int"]  # our meshes' faces: triangles
         elif words[:1] == ["property"] or (words[:1] == ["format"] and "binary_little_endian" not in words):
-            return None  # list properties or ASCII: not ours, and not sized here
+            return None  # other lists, or ASCII: not ours, and not sized here
     size += count * row
-    try:
-        actual = path.stat().st_size
-    except OSError as e:
-        return f"cannot be read ({e.strerror})"
-    return None if count >= 0 and actual == size else f"{actual} bytes where its header makes {size}"
+    return None if count >= 0 and size_on_disk == size else f"{size_on_disk} bytes where its header makes {size}"
+
+
+def _obj_cut_short(head: bytes, tail: bytes) -> str | None:
+    """:func:`cut_short` of an OBJ from :func:`write_obj`: its first line counts its vertices and
+    triangles, its faces come last and every line ends."""
+    first = head.split(b"\n", 1)[0].decode("ascii", "replace").split()
+    if first[:3] != ["#", "warp_iisph", "surface:"] or len(first) < 7:
+        return None
+    if not tail.endswith(b"\n"):
+        return "its last line is cut off"
+    last = tail.rstrip(b"\n").rsplit(b"\n", 1)[-1]
+    if first[5].isdigit() and int(first[5]) > 0 and not last.startswith(b"f "):
+        return "its faces are cut off"
+    return None
 
 
 def read_points(path) -> "meshio.Mesh":

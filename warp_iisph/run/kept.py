@@ -9,7 +9,8 @@ its frames, so a resume refuses, in one line naming the first such file, a folde
 - a frame file the run wrote up to the checkpoint is missing or empty: ``particles/`` and
   ``mesh/`` for the stretches of the run whose ``output`` wrote them (run.json's ``output`` and
   each resumption's ``output_before``), ``obstacles/`` when the solids move, and ``obstacles.obj``;
-- a particle frame is cut short (its size is not what its header makes it; :func:`.formats.cut_short`);
+- a particle or mesh frame is cut short (:func:`.formats.cut_short`: a PLY's size is not what its
+  header makes it, a VTU's XML or an OBJ's last line is cut off);
 - ``stats.jsonl`` does not hold the step records 1 .. the checkpoint's step, in order, the last at
   the checkpoint's time;
 - ``probes.csv`` (a scene with probes) is missing, has other columns than the scene's probes (in
@@ -18,8 +19,7 @@ its frames, so a resume refuses, in one line naming the first such file, a folde
 - ``bodies.csv`` (a scene with free bodies) is missing, has other columns than the bodies', or does
   not hold one row per frame up to the checkpoint's.
 
-The checks read a particle frame's header and last bytes and a mesh frame's size only, and the
-step records and rows once; a time series
+The checks read a frame's header and last bytes only, and the step records and rows once; a time series
 that the checkpoint says is empty and that is missing is made again by the resume (exactly).
 """
 
@@ -85,8 +85,8 @@ def _stretches(run: RunFolder, record: dict, frame: int) -> list[tuple[range, di
 
 
 def _check_frames(run: RunFolder, record: dict, scene, frame: int, at: str) -> None:
-    """Every frame file the run wrote up to ``frame`` is there and not empty, and each particle
-    frame whole (its size as its header says, :func:`.formats.cut_short`)."""
+    """Every frame file the run wrote up to ``frame`` is there, not empty and whole
+    (:func:`.formats.cut_short`)."""
     for frames, wrote in _stretches(run, record, frame):
         for kind in FRAME_KINDS:
             if wrote.get(kind) is not True:
@@ -94,20 +94,18 @@ def _check_frames(run: RunFolder, record: dict, scene, frame: int, at: str) -> N
             for k in frames:
                 if kind == PARTICLES:
                     _frame_there(run.particle_frame(k), at)
-                    why = cut_short(run.particle_frame(k))
-                    if why is not None:
-                        raise RunError(
-                            f"{run.particle_frame(k)}: cut short ({why}), though the run had written it whole by "
-                            f"{at}; a resume would keep a broken frame: {OVER}"
-                        )
+                    _whole(run.particle_frame(k), at)
                 else:
                     candidates = [run.path / MESHES / f"frame_{k:05d}.{e}" for e in MESH_FORMATS]
+                    remake = (
+                        f"put it back, make it again from its particle frame with `warp-iisph mesh {run.path}` "
+                        "(not bitwise the run's own), or start the run over with --overwrite"
+                    )
+                    remedy = remake if _size(run.particle_frame(k)) else OVER
                     if not any(_size(p) for p in candidates):
-                        remake = (
-                            f"put it back, make it again from its particle frame with `warp-iisph mesh {run.path}` "
-                            "(not bitwise the run's own), or start the run over with --overwrite"
-                        )
-                        _frame_there(run.mesh_frame(k), at, remake if _size(run.particle_frame(k)) else OVER)
+                        _frame_there(run.mesh_frame(k), at, remedy)
+                    for mesh in (p for p in candidates if _size(p)):
+                        _whole(mesh, at, remedy)
     if record.get("obstacles") and not _size(run.obstacles):
         raise RunError(
             f"{run.obstacles}: {_gone(run.obstacles)}; the run wrote it at its start and a resume keeps it: {OVER}"
@@ -115,6 +113,17 @@ def _check_frames(run: RunFolder, record: dict, scene, frame: int, at: str) -> N
     if solids_move(scene):
         for k in range(frame + 1):
             _frame_there(run.obstacle_frame(k), at)
+
+
+def _whole(path: Path, at: str, remedy: str = OVER) -> None:
+    """``RunError`` saying ``remedy`` when the frame file ``path`` is cut short
+    (:func:`.formats.cut_short`)."""
+    why = cut_short(path)
+    if why is not None:
+        raise RunError(
+            f"{path}: cut short ({why}), though the run had written it whole by {at}; "
+            f"a resume would keep a broken frame: {remedy}"
+        )
 
 
 def _size(path: Path) -> int:
