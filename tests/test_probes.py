@@ -217,6 +217,9 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
         assert "in use by" in capsys.readouterr().err and (whole / "probes.png").read_bytes() == chart
         assert main(["plot", str(whole), "--out", str(tmp_path / "new" / "elsewhere.png")]) == 0  # reads it as it is
     assert (tmp_path / "new" / "elsewhere.png").stat().st_size > 10_000
+    with FolderLock(cut):  # into another run's folder while its writer holds it: refused the same way
+        assert main(["plot", str(whole), "--out", str(cut / "charts" / "whole.png")]) == 2
+        assert "in use by" in capsys.readouterr().err and not (cut / "charts").exists()
     assert not [p for p in whole.iterdir() if p.name.endswith(".tmp.png")]  # written beside and renamed in
     import matplotlib.figure
 
