@@ -32,6 +32,7 @@ import warp as wp
 from common import RESULTS, header, pyplot, save
 
 import warp_iisph.sph.solvers.iisph as iisph
+from warp_iisph.sph.kernel import cubic_grad_W_np
 
 REACH = 4  # spacings: how far a pressure reaches in one prediction (two support radii of 2 spacings)
 DELTA = 100.0  # Pa: the raise that measures a column (the operator is linear but for the walls' clip at 0)
@@ -87,7 +88,7 @@ def colour_classes(x: np.ndarray, cell: np.ndarray, spacing: float) -> list[np.n
     return sets
 
 
-def first_step_operators(spacing: float, tank: tuple, fluid: tuple, settle: float = 0.0) -> dict:
+def step_operators(spacing: float, tank: tuple, fluid: tuple, settle: float = 0.0) -> dict:
     """``A`` and ``D`` of a step's solve (the first after ``settle`` seconds at the defaults), for
     extrapolated and Akinci's walls, the particles' positions and the kernel-gradient sums,
     caught where the solve would start."""
@@ -161,12 +162,7 @@ def _gradient_sums(model, state, n: int) -> np.ndarray:
 
     def grad_sum(points, weights, pairs):
         i, j = pairs[:, 0], pairs[:, 1]
-        d = x[i] - points[j]
-        r = np.linalg.norm(d, axis=1)
-        q = r / H
-        s = 48.0 / (np.pi * H**3)
-        dw = np.where(q <= 0.5, s * q * (3 * q - 2) / H, -s * np.clip(1 - q, 0, None) ** 2 / H)
-        g = d * (np.where(r > 1e-9 * H, dw / np.maximum(r, 1e-30), 0.0) * weights[j])[:, None]
+        g = cubic_grad_W_np(x[i] - points[j], H) * weights[j][:, None]
         out = np.zeros((n, 3))
         np.add.at(out, i, g)
         return out
@@ -186,7 +182,7 @@ def analyse(name: str, spacing: float, tank: tuple, fluid: tuple, settle: float 
     from scipy.sparse.linalg import eigs
 
     t0 = time.perf_counter()
-    op = first_step_operators(spacing, tank, fluid, settle)
+    op = step_operators(spacing, tank, fluid, settle)
     n, omega, cell = len(op["x"]), op["omega"], op["cell"]
     one = np.ones(n)
     # away from the floor, the back wall and the free faces (3 spacings): the side walls' layers and those between

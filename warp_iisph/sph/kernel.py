@@ -46,3 +46,14 @@ def cubic_W_np(r, H):
     inner = sigma * (6.0 * (q**3 - q**2) + 1.0)
     outer = sigma * 2.0 * np.clip(1.0 - q, 0.0, None) ** 3
     return np.where(q <= 0.5, inner, np.where(q <= 1.0, outer, 0.0))
+
+
+def cubic_grad_W_np(x_ij, H):
+    """NumPy twin of :func:`cubic_grad_W` for rows of offsets ``x_ij`` (n, 3)."""
+    x_ij = np.asarray(x_ij, dtype=np.float64)
+    r = np.linalg.norm(x_ij, axis=-1)
+    q = r / H
+    scale = 48.0 / (math.pi * H**3)
+    dW_dr = np.where(q <= 0.5, scale * q * (3.0 * q - 2.0) / H, -scale * np.clip(1.0 - q, 0.0, None) ** 2 / H)
+    dW_dr = np.where((r > 1.0e-9 * H) & (q <= 1.0), dW_dr, 0.0)
+    return x_ij * (dW_dr / np.maximum(r, 1.0e-30))[..., None]
