@@ -14,13 +14,13 @@ its frames, so a resume refuses, in one line naming the first such file, a folde
 - ``stats.jsonl`` does not hold the step records 1 .. the checkpoint's step, in order, the last at
   the checkpoint's time;
 - ``probes.csv`` (a scene with probes) is missing, has other columns than the scene's probes (in
-  their order), or
-  holds another number of rows up to the checkpoint's time than the checkpoint counted;
+  their order), or holds another number of rows up to the checkpoint's time than the checkpoint
+  counted;
 - ``bodies.csv`` (a scene with free bodies) is missing, has other columns than the bodies', or does
   not hold one row per frame up to the checkpoint's.
 
-The checks read a frame's header and last bytes only, and the step records and rows once; a time series
-that the checkpoint says is empty and that is missing is made again by the resume (exactly).
+The checks read a frame's header and last bytes only, and the step records and rows once; a time
+series that the checkpoint says is empty and that is missing is made again by the resume (exactly).
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from ..scene.settings import MESH_FORMATS
 from .checkpoint import PROBE_SAMPLES
 from .folder import MESHES, PARTICLES, RunError, RunFolder
 from .formats import FileFormatError, cut_short, read_stats
+from .probe_file import header as probes_header
 from .run_record import FRAME_KINDS, STEP_SUMS
 from .solids import header as bodies_header
 from .solids import solids_move
@@ -55,8 +56,8 @@ def check_kept(run: RunFolder, record: dict, state: dict, scene) -> list[dict]:
     _check_frames(run, record, scene, frame, at)
     kept = _kept_steps(run, steps, t, at)
     if scene.probes:
-        columns = [c for p in sampled_order(scene.probes) for c in probe_columns(p)]
-        cells = ["t [s]", *(f"{n} [{u}]" for n, u in columns)]
+        names, units = zip(*(c for p in sampled_order(scene.probes) for c in probe_columns(p)))
+        cells = probes_header(names, units).split(",")
         counted = int(state[PROBE_SAMPLES]) if PROBE_SAMPLES in state else None
         _check_rows(run.probes, cells, counted, t, at, "probe samples", f"the checkpoint counted {counted}")
     if scene.bodies:
@@ -87,6 +88,10 @@ def _stretches(run: RunFolder, record: dict, frame: int) -> list[tuple[range, di
 def _check_frames(run: RunFolder, record: dict, scene, frame: int, at: str) -> None:
     """Every frame file the run wrote up to ``frame`` is there, not empty and whole
     (:func:`.formats.cut_short`)."""
+    remake = (  # what a user can do about a lost mesh whose particle frame is there
+        f"put it back, make it again from its particle frame with `warp-iisph mesh {run.path}` "
+        "(not bitwise the run's own), or start the run over with --overwrite"
+    )
     for frames, wrote in _stretches(run, record, frame):
         for kind in FRAME_KINDS:
             if wrote.get(kind) is not True:
@@ -95,17 +100,13 @@ def _check_frames(run: RunFolder, record: dict, scene, frame: int, at: str) -> N
                 if kind == PARTICLES:
                     _frame_there(run.particle_frame(k), at)
                     _whole(run.particle_frame(k), at)
-                else:
-                    candidates = [run.path / MESHES / f"frame_{k:05d}.{e}" for e in MESH_FORMATS]
-                    remake = (
-                        f"put it back, make it again from its particle frame with `warp-iisph mesh {run.path}` "
-                        "(not bitwise the run's own), or start the run over with --overwrite"
-                    )
-                    remedy = remake if _size(run.particle_frame(k)) else OVER
-                    if not any(_size(p) for p in candidates):
-                        _frame_there(run.mesh_frame(k), at, remedy)
-                    for mesh in (p for p in candidates if _size(p)):
-                        _whole(mesh, at, remedy)
+                    continue
+                remedy = remake if _size(run.particle_frame(k)) else OVER
+                there = [p for p in (run.path / MESHES / f"frame_{k:05d}.{e}" for e in MESH_FORMATS) if _size(p)]
+                if not there:
+                    _frame_there(run.mesh_frame(k), at, remedy)
+                for mesh in there:
+                    _whole(mesh, at, remedy)
     if record.get("obstacles") and not _size(run.obstacles):
         raise RunError(
             f"{run.obstacles}: {_gone(run.obstacles)}; the run wrote it at its start and a resume keeps it: {OVER}"

@@ -179,17 +179,23 @@ def validate_probes(probes: list, tank_bounds, obstacles: list, bodies: tuple = 
             columns[column] = p.name
 
 
-def sampled_order(probes) -> list[Probe]:
-    """The probes in the order their samples are laid out (``sim.probes``, probes.csv's columns):
-    pressure sensors, level gauges, forces on obstacles, forces on bodies, each in scene order."""
+def sampled_groups(probes) -> tuple[list[Probe], list[Probe], list[Probe], list[Probe]]:
+    """The probes by what is sampled for them: pressure sensors, level gauges, forces on
+    obstacles, forces on bodies, each in scene order."""
     probes = list(probes)
     force = [p for p in probes if p.kind == "force"]
     return (
-        [p for p in probes if p.kind == "pressure"]
-        + [p for p in probes if p.kind == "level"]
-        + [p for p in force if p.body is None]
-        + [p for p in force if p.body is not None]
+        [p for p in probes if p.kind == "pressure"],
+        [p for p in probes if p.kind == "level"],
+        [p for p in force if p.body is None],
+        [p for p in force if p.body is not None],
     )
+
+
+def sampled_order(probes) -> list[Probe]:
+    """The probes in the order their samples are laid out (``sim.probes``, probes.csv's columns):
+    :func:`sampled_groups`, one after another."""
+    return [p for group in sampled_groups(probes) for p in group]
 
 
 def probe_columns(probe: Probe) -> list[tuple[str, str]]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_columns, sampled_order
+from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_columns, sampled_groups, sampled_order
 from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
 from ..sph.wall_forces import WallForces
 
@@ -80,11 +80,8 @@ class ProbeSampler:
         dev = model.device
         h, H = model.spacing, model.support_radius
         self.interval = float(scene.output.probe_interval)
-        self.probes = sampled_order(scene.probes)  # probes.csv's order: the groups below, one after another
-        self.pressure = [p for p in self.probes if p.kind == "pressure"]
-        self.levels = [p for p in self.probes if p.kind == "level"]
-        self.forces = [p for p in self.probes if p.kind == "force" and p.body is None]
-        self.body_forces = [p for p in self.probes if p.kind == "force" and p.body is not None]
+        self.pressure, self.levels, self.forces, self.body_forces = sampled_groups(scene.probes)
+        self.probes = sampled_order(scene.probes)  # probes.csv's order: those groups, one after another
         self.columns = [c for p in self.probes for c in probe_columns(p)]
         self.log = wp.zeros((int(capacity), 1 + len(self.columns)), dtype=wp.float64, device=dev)
         self.due = wp.zeros(1, dtype=wp.int32, device=dev)
