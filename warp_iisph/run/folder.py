@@ -341,6 +341,12 @@ def enclosing_run(path) -> Path | None:
     return None
 
 
+def run_around(path) -> Path | None:
+    """The run folder that ``path`` lies inside, other than ``path`` itself (links resolved): where
+    a new run or sweep must not go, as it would bar that run's ``--overwrite``."""
+    return enclosing_run(Path(os.path.realpath(path)).parent)
+
+
 def select_frames(files: list[Path], spec: str | None) -> list[Path]:
     """Frames whose number is in ``a:b`` (b excluded; either end may be left out, like a Python
     slice of frame numbers); all of them for ``None``."""

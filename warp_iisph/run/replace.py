@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ..engine import signals
 from .atomic import write_json
-from .folder import RECORD, RunError, RunFolder, enclosing_run
+from .folder import RECORD, RunError, RunFolder, run_around
 from .lock import LOCK_NAME, FolderBusy, FolderLock, holder
 
 STAGED = ".warp-iisph.staging"  # inside a staging folder: the name of the folder it is to become
@@ -186,7 +186,7 @@ def prepare(out, overwrite: bool, inputs=(), what: str = "--out") -> Target:
     leftovers of processes that are gone are recovered first); a folder there is locked."""
     given = out
     path = resolved(out, what)
-    inside = enclosing_run(path.parent)  # a run inside another's folder would bar that one's --overwrite
+    inside = run_around(path)
     if inside is not None:
         raise OutputExistsError(f"{what} {given}: inside the run folder {inside}; put the new run elsewhere")
     recover(path)

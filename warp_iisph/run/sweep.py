@@ -23,7 +23,6 @@ import hashlib
 import itertools
 import json
 import math
-import os
 import re
 import sys
 import time
@@ -33,7 +32,7 @@ from ..scene import load_scene
 from ..scene.file import parse_value
 from ..scene.library import bundled_scenes, resolve_scene
 from .atomic import write_json
-from .folder import RECORD, RunError, enclosing_run
+from .folder import RECORD, RunError, run_around
 from .progress import frame_bar
 from .run_record import blank_record
 from .runner import Terminated, plan_frames
@@ -199,7 +198,7 @@ def plan_sweep(
     out = Path(out) if out is not None else Path("sweeps") / load_scene(scene, list(sets)).name
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: is a file, not a folder")
-    inside = enclosing_run(Path(os.path.realpath(out)).parent)
+    inside = run_around(out)
     if inside is not None:  # its variants' runs would sit inside another run's folder
         raise ValueError(f"--out {out}: inside the run folder {inside}; put the sweep elsewhere")
     if out.is_dir() and any(out.iterdir()):
@@ -253,7 +252,7 @@ def load_sweep(path) -> dict:
         raise RunError(f"{file}: not valid JSON ({e.msg}, line {e.lineno})") from None
     except (KeyError, AttributeError):
         raise RunError(f"{file}: not a sweep record") from None
-    inside = enclosing_run(path.resolve().parent)
+    inside = run_around(path)
     if inside is not None:  # its variants' runs would sit inside another run's folder
         raise RunError(f"{path}: inside the run folder {inside}; move the sweep out of it to resume it")
     names = set()
