@@ -220,6 +220,12 @@ def _cut(path: Path, by: int | None) -> None:
     path.write_bytes(data[:100] if by is None else data[:-by])
 
 
+def _cut_at_a_line(path: Path) -> None:
+    """The file's last line dropped whole: cut exactly at the end of the line before."""
+    data = path.read_bytes()
+    path.write_bytes(data[: data.rstrip(b"\n").rfind(b"\n") + 1])
+
+
 def _swap_header(path: Path, a: int, b: int) -> None:
     """The header's cells a and b swapped: the same columns in another order."""
     head, rest = path.read_text().split("\n", 1)
@@ -236,6 +242,7 @@ def _swap_header(path: Path, a: int, b: int) -> None:
         (lambda r: _cut(r / "particles" / "frame_00002.ply", 5), "particles/frame_00002.ply", "cut short"),
         (lambda r: _cut(r / "particles" / "frame_00001.ply", None), "particles/frame_00001.ply", "no PLY header"),
         (lambda r: _cut(r / "mesh" / "frame_00002.obj", 3), "mesh/frame_00002.obj", "its last line is cut off"),
+        (lambda r: _cut_at_a_line(r / "mesh" / "frame_00002.obj"), "mesh/frame_00002.obj", "where its counts make"),
         (lambda r: (r / "mesh" / "frame_00002.obj").unlink(), "mesh/frame_00002.obj", "warp-iisph mesh"),
         (lambda r: (r / "obstacles" / "frame_00000.obj").unlink(), "obstacles/frame_00000.obj", "a hole"),
         (lambda r: (r / "obstacles.obj").unlink(), "obstacles.obj", "missing"),

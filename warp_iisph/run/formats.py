@@ -64,8 +64,8 @@ def cut_short(path) -> str | None:
     """Why the frame file ``path`` (as this package writes particle and mesh frames) is not whole,
     or ``None``: a binary PLY shorter or longer than its header's elements make it (a mesh's
     faces triangles), a VTU that does not end its XML, an OBJ whose last line is not the end of its
-    last element. Reads the header and the last bytes only (a resume checks every frame); a file
-    not of ours is not judged."""
+    last element or whose size is not what its counts make it. Reads the header and the last bytes
+    only (a resume checks every frame); a file not of ours is not judged."""
     path = Path(path)
     kind = path.suffix.lower()
     try:
@@ -79,7 +79,7 @@ def cut_short(path) -> str | None:
     if kind == ".vtu":
         return None if tail.rstrip().endswith(b"</VTKFile>") else "its XML is cut off"
     if kind == ".obj":
-        return _obj_cut_short(head, tail)
+        return _obj_cut_short(head, tail, size_on_disk)
     end = head.find(b"end_header\n")
     if not head.startswith(b"ply\n") or end < 0:
         return "no PLY header"
@@ -98,18 +98,29 @@ def cut_short(path) -> str | None:
     return None if count >= 0 and size_on_disk == size else f"{size_on_disk} bytes where its header makes {size}"
 
 
-def _obj_cut_short(head: bytes, tail: bytes) -> str | None:
+def _obj_cut_short(head: bytes, tail: bytes, size_on_disk: int) -> str | None:
     """:func:`cut_short` of an OBJ from :func:`write_obj`: its first line counts its vertices and
-    triangles, its faces come last and every line ends."""
-    first = head.split(b"\n", 1)[0].decode("ascii", "replace").split()
-    if first[:3] != ["#", "warp_iisph", "surface:"] or len(first) < 7:
+    triangles, its faces come last and every line ends; and since every line of a kind has one
+    length (:func:`.obj_text.obj_chunks`), the file is its first line, V vertex lines (each as long
+    as the second line), V normal lines where its faces say ``a//a``, and F face lines (each as
+    long as the last), to the byte: a file cut at the end of a line is caught too."""
+    lines = head.split(b"\n", 2)
+    first = lines[0].decode("ascii", "replace").split()
+    ours = first[:3] == ["#", "warp_iisph", "surface:"] and len(first) >= 7
+    if not (ours and first[3].isdigit() and first[5].isdigit()):
         return None
     if not tail.endswith(b"\n"):
         return "its last line is cut off"
+    n_vertices, n_faces = int(first[3]), int(first[5])
     last = tail.rstrip(b"\n").rsplit(b"\n", 1)[-1]
-    if first[5].isdigit() and int(first[5]) > 0 and not last.startswith(b"f "):
+    if n_faces > 0 and not last.startswith(b"f "):
         return "its faces are cut off"
-    return None
+    if n_vertices == 0 or len(lines) < 2:
+        return None
+    normals = b"//" in last if n_faces > 0 else last.startswith(b"vn ")
+    v_len, n_len, f_len = len(lines[1]) + 1, 2 + 3 * 8 + 1, len(last) + 1  # 'vn' + 3 x ' %7.4f' + newline
+    size = len(lines[0]) + 1 + n_vertices * (v_len + (n_len if normals else 0)) + n_faces * f_len
+    return None if size_on_disk == size else f"{size_on_disk} bytes where its counts make {size}"
 
 
 def read_points(path) -> "meshio.Mesh":

@@ -10,7 +10,7 @@ its frames, so a resume refuses, in one line naming the first such file, a folde
   ``mesh/`` for the stretches of the run whose ``output`` wrote them (run.json's ``output`` and
   each resumption's ``output_before``), ``obstacles/`` when the solids move, and ``obstacles.obj``;
 - a particle or mesh frame is cut short (:func:`.formats.cut_short`: a PLY's size is not what its
-  header makes it, a VTU's XML or an OBJ's last line is cut off);
+  header makes it, a VTU's XML is cut off, an OBJ's size is not what its counts make it);
 - ``stats.jsonl`` does not hold the step records 1 .. the checkpoint's step, in order, the last at
   the checkpoint's time;
 - ``probes.csv`` (a scene with probes) is missing, has other columns than the scene's probes (in
