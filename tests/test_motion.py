@@ -71,6 +71,19 @@ def test_a_moving_post_lets_no_particle_in_and_pushes_the_water():
     assert x[ahead, 1].max() > x[behind, 1].max() + 0.01
 
 
+def test_boundary_positions_are_a_copy_the_next_step_leaves_alone():
+    """The accessors hand out copies: a moving obstacle's boundary positions kept from one step
+    are still that step's after the next (on the CPU ``numpy()`` alone is a view of the device
+    array the step rewrites)."""
+    sim = Simulation(post_scene(), "cpu")
+    sim.advance(0.4)
+    kept = sim.boundary_positions
+    before = kept.copy()
+    sim.advance(0.05)
+    assert np.array_equal(kept, before)
+    assert not np.array_equal(sim.boundary_positions, before)  # the post moved
+
+
 def test_moving_obstacles_reach_the_viewers(tmp_path):
     from warp_iisph.cli import main
     from warp_iisph.run.folder import RunFolder

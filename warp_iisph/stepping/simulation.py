@@ -255,7 +255,7 @@ class Simulation:
 
     @property
     def boundary_positions(self) -> np.ndarray:
-        return self.model.boundary_x.numpy()
+        return self.model.boundary_x.numpy().copy()  # on the CPU numpy() is a view the next step moves
 
     @property
     def bodies(self) -> dict:
