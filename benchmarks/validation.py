@@ -336,11 +336,13 @@ def window_mean(t, p, window: float) -> float:
     return float(np.sum(np.asarray(p)[keep] * dt[keep]) / np.sum(dt[keep]))
 
 
-def loads(h: float, submerged: bool, duration: float = 3.0, length: float = 0.12) -> dict:
-    """The force probe on a bar through a tank at rest (see the module): clear of the floor its
-    buoyancy rho0 g V, on the floor the weight of the water above its top (from the gauge's
-    level), averaged over the last 0.5 s."""
-    X, depth, W = 0.30, 0.32, 0.12
+LOADS_TANK = (0.30, 0.32, 0.12)  # the loads case's tank width, water depth and thickness (m)
+
+
+def loads_scene(h: float, submerged: bool, length: float = 0.12) -> tuple[Scene, tuple, tuple]:
+    """The loads case at spacing ``h`` (see the module), with its force probe ``bar`` and level
+    gauge ``level``, and the bar's lower and upper corners."""
+    X, depth, W = LOADS_TANK
     y0 = round(0.1 / h) * h if submerged else 0.0
     lo, hi = (X / 2 - length / 2, y0, -5 * h), (X / 2 + length / 2, y0 + length, W + 5 * h)
     scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (X, depth + 0.1, W)), name="loads")
@@ -348,6 +350,15 @@ def loads(h: float, submerged: bool, duration: float = 3.0, length: float = 0.12
     scene.add_obstacle(Box(lo, hi, name="bar", sampling="faces"))
     scene.add_probe(Probe("bar", "force", obstacle="bar"))
     scene.add_probe(Probe("level", "level", position=(0.03, W / 2)))
+    return scene, lo, hi
+
+
+def loads(h: float, submerged: bool, duration: float = 3.0, length: float = 0.12) -> dict:
+    """The force probe on a bar through a tank at rest (see the module): clear of the floor its
+    buoyancy rho0 g V, on the floor the weight of the water above its top (from the gauge's
+    level), averaged over the last 0.5 s."""
+    W = LOADS_TANK[2]
+    scene, lo, hi = loads_scene(h, submerged, length)
     t0 = time.perf_counter()
     sim = Simulation(scene, "cpu", history=1)
     sim.advance(duration)

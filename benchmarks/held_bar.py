@@ -1,0 +1,158 @@
+"""The held bar's buoyancy against resolution and the pressure solve's start: where the force
+probe's excess over rho0 g V sits (docs/physics.md 6.2).
+
+The loads case of validation.py (a bar 0.12 m square through a 0.3 x 0.42 x 0.12 m tank, its ends
+in the side walls, held clear of the floor in water 0.32 m deep) at 8, 12 and 16 spacings across
+the bar, from each warm start (``physics.warm_start``: "hydrostatic", the default here, and
+"half"). Over the last 0.5 s of 3 s, after every 10 ms:
+
+- the force probe's vertical pressure force on the bar, and the same sum split over the bar's
+  boundary particles (the step's own wall-force sums, :class:`warp_iisph.sph.wall_forces.WallForces`,
+  one group per part): the top and the bottom face's interiors (particles more than two spacings
+  from an edge, as a load per area against rho0 g times the face's depth below the level gauge),
+  the side faces' interiors, and the rest (the edges);
+- the resting water's pressure slope beside the bar, in rho0 g: least squares of the particles'
+  pressure against height, over those between 0.04 and 0.26 m high, more than two spacings from
+  the tank's walls and from the bar's sides.
+
+Writes benchmarks/results/held_bar.json and held_bar.png.
+
+    python benchmarks/held_bar.py [--spacings 8,12,16] [--quick]
+
+--quick (the test suite's): 8 spacings for 1 s, the last 0.3 s measured.
+"""
+
+import argparse
+import time
+
+import numpy as np
+import warp as wp
+from common import RESULTS, header, pyplot, save
+from validation import LOADS_TANK, loads_scene
+
+from warp_iisph import Simulation
+from warp_iisph.sph.wall_forces import WallForces
+
+RHO0, G = 1000.0, 9.81
+STARTS = ("hydrostatic", "half")
+PARTS = ("top", "bottom", "sides", "edges")
+LENGTH = 0.12  # the bar's side (m)
+
+
+def bar_parts(xb: np.ndarray, lo, hi, h: float) -> np.ndarray:
+    """Each of the bar's boundary particles' part, an index into PARTS."""
+    inner_x = (xb[:, 0] > lo[0] + 2 * h) & (xb[:, 0] < hi[0] - 2 * h)
+    inner_y = (xb[:, 1] > lo[1] + 2 * h) & (xb[:, 1] < hi[1] - 2 * h)
+    part = np.full(len(xb), 3, dtype=np.int32)
+    part[inner_x & (xb[:, 1] > hi[1] - 2 * h)] = 0
+    part[inner_x & (xb[:, 1] < lo[1] + 2 * h)] = 1
+    part[inner_y & ~inner_x] = 2
+    return part
+
+
+def beside_slope(x: np.ndarray, p: np.ndarray, lo, hi, h: float) -> float:
+    """The pressure's slope against height beside the bar (see the module), in rho0 g."""
+    X, _, W = LOADS_TANK
+    across = ((x[:, 0] > 2 * h) & (x[:, 0] < lo[0] - 2 * h)) | ((x[:, 0] > hi[0] + 2 * h) & (x[:, 0] < X - 2 * h))
+    keep = across & (x[:, 2] > 2 * h) & (x[:, 2] < W - 2 * h) & (x[:, 1] > 0.04) & (x[:, 1] < 0.26)
+    return float(-np.polyfit(x[keep, 1], p[keep], 1)[0] / (RHO0 * G))
+
+
+def measure(n: int, start: str, duration: float, window: float) -> dict:
+    """The bar at ``n`` spacings across from warm start ``start`` (see the module)."""
+    h = LENGTH / n
+    scene, lo, hi = loads_scene(h, True, LENGTH)
+    scene.physics.warm_start = start
+    t0 = time.perf_counter()
+    sim = Simulation(scene, "cpu", history=1)
+    model = sim.model
+    xb = model.boundary_x.numpy()[: model.n_boundary]
+    labels = np.full(model.n_boundary, -1, dtype=np.int32)
+    bar = model.boundary_owner.numpy()[: model.n_boundary] == 0  # the scene's one obstacle
+    labels[bar] = bar_parts(xb[bar], lo, hi, h)
+    split = WallForces(model, sim.solver, labels)
+    iterations = []
+    sim.advance(duration - window, callback=lambda r: iterations.append(r.get("iterations", 0)))
+    probe, parts, slopes, levels = [], [], [], []
+    while sim.time < duration - 1e-9:
+        sim.advance(min(0.01, duration - sim.time), callback=lambda r: iterations.append(r.get("iterations", 0)))
+        split.compute(sim.state)
+        parts.append(split.totals.numpy()[: len(PARTS), 1].copy())  # numpy() of a CPU array is a view
+        probe.append(float(sim.probes["bar.Fp_y"][-1]))
+        levels.append(float(sim.probes["level"][-1]))
+        n_now = sim.state.n
+        slopes.append(beside_slope(sim.state.x.numpy()[:n_now], sim.state.p.numpy()[:n_now], lo, hi, h))
+    buoyancy = RHO0 * G * LENGTH * LENGTH * LOADS_TANK[2]
+    parts = np.mean(parts, axis=0)
+    level = float(np.mean(levels))
+    face_area = (hi[0] - lo[0] - 4 * h) * LOADS_TANK[2]
+    return {
+        "L_over_h": n,
+        "spacing": h,
+        "warm_start": start,
+        "particles": sim.n_particles,
+        "steps": sim.step_count,
+        "iterations_per_step": float(np.mean(iterations)),
+        "ratio": float(np.mean(probe)) / buoyancy,
+        "parts": {k: float(v) / buoyancy for k, v in zip(PARTS, parts)},
+        "parts_sum": float(parts.sum()) / buoyancy,
+        "level": level,
+        "top_face_pressure": float(-parts[0] / face_area),
+        "bottom_face_pressure": float(parts[1] / face_area),
+        "top_face_hydrostatic": RHO0 * G * (level - hi[1]),
+        "bottom_face_hydrostatic": RHO0 * G * (level - lo[1]),
+        "beside_slope": float(np.mean(slopes)),
+        "samples": len(probe),
+        "wall_seconds": time.perf_counter() - t0,
+    }
+
+
+def chart(record: dict, path) -> None:
+    plt = pyplot()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    for start, mark in zip(STARTS, "os"):
+        rows = [r for r in record["results"] if r["warm_start"] == start]
+        n = [r["L_over_h"] for r in rows]
+        a.plot(n, [r["ratio"] for r in rows], mark + "-", label=f"warm start {start}")
+        b.plot(n, [r["beside_slope"] for r in rows], mark + "-", label=f"warm start {start}")
+    a.axhspan(0.98, 1.02, color="0.9", label="issue 29's 2 %")
+    a.axhline(1.0, color="k", lw=0.8)
+    a.set(xlabel="spacings across the bar", ylabel="force / rho0 g V", title="held bar's buoyancy")
+    b.axhline(1.0, color="k", lw=0.8)
+    b.set(xlabel="spacings across the bar", ylabel="dp/dy / rho0 g", title="resting pressure's slope beside the bar")
+    for ax in (a, b):
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spacings", default="8,12,16", help="spacings across the bar")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(RESULTS))
+    args = ap.parse_args()
+    wp.config.log_level = wp.LOG_WARNING
+    spacings = [8] if args.quick else [int(s) for s in args.spacings.split(",")]
+    duration, window = (1.0, 0.3) if args.quick else (3.0, 0.5)
+    record = header("held_bar", duration=duration, window=window)
+    record["results"] = []
+    for n in spacings:
+        for start in STARTS:
+            r = measure(n, start, duration, window)
+            record["results"].append(r)
+            parts = ", ".join(f"{k} {v:+.4f}" for k, v in r["parts"].items())
+            print(
+                f"{n:3d} spacings, {start:11s} start: force / rho0 g V {r['ratio']:.4f} ({parts}); slope beside "
+                f"{r['beside_slope']:.4f} rho0 g; faces {r['top_face_pressure']:.0f} / "
+                f"{r['bottom_face_pressure']:.0f} Pa "
+                f"(hydrostatic {r['top_face_hydrostatic']:.0f} / {r['bottom_face_hydrostatic']:.0f}); "
+                f"{r['iterations_per_step']:.1f} iterations a step, {r['wall_seconds']:.0f} s",
+                flush=True,
+            )
+    chart(record, save(record, args.out, "held_bar", args.quick))
+
+
+if __name__ == "__main__":
+    main()
