@@ -102,8 +102,9 @@ def _obj_cut_short(head: bytes, tail: bytes, size_on_disk: int) -> str | None:
     """:func:`cut_short` of an OBJ from :func:`write_obj`: its first line counts its vertices and
     triangles, its faces come last and every line ends; and since every line of a kind has one
     length (:func:`.obj_text.obj_chunks`), the file is its first line, V vertex lines (each as long
-    as the second line), V normal lines where its faces say ``a//a``, and F face lines (each as
-    long as the last), to the byte: a file cut at the end of a line is caught too."""
+    as the second line), V normal lines where its faces say ``a//a`` (without faces: where its
+    last line is one), and F face lines (each as long as the last), to the byte: a file cut at the
+    end of a line is caught too (but for a mesh with no faces cut exactly before its normals)."""
     lines = head.split(b"\n", 2)
     first = lines[0].decode("ascii", "replace").split()
     ours = first[:3] == ["#", "warp_iisph", "surface:"] and len(first) >= 7
