@@ -8,9 +8,10 @@ the bar, from each warm start (``physics.warm_start``: "hydrostatic", the defaul
 
 - the force probe's vertical pressure force on the bar, and the same sum split over the bar's
   boundary particles (the step's own wall-force sums, :class:`warp_iisph.sph.wall_forces.WallForces`,
-  one group per part): the top and the bottom face's interiors (particles more than two spacings
-  from an edge, as a load per area against rho0 g times the face's depth below the level gauge),
-  the side faces' interiors, and the rest (the edges);
+  one group per part): the top and the bottom face's interiors (particles more than 1.75 spacings
+  from an edge, between two lattice planes; they stand for L - 3.5 h of the face's width, and
+  their load per area is taken against rho0 g times the face's depth below the level gauge), the
+  side faces' interiors, and the rest (the edges);
 - the resting water's pressure slope beside the bar, in rho0 g: least squares of the particles'
   pressure against height, over those between 0.04 and 0.26 m high, more than two spacings from
   the tank's walls and from the bar's sides.
@@ -37,12 +38,16 @@ RHO0, G = 1000.0, 9.81
 STARTS = ("hydrostatic", "half")
 PARTS = ("top", "bottom", "sides", "edges")
 LENGTH = 0.12  # the bar's side (m)
+# a face's interior ends 1.75 spacings from an edge: between the lattice planes of its two layers
+# (at whole and half spacings from the edge), so no particle sits on the cut; the interior's
+# columns stand for L - 3 h of the outer layer and L - 4 h of the inner one, L - 3.5 h together
+EDGE = 1.75
 
 
 def bar_parts(xb: np.ndarray, lo, hi, h: float) -> np.ndarray:
     """Each of the bar's boundary particles' part, an index into PARTS."""
-    inner_x = (xb[:, 0] > lo[0] + 2 * h) & (xb[:, 0] < hi[0] - 2 * h)
-    inner_y = (xb[:, 1] > lo[1] + 2 * h) & (xb[:, 1] < hi[1] - 2 * h)
+    inner_x = (xb[:, 0] > lo[0] + EDGE * h) & (xb[:, 0] < hi[0] - EDGE * h)
+    inner_y = (xb[:, 1] > lo[1] + EDGE * h) & (xb[:, 1] < hi[1] - EDGE * h)
     part = np.full(len(xb), 3, dtype=np.int32)
     part[inner_x & (xb[:, 1] > hi[1] - 2 * h)] = 0
     part[inner_x & (xb[:, 1] < lo[1] + 2 * h)] = 1
@@ -85,14 +90,14 @@ def measure(n: int, start: str, duration: float, window: float) -> dict:
     buoyancy = RHO0 * G * LENGTH * LENGTH * LOADS_TANK[2]
     parts = np.mean(parts, axis=0)
     level = float(np.mean(levels))
-    face_area = (hi[0] - lo[0] - 4 * h) * LOADS_TANK[2]
+    face_area = (hi[0] - lo[0] - 2 * EDGE * h) * LOADS_TANK[2]
     return {
         "L_over_h": n,
         "spacing": h,
         "warm_start": start,
         "particles": sim.n_particles,
         "steps": sim.step_count,
-        "iterations_per_step": float(np.mean(iterations)),
+        "iterations_per_step": float(np.mean(iterations)),  # every step from the start, settling included
         "ratio": float(np.mean(probe)) / buoyancy,
         "parts": {k: float(v) / buoyancy for k, v in zip(PARTS, parts)},
         "parts_sum": float(parts.sum()) / buoyancy,

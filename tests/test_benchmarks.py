@@ -389,7 +389,8 @@ def test_pressure_operator_quick_mode(tmp_path):
 def test_held_bar_quick_mode(tmp_path):
     """The held bar's study: its split of the bar's force over faces and edges adds up to the force
     probe's reading (the same step's wall sums, grouped otherwise), the faces carry about their
-    hydrostatic load, and the half start pays for its rest in iterations."""
+    hydrostatic load (within what the split between a face's two layers leaves uncertain), and
+    the half start pays for its rest in iterations."""
     record = _quick("held_bar.py", tmp_path, "held_bar_quick")
     rows = {r["warm_start"]: r for r in record["results"]}
     assert set(rows) == {"hydrostatic", "half"}
@@ -398,6 +399,6 @@ def test_held_bar_quick_mode(tmp_path):
         assert r["parts_sum"] == pytest.approx(r["ratio"], rel=1e-6)
         assert 0.95 < r["ratio"] < 1.06
         for face in ("top", "bottom"):
-            assert r[f"{face}_face_pressure"] == pytest.approx(r[f"{face}_face_hydrostatic"], rel=0.1)
+            assert r[f"{face}_face_pressure"] == pytest.approx(r[f"{face}_face_hydrostatic"], rel=0.15)
         assert 0.98 < r["beside_slope"] < 1.08
     assert rows["half"]["iterations_per_step"] > 2 * rows["hydrostatic"]["iterations_per_step"]
