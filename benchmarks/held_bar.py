@@ -29,12 +29,11 @@ import time
 import numpy as np
 import warp as wp
 from common import RESULTS, header, pyplot, save
-from validation import LOADS_TANK, loads_scene
+from validation import LOADS_TANK, RHO0, G, loads_scene
 
 from warp_iisph import Simulation
 from warp_iisph.sph.wall_forces import WallForces
 
-RHO0, G = 1000.0, 9.81
 STARTS = ("hydrostatic", "half")
 PARTS = ("top", "bottom", "sides", "edges")
 LENGTH = 0.12  # the bar's side (m)
@@ -77,10 +76,14 @@ def measure(n: int, start: str, duration: float, window: float) -> dict:
     labels[bar] = bar_parts(xb[bar], lo, hi, h)
     split = WallForces(model, sim.solver, labels)
     iterations = []
-    sim.advance(duration - window, callback=lambda r: iterations.append(r.get("iterations", 0)))
+
+    def count(record: dict) -> None:
+        iterations.append(record.get("iterations", 0))
+
+    sim.advance(duration - window, callback=count)
     probe, parts, slopes, levels = [], [], [], []
     while sim.time < duration - 1e-9:
-        sim.advance(min(0.01, duration - sim.time), callback=lambda r: iterations.append(r.get("iterations", 0)))
+        sim.advance(min(0.01, duration - sim.time), callback=count)
         split.compute(sim.state)
         parts.append(split.totals.numpy()[: len(PARTS), 1].copy())  # numpy() of a CPU array is a view
         probe.append(float(sim.probes["bar.Fp_y"][-1]))

@@ -16,7 +16,7 @@ import meshio
 import numpy as np
 
 from .atomic import atomic_write, flush_to_disk, jsonable
-from .obj_text import obj_chunks
+from .obj_text import NORMAL_LINE, obj_chunks
 
 
 class FileFormatError(ValueError):
@@ -119,8 +119,8 @@ def _obj_cut_short(head: bytes, tail: bytes, size_on_disk: int) -> str | None:
     if n_vertices == 0 or len(lines) < 2:
         return None
     normals = b"//" in last if n_faces > 0 else last.startswith(b"vn ")
-    v_len, n_len, f_len = len(lines[1]) + 1, 2 + 3 * 8 + 1, len(last) + 1  # 'vn' + 3 x ' %7.4f' + newline
-    size = len(lines[0]) + 1 + n_vertices * (v_len + (n_len if normals else 0)) + n_faces * f_len
+    v_len, f_len = len(lines[1]) + 1, len(last) + 1
+    size = len(lines[0]) + 1 + n_vertices * (v_len + (NORMAL_LINE if normals else 0)) + n_faces * f_len
     return None if size_on_disk == size else f"{size_on_disk} bytes where its counts make {size}"
 
 

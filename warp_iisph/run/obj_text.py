@@ -121,6 +121,9 @@ def obj_bytes(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | Non
     return b"".join(obj_chunks(vertices, faces, normals))
 
 
+NORMAL_LINE = 2 + 3 * (1 + 7) + 1  # bytes of a normal's line: 'vn' + 3 x ' %7.4f' + newline
+
+
 def obj_chunks(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> list:
     """:func:`obj_bytes` as a list of byte buffers (the header and the kernel's text, not
     copied into one): write them one after the other."""
@@ -136,8 +139,8 @@ def obj_chunks(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
     index_width = len(str(max(len(v), 1)))
     has_normals = normals is not None
     n_lines = len(v) * (2 if has_normals else 1) + len(f)
-    # 'v' + 3 x (' ' + number) + newline; 'vn' + 3 x ' %7.4f' + newline; 'f' + 3 x (' ' + a or a//a) + newline
-    v_len, n_len = 1 + 3 * (1 + coord_width) + 1, 2 + 3 * (1 + 7) + 1
+    # 'v' + 3 x (' ' + number) + newline; 'f' + 3 x (' ' + a or a//a) + newline
+    v_len, n_len = 1 + 3 * (1 + coord_width) + 1, NORMAL_LINE
     f_len = 1 + 3 * (1 + (2 * index_width + 2 if has_normals else index_width)) + 1
     size = len(v) * (v_len + (n_len if has_normals else 0)) + len(f) * f_len
     cpu = wp.get_device("cpu")
