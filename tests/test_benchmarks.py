@@ -369,7 +369,9 @@ def test_cluster_benchmark_quick_mode_measures_its_bounds(tmp_path):
     render = record["render"]
     if render is not None:  # with the render extra
         assert render["same_results"] and render["frames"] == 8
-        assert 0.5 < render["serial_cores_busy"] <= os.cpu_count() + 0.2 and 0.0 < render["floor"] <= 1.1
+        # the busy cores are the machine's to give (a shared CI machine gave a third of one)
+        assert 0.0 < render["serial_cores_busy"] <= os.cpu_count() + 0.2
+        assert render["floor"] == pytest.approx(render["serial_cores_busy"] / len(os.sched_getaffinity(0)))
 
 
 def test_pressure_operator_quick_mode(tmp_path):
