@@ -325,6 +325,25 @@ def test_a_local_cluster_runs_its_housekeeping_slowed():
     assert ms["tick"] > 20  # Dask's own
 
 
+def _log_dask_error(dask_worker=None, dask_scheduler=None) -> None:
+    import logging
+
+    logging.getLogger("distributed.worker" if dask_worker else "distributed.scheduler").error("DASK-ERROR-LOGGED")
+
+
+def test_a_local_clusters_own_error_logs_stay_off_stderr(capfd):
+    """Dask logs its errors as tracebacks (a worker's heartbeat meeting the scheduler closed, on
+    a Ctrl-C): a LocalCluster's workers and scheduler keep them off stderr, which its processes
+    share with this one."""
+    from warp_iisph.run.cluster import open_workers
+
+    with open_workers(workers=2, threads=1) as pool:
+        pool.client.run(_log_dask_error)
+        pool.client.run_on_scheduler(_log_dask_error)
+        time.sleep(0.5)  # the workers' stderr is theirs to flush
+    assert "DASK-ERROR-LOGGED" not in capfd.readouterr().err
+
+
 def test_a_failing_variant_is_recorded_and_the_others_complete(tmp_path, scheduler, capsys):
     out = tmp_path / "sweep"
     code = main(

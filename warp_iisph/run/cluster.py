@@ -356,13 +356,16 @@ def open_workers(
             threads = threads or max(1, available_cores() // workers)
             import dask
 
+            # Dask's own errors are tracebacks on stderr (a worker's heartbeat that meets the
+            # scheduler already closed, at every other Ctrl-C on a busy machine); a task's failure
+            # and a worker's loss reach the caller through the task's future, said in one line.
             with _children_ignore_sigint(), dask.config.set(LOCAL_CLUSTER_CONFIG):
                 cluster = LocalCluster(
                     n_workers=workers,
                     threads_per_worker=1,
                     processes=True,
                     dashboard_address=":8787",
-                    silence_logs=logging.ERROR,
+                    silence_logs=logging.CRITICAL,
                     **extra,
                 )
             client = Client(cluster)
