@@ -391,8 +391,9 @@ def test_pressure_operator_quick_mode(tmp_path):
 def test_held_bar_quick_mode(tmp_path):
     """The held bar's study: its split of the bar's force over faces and edges adds up to the force
     probe's reading (the same step's wall sums, grouped otherwise), the faces carry about their
-    hydrostatic load (within what the split between a face's two layers leaves uncertain), and
-    the half start pays for its rest in iterations."""
+    hydrostatic load (within what the split between a face's two layers leaves uncertain), the
+    half start pays for its rest in iterations, and the crossed runs switch their start where they
+    say (the settling, not the solve, is what the crossed part compares)."""
     record = _quick("held_bar.py", tmp_path, "held_bar_quick")
     rows = {r["warm_start"]: r for r in record["results"]}
     assert set(rows) == {"hydrostatic", "half"}
@@ -404,3 +405,17 @@ def test_held_bar_quick_mode(tmp_path):
             assert r[f"{face}_face_pressure"] == pytest.approx(r[f"{face}_face_hydrostatic"], rel=0.15)
         assert 0.98 < r["beside_slope"] < 1.08
     assert rows["half"]["iterations_per_step"] > 2 * rows["hydrostatic"]["iterations_per_step"]
+    # the crossed runs change the start at 0.5 s: until then the one settled from the hydrostatic
+    # start is the plain hydrostatic run step for step, and each phase iterates as its start does
+    crossed = {(r["settled_from"], r["warm_start"]): r for r in record["crossed"]}
+    assert set(crossed) == {("half", "hydrostatic"), ("hydrostatic", "half")}
+    before, after = crossed[("half", "hydrostatic")]["iterations_before_after"]
+    assert before > 2 * after
+    before, after = crossed[("hydrostatic", "half")]["iterations_before_after"]
+    assert after > 2 * before
+    plain, switched = rows["hydrostatic"]["series"], crossed[("hydrostatic", "half")]["series"]
+    settling = [k for k, t in enumerate(plain["time"]) if 0.0 < t < 0.5]  # sampled between steps
+    assert len(settling) >= 8 and plain["time"][: len(settling) + 1] == switched["time"][: len(settling) + 1]
+    assert [plain["ratio"][k] for k in settling] == [switched["ratio"][k] for k in settling]
+    assert [plain["under"][k] for k in settling] == [switched["under"][k] for k in settling]
+    assert switched["ratio"][-1] != plain["ratio"][-1]
