@@ -388,6 +388,24 @@ def test_pressure_operator_quick_mode(tmp_path):
     assert (tmp_path / "pressure_operator_quick.png").stat().st_size > 0
 
 
+def test_edge_weights_quick_mode(tmp_path):
+    """The edge-weights study: Akinci's weights put the fluid beside a convex edge of a lattice box
+    above the build's 0.5 % (so it is left out), a flat wall's weight below rho0 and the calibrated
+    cap at it; with the calibrated cap the bar keeps the fluid beside its edges (two lines along
+    each of its four edges: 48 particles at 8 spacings) and only the bar's weights change."""
+    record = _quick("edge_weights.py", tmp_path, "edge_weights_quick")
+    cal = record["calibration"]
+    assert cal["edge_density"]["akinci"] > 1.015 and 0.99 < cal["edge_density"]["flat"] < 0.997
+    assert cal["edge_density"]["calibrated"] == pytest.approx(1.0, abs=1e-9)
+    assert 1.0 < cal["factor"] < 1.2
+    rows = {r["weights"]: r for r in record["results"]}
+    assert set(rows) == {"akinci", "calibrated"}
+    assert rows["calibrated"]["particles"] - rows["akinci"]["particles"] == 48
+    assert rows["akinci"]["capped"] is None and rows["calibrated"]["capped"] > 0
+    for r in rows.values():
+        assert r["L_over_h"] == 8 and 0.95 < r["ratio"] < 1.08
+
+
 def test_held_bar_quick_mode(tmp_path):
     """The held bar's study: its split of the bar's force over faces and edges adds up to the force
     probe's reading (the same step's wall sums, grouped otherwise), the faces carry about their

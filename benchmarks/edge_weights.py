@@ -1,0 +1,187 @@
+"""The held bar's buoyancy against the weights of its boundary particles at its convex edges
+(docs/physics.md 6.2, "a line of holes beside every edge").
+
+A box obstacle sampled by faces is a tank's walls inside out, and its particles weigh Akinci's
+``gamma rho0 / sum_k W_bk`` (``gamma`` calibrated on a flat wall). At a convex edge the sum lacks
+the neighbours beyond the edge, the weight grows, and the fluid lattice site beside a face next to
+the edge reads about 2 % above rho0; the build leaves out fluid sampled more than 0.5 % above rho0
+beside an obstacle, so a line of holes runs beside each edge. This study builds validation.py's
+held bar with three weightings of its boundary particles, the package's and two that leave no
+hole, and measures it as held_bar.py does, from the hydrostatic (default) warm start:
+
+- ``akinci``: the package's weights;
+- ``flat``: no particle weighs more than one in the middle of a flat wall;
+- ``calibrated``: no particle weighs more than ``c`` flat-wall particles, ``c`` bisected so that
+  the fluid resting beside a convex edge (a lattice box's, the fluid filling the three quarters of
+  space around it) has exactly the rest density, as ``gamma`` makes it beside a flat wall.
+
+The bar's weights are changed by wrapping the build's ``compute_boundary_psi`` (a study's device,
+not an option of the package); the tank's keep Akinci's (at its edges, concave from the fluid, some
+of its particles weigh more than the caps too: counted, not changed).
+
+Writes benchmarks/results/edge_weights.json and edge_weights.png.
+
+    python benchmarks/edge_weights.py [--spacings 8,12,16] [--quick]
+
+--quick (the test suite's): 8 spacings for 1 s, the package's and the calibrated weights.
+"""
+
+import argparse
+import contextlib
+import functools
+
+import held_bar
+import numpy as np
+import warp as wp
+from common import RESULTS, header, pyplot, save
+from validation import RHO0
+
+import warp_iisph.setup.build as build
+from warp_iisph.scene import Box
+from warp_iisph.setup.boundary import flat_wall_gamma
+from warp_iisph.setup.sampling import flat_wall_patch, sample_box_faces
+from warp_iisph.sph.kernel import cubic_W_np
+
+WEIGHTS = ("akinci", "flat", "calibrated")
+
+
+def flat_wall_psi(h: float, rho0: float) -> float:
+    """``psi`` of a particle in the middle of a flat wall sampled as a tank's, at spacing ``h``."""
+    wall, _ = flat_wall_patch(1.0)
+    centre = np.argmin(np.linalg.norm(wall[:, [0, 2]] - 0.5, axis=1) + np.abs(wall[:, 1] + 0.5))
+    delta = cubic_W_np(np.linalg.norm(wall - wall[centre], axis=1), 2.0).sum()  # at h = 1
+    return float(flat_wall_gamma() * rho0 * h**3 / delta)
+
+
+def edge_density(cap: float) -> float:
+    """The density (in rho0) of a fluid particle resting one spacing from a face of a lattice box,
+    next to its convex edge, with the box's weights capped at ``cap`` flat-wall particles (h = 1;
+    the result does not depend on h)."""
+    L = 10.0
+    wall = sample_box_faces(Box((0.0, 0.0, -L / 2), (L, L, L / 2), sampling="faces"), 1.0)
+    probe = np.array([-0.5, 0.5, 0.5])  # beside the face x = 0, next to the edge along z
+    k = np.arange(-4, 5) + 0.5
+    fluid = np.stack([a.ravel() for a in np.meshgrid(k, k, k, indexing="ij")], axis=1)
+    fluid = fluid[(fluid[:, 0] < 0.0) | (fluid[:, 1] < 0.0)]
+    near = wall[np.linalg.norm(wall - probe, axis=1) < 2.0]
+    psi = flat_wall_gamma() / np.array([cubic_W_np(np.linalg.norm(wall - b, axis=1), 2.0).sum() for b in near])
+    psi = np.minimum(psi, cap * flat_wall_psi(1.0, 1.0))
+    return float(
+        cubic_W_np(np.linalg.norm(fluid - probe, axis=1), 2.0).sum()
+        + (psi * cubic_W_np(np.linalg.norm(near - probe, axis=1), 2.0)).sum()
+    )
+
+
+@functools.lru_cache(maxsize=1)
+def calibrated_factor() -> float:
+    """The cap ``c`` (flat-wall particles) at which :func:`edge_density` is 1 (bisection: the
+    density grows with the cap)."""
+    lo, hi = 1.0, 2.0
+    for _ in range(50):
+        c = 0.5 * (lo + hi)
+        lo, hi = (c, hi) if edge_density(c) < 1.0 else (lo, c)
+    return 0.5 * (lo + hi)
+
+
+@contextlib.contextmanager
+def weights(kind: str, counts: dict):
+    """Build simulations with the ``kind`` weights; ``counts`` gets how many weights were capped."""
+    original = build.compute_boundary_psi
+    factor = {"akinci": None, "flat": 1.0, "calibrated": calibrated_factor()}[kind]
+
+    def capped(xb, h, rho0, device):
+        psi = original(xb, h, rho0, device)
+        if factor is None or xb.shape[0] == 0:
+            return psi
+        values = psi.numpy()[: xb.shape[0]].copy()
+        cap = factor * flat_wall_psi(h, rho0)
+        bar = counts["in_bar"](xb.numpy())  # the tank's particles keep Akinci's weights
+        counts["capped"] = int(np.count_nonzero((values > cap) & bar))
+        counts["over_cap_in_tank"] = int(np.count_nonzero((values > cap) & ~bar))
+        values[bar] = np.minimum(values[bar], cap)
+        return wp.array(values.astype(np.float32), dtype=float, device=device)
+
+    build.compute_boundary_psi = capped
+    try:
+        yield
+    finally:
+        build.compute_boundary_psi = original
+
+
+def measure(n: int, kind: str, duration: float, window: float) -> dict:
+    """The held bar at ``n`` spacings across with the ``kind`` weights (see the module)."""
+    h = held_bar.LENGTH / n
+    _, lo, hi = held_bar.loads_scene(h, True, held_bar.LENGTH)
+    counts = {"capped": None, "over_cap_in_tank": None}  # None: nothing capped (Akinci's weights)
+    counts["in_bar"] = lambda x: np.all((x > np.asarray(lo) - 1e-9) & (x < np.asarray(hi) + 1e-9), axis=1)
+    with weights(kind, counts):
+        r = held_bar.measure(n, "hydrostatic", duration, window)
+    del counts["in_bar"]
+    return {"weights": kind, **counts, **{k: v for k, v in r.items() if k != "series"}}
+
+
+def chart(record: dict, path) -> None:
+    plt = pyplot()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    for kind, mark in zip(WEIGHTS, "os^"):
+        rows = [r for r in record["results"] if r["weights"] == kind]
+        if rows:
+            a.plot([r["L_over_h"] for r in rows], [r["ratio"] for r in rows], mark + "-", label=f"{kind} weights")
+    a.axhspan(0.98, 1.02, color="0.9", label="issue 29's 2 %")
+    a.axhline(1.0, color="k", lw=0.8)
+    a.set(xlabel="spacings across the bar", ylabel="force / rho0 g V", title="held bar, hydrostatic start")
+    cal = record["calibration"]
+    kinds = list(cal["edge_density"])
+    b.bar(kinds, [100 * (cal["edge_density"][k] - 1.0) for k in kinds], color="0.5")
+    b.axhline(0.5, color="r", lw=0.8, ls="--", label="the build leaves out fluid above +0.5 %")
+    b.set(ylabel="density - rho0 (%)", title="fluid beside a convex edge, at rest spacing")
+    for ax in (a, b):
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--spacings", default="8,12,16", help="spacings across the bar")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(RESULTS))
+    args = ap.parse_args()
+    wp.config.log_level = wp.LOG_WARNING
+    spacings = [8] if args.quick else [int(s) for s in args.spacings.split(",")]
+    kinds = ("akinci", "calibrated") if args.quick else WEIGHTS
+    duration, window = (1.0, 0.3) if args.quick else (3.0, 0.5)
+    record = header("edge_weights", duration=duration, window=window, rho0=RHO0)
+    c = calibrated_factor()
+    record["calibration"] = {
+        "factor": c,
+        "edge_density": {
+            "akinci": edge_density(float("inf")),
+            "flat": edge_density(1.0),
+            "calibrated": edge_density(c),
+        },
+    }
+    print(
+        "fluid beside a convex edge at rest spacing: "
+        + ", ".join(f"{k} {100 * (v - 1):+.2f} %" for k, v in record["calibration"]["edge_density"].items())
+        + f" (calibrated cap {c:.4f} flat-wall particles)",
+        flush=True,
+    )
+    record["results"] = []
+    for n in spacings:
+        for kind in kinds:
+            r = measure(n, kind, duration, window)
+            record["results"].append(r)
+            print(
+                f"{n:3d} spacings, {kind:10s} weights: force / rho0 g V {r['ratio']:.4f}, {r['particles']} particles, "
+                f"{r['capped']} of the bar's weights capped ({r['over_cap_in_tank']} of the tank's over the cap, "
+                f"kept), slope beside "
+                f"{r['beside_slope']:.4f} rho0 g, {r['wall_seconds']:.0f} s",
+                flush=True,
+            )
+    chart(record, save(record, args.out, "edge_weights", args.quick))
+
+
+if __name__ == "__main__":
+    main()
