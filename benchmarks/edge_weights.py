@@ -16,8 +16,10 @@ hole, and measures it as held_bar.py does, from the hydrostatic (default) warm s
   space around it) has exactly the rest density, as ``gamma`` makes it beside a flat wall.
 
 The bar's weights are changed by wrapping the build's ``compute_boundary_psi`` (a study's device,
-not an option of the package); the tank's keep Akinci's (at its edges, concave from the fluid, some
-of its particles weigh more than the caps too: counted, not changed).
+not an option of the package); the bar's are those within its box, which takes in the tank's
+side-wall particles where the bar runs into the walls (they weigh at most a flat wall's particle,
+to float rounding, so neither cap changes them); the tank's others keep Akinci's (at its edges, concave from the fluid, some weigh
+more than the caps too: counted, not changed).
 
 Writes benchmarks/results/edge_weights.json and edge_weights.png.
 

@@ -16,8 +16,9 @@ the bar, from each warm start (``physics.warm_start``: "hydrostatic", the defaul
   pressure against height, over those between 0.04 and 0.26 m high, more than two spacings from
   the tank's walls and from the bar's sides.
 
-Every 50 ms before that window, the force and the number of fluid particles under the bar (within
-its width, below its bottom face) are kept as a series: the reading's history.
+Every 50 ms from the start (between steps; in the window above its 10 ms pieces land steps as
+before), the force's 50 ms mean and the number of fluid particles under the bar (within its
+width, below its bottom face) are kept as a series: the reading's history.
 
 ``--crossed`` (the second part): the same bar settled from one start for the first second and
 run on from the other to 3 s, both ways, at the ``--crossed`` spacings: whether the excess
@@ -81,7 +82,8 @@ def use_start(sim: Simulation, start: str) -> None:
     """Change a running IISPH solve's warm start. A study's device, not an API: a scene's
     ``physics.warm_start`` is resolved when the solver is built (and the simulation's physics is
     read-only), so the simulation must have been built with the hydrostatic start, whose estimate
-    it then has, and keeps that start's floor of 4 iterations (the half start needs 20 or more)."""
+    it then has, and keeps that start's floor of 4 iterations (the half start's own floor is 2; it
+    iterates to eta in 20 or more anyway). Switched between steps of the plain path (no graph)."""
     solver = sim.solver
     if start != "half" and solver.hydrostatic is None:
         raise ValueError("build the simulation with a hydrostatic start to switch to one")
