@@ -8,6 +8,8 @@ fluid resting one spacing away from it is at rest density (:func:`flat_wall_gamm
 rho0 for one layer), which kicks a tank at rest into motion.
 """
 
+import functools
+
 import numpy as np
 import warp as wp
 
@@ -21,6 +23,19 @@ def flat_wall_gamma() -> float:
     """Scale ``gamma`` of the boundary weights such that a fluid particle resting one spacing
     from a flat wall, sampled as :func:`~warp_iisph.sampling.sample_tank_walls` does, with fluid
     filling the half-space above, has exactly the rest density. Independent of h."""
+    return _flat_wall()[0]
+
+
+def flat_wall_psi(h: float, rho0: float) -> float:
+    """``psi`` of a particle in the middle of such a flat wall, at spacing ``h``."""
+    gamma, delta = _flat_wall()
+    return gamma * rho0 * h**3 / delta
+
+
+@functools.lru_cache(maxsize=1)
+def _flat_wall() -> tuple[float, float]:
+    """``gamma`` and the boundary sum ``sum_k W_bk`` of the flat wall's middle particle, at h = 1
+    (the calibration, done once)."""
     h, H = 1.0, 2.0
     wall, fluid = flat_wall_patch(h)
     centre = np.argmin(np.linalg.norm(wall[:, [0, 2]] - 0.5, axis=1) + np.abs(wall[:, 1] + 0.5))
@@ -32,7 +47,7 @@ def flat_wall_gamma() -> float:
     interior = np.all(np.abs(wall[:, [0, 2]] - 0.5) < 2.0, axis=1)
     assert np.all(interior[near]) and interior[centre]
     rho_wall = (cubic_W_np(np.linalg.norm(wall[near] - probe, axis=1), H) / delta[near]).sum()
-    return float((1.0 - rho_fluid) / rho_wall)
+    return float((1.0 - rho_fluid) / rho_wall), float(delta[centre])
 
 
 @wp.kernel
