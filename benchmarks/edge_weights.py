@@ -18,8 +18,8 @@ hole, and measures it as held_bar.py does, from the hydrostatic (default) warm s
 The bar's weights are changed by wrapping the build's ``compute_boundary_psi`` (a study's device,
 not an option of the package); the bar's are those within its box, which takes in the tank's
 side-wall particles where the bar runs into the walls (they weigh at most a flat wall's particle,
-to float rounding, so neither cap changes them); the tank's others keep Akinci's (at its edges, concave from the fluid, some weigh
-more than the caps too: counted, not changed).
+to float rounding, so neither cap changes them); the tank's others keep Akinci's (at its edges,
+concave from the fluid, some weigh more than the caps too: counted, not changed).
 
 Writes benchmarks/results/edge_weights.json and edge_weights.png.
 
@@ -40,25 +40,19 @@ from validation import RHO0
 
 import warp_iisph.setup.build as build
 from warp_iisph.scene import Box
-from warp_iisph.setup.boundary import flat_wall_gamma
-from warp_iisph.setup.sampling import flat_wall_patch, sample_box_faces
+from warp_iisph.setup.boundary import flat_wall_gamma, flat_wall_psi
+from warp_iisph.setup.sampling import sample_box_faces
 from warp_iisph.sph.kernel import cubic_W_np
 
 WEIGHTS = ("akinci", "flat", "calibrated")
 
 
-def flat_wall_psi(h: float, rho0: float) -> float:
-    """``psi`` of a particle in the middle of a flat wall sampled as a tank's, at spacing ``h``."""
-    wall, _ = flat_wall_patch(1.0)
-    centre = np.argmin(np.linalg.norm(wall[:, [0, 2]] - 0.5, axis=1) + np.abs(wall[:, 1] + 0.5))
-    delta = cubic_W_np(np.linalg.norm(wall - wall[centre], axis=1), 2.0).sum()  # at h = 1
-    return float(flat_wall_gamma() * rho0 * h**3 / delta)
-
-
-def edge_density(cap: float) -> float:
-    """The density (in rho0) of a fluid particle resting one spacing from a face of a lattice box,
-    next to its convex edge, with the box's weights capped at ``cap`` flat-wall particles (h = 1;
-    the result does not depend on h)."""
+@functools.lru_cache(maxsize=1)
+def edge_patch() -> tuple[float, np.ndarray, np.ndarray]:
+    """A fluid particle resting one spacing from a face of a lattice box, next to its convex edge
+    (h = 1, the fluid filling the three quarters of space around the edge): the fluid's part of its
+    density, and the box's particles within its reach as Akinci weights them and as its kernel
+    weighs them."""
     L = 10.0
     wall = sample_box_faces(Box((0.0, 0.0, -L / 2), (L, L, L / 2), sampling="faces"), 1.0)
     probe = np.array([-0.5, 0.5, 0.5])  # beside the face x = 0, next to the edge along z
@@ -67,11 +61,15 @@ def edge_density(cap: float) -> float:
     fluid = fluid[(fluid[:, 0] < 0.0) | (fluid[:, 1] < 0.0)]
     near = wall[np.linalg.norm(wall - probe, axis=1) < 2.0]
     psi = flat_wall_gamma() / np.array([cubic_W_np(np.linalg.norm(wall - b, axis=1), 2.0).sum() for b in near])
-    psi = np.minimum(psi, cap * flat_wall_psi(1.0, 1.0))
-    return float(
-        cubic_W_np(np.linalg.norm(fluid - probe, axis=1), 2.0).sum()
-        + (psi * cubic_W_np(np.linalg.norm(near - probe, axis=1), 2.0)).sum()
-    )
+    rho_fluid = float(cubic_W_np(np.linalg.norm(fluid - probe, axis=1), 2.0).sum())
+    return rho_fluid, psi, cubic_W_np(np.linalg.norm(near - probe, axis=1), 2.0)
+
+
+def edge_density(cap: float) -> float:
+    """The density (in rho0) of :func:`edge_patch`'s fluid particle with the box's weights capped
+    at ``cap`` flat-wall particles (the result does not depend on h)."""
+    rho_fluid, psi, w = edge_patch()
+    return float(rho_fluid + (np.minimum(psi, cap * flat_wall_psi(1.0, 1.0)) * w).sum())
 
 
 @functools.lru_cache(maxsize=1)
@@ -86,8 +84,10 @@ def calibrated_factor() -> float:
 
 
 @contextlib.contextmanager
-def weights(kind: str, counts: dict):
-    """Build simulations with the ``kind`` weights; ``counts`` gets how many weights were capped."""
+def weights(kind: str, lo, hi, counts: dict):
+    """Build simulations with the ``kind`` weights on the particles within the box ``lo``..``hi``
+    (the bar's); ``counts`` gets how many weights were capped there and how many of the others
+    weigh more than the cap."""
     original = build.compute_boundary_psi
     factor = {"akinci": None, "flat": 1.0, "calibrated": calibrated_factor()}[kind]
 
@@ -97,7 +97,8 @@ def weights(kind: str, counts: dict):
             return psi
         values = psi.numpy()[: xb.shape[0]].copy()
         cap = factor * flat_wall_psi(h, rho0)
-        bar = counts["in_bar"](xb.numpy())  # the tank's particles keep Akinci's weights
+        x = xb.numpy()
+        bar = np.all((x > np.asarray(lo) - 1e-9) & (x < np.asarray(hi) + 1e-9), axis=1)
         counts["capped"] = int(np.count_nonzero((values > cap) & bar))
         counts["over_cap_in_tank"] = int(np.count_nonzero((values > cap) & ~bar))
         values[bar] = np.minimum(values[bar], cap)
@@ -112,13 +113,10 @@ def weights(kind: str, counts: dict):
 
 def measure(n: int, kind: str, duration: float, window: float) -> dict:
     """The held bar at ``n`` spacings across with the ``kind`` weights (see the module)."""
-    h = held_bar.LENGTH / n
-    _, lo, hi = held_bar.loads_scene(h, True, held_bar.LENGTH)
+    _, lo, hi = held_bar.loads_scene(held_bar.LENGTH / n, True, held_bar.LENGTH)
     counts = {"capped": None, "over_cap_in_tank": None}  # None: nothing capped (Akinci's weights)
-    counts["in_bar"] = lambda x: np.all((x > np.asarray(lo) - 1e-9) & (x < np.asarray(hi) + 1e-9), axis=1)
-    with weights(kind, counts):
+    with weights(kind, lo, hi, counts):
         r = held_bar.measure(n, "hydrostatic", duration, window)
-    del counts["in_bar"]
     return {"weights": kind, **counts, **{k: v for k, v in r.items() if k != "series"}}
 
 
