@@ -33,13 +33,12 @@ the day each part was measured) and held_bar.png.
 """
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 import warp as wp
-from common import RESULTS, header, pyplot, save
+from common import RESULTS, header, pyplot, save, saved
 from validation import LOADS_TANK, RHO0, G, loads_scene
 
 from warp_iisph import Simulation
@@ -248,7 +247,7 @@ def main():
     duration, window, switch = (1.0, 0.3, 0.5) if args.quick else (3.0, 0.5, SWITCH)
     kept = {}
     if not args.quick and parts != {"plain", "crossed"} and (Path(args.out) / "held_bar.json").exists():
-        kept = json.loads((Path(args.out) / "held_bar.json").read_text())
+        kept = saved(args.out, "held_bar")[0]
     record = header("held_bar", duration=duration, window=window, switch=switch)
     dates = dict(kept.get("part_dates", {}))
     record["results"], record["crossed"] = kept.get("results", []), kept.get("crossed", [])
