@@ -95,6 +95,7 @@ def pressure_jacobi_query(
     dt_step: wp.array(dtype=float),
     rho0: float,
     omega: float,
+    a_least: float,
     p_new: wp.array(dtype=float),
     density_error: wp.array(dtype=wp.float64),
 ):
@@ -116,7 +117,7 @@ def pressure_jacobi_query(
                 g = cubic_grad_W(x_ij, radius)
                 sigma += jacobi_sigma_term(mass, sdp_i, displacement[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
-    jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
+    jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, a_least * dt * dt, p_new, density_error)
 
 
 @wp.kernel
@@ -165,6 +166,7 @@ def pressure_jacobi_index(
     dt_step: wp.array(dtype=float),
     rho0: float,
     omega: float,
+    a_least: float,
     p_new: wp.array(dtype=float),
     density_error: wp.array(dtype=wp.float64),
 ):
@@ -181,7 +183,7 @@ def pressure_jacobi_index(
         g = cubic_grad_W(x_i - x[j], radius)
         sigma += jacobi_sigma_term(mass, sdp_i, displacement[j], (d_ji_scale * g) * p_i, g)
     sigma = jacobi_boundary_sigma(i, psi, nb, sdp_i, sigma)
-    jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, p_new, density_error)
+    jacobi_update(i, sigma, p_i, a_ii[i], a_ii[i], rho_adv[i], rho0, omega, a_least * dt * dt, p_new, density_error)
 
 
 @wp.kernel
@@ -257,7 +259,9 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
         # the fluid part of an iteration, as the query twins compute it
         common = [solver.fluid, lists, nb, walls, terms_with(sums), state.rho, state.p]
         launch_particles(pressure_sum_dij_pj, n, common, device)
-        launch_particles(pressure_jacobi, n, [*common, float(ph.omega), p_out, solver.solve.error], device)
+        launch_particles(
+            pressure_jacobi, n, [*common, float(ph.omega), solver.a_least, p_out, solver.solve.error], device
+        )
 
     # the same lists in the other layout: slot-major (slot m of particle i at m * n + i, what a
     # GPU warp reads coalesced) against particle-major (i * stride + m, one cache line per list)
@@ -298,6 +302,7 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 solver.dt,
                 ph.rho0,
                 float(ph.omega),
+                solver.a_least,
                 p_query,
                 solver.solve.error,
             ],
@@ -337,6 +342,7 @@ def run(device: str, count: int, settle: float, repeats: int) -> dict:
                 solver.dt,
                 ph.rho0,
                 float(ph.omega),
+                solver.a_least,
                 p_index,
                 solver.solve.error,
             ],

@@ -488,7 +488,7 @@ class VariantIISPH(IISPHSolver):
         launch_particles(
             pressure_jacobi_residual,
             n,
-            [*common, float(self.physics.omega), c.cell, c.grid, self.e, self.p_next, self.solve.error],
+            [*common, float(self.physics.omega), self.a_least, c.cell, c.grid, self.e, self.p_next, self.solve.error],
             dev,
         )
         wp.launch(
@@ -601,6 +601,7 @@ def pressure_jacobi_residual(
     rho: wp.array(dtype=float),
     p: wp.array(dtype=float),
     omega: float,
+    a_least: float,
     cell: wp.array(dtype=int),
     g: CoarseGrid,
     res: wp.array(dtype=float),
@@ -614,7 +615,10 @@ def pressure_jacobi_residual(
     p_i = p[i]
     sigma = jacobi_sigma(i, fluid, nf, nb, walls, iisph, rho, p)
     a = iisph.a_ii[i]
-    jacobi_update(i, sigma, p_i, a, iisph.a_diag[i], iisph.rho_adv[i], fluid.rho0, omega, p_new, density_error)
+    dt = fluid.dt[0]
+    jacobi_update(
+        i, sigma, p_i, a, iisph.a_diag[i], iisph.rho_adv[i], fluid.rho0, omega, a_least * dt * dt, p_new, density_error
+    )
     rho_pred = iisph.rho_adv[i] + a * p_i + sigma
     r = float(0.0)
     if p_i > 0.0 or rho_pred > fluid.rho0:

@@ -57,3 +57,12 @@ def cubic_grad_W_np(x_ij, H):
     dW_dr = np.where(q <= 0.5, scale * q * (3.0 * q - 2.0) / H, -scale * np.clip(1.0 - q, 0.0, None) ** 2 / H)
     dW_dr = np.where((r > 1.0e-9 * H) & (q <= 1.0), dW_dr, 0.0)
     return x_ij * (dW_dr / np.maximum(r, 1.0e-30))[..., None]
+
+
+def lattice_grad_W_squared(h: float, H: float) -> float:
+    """``sum_j |grad W_ij|^2`` over a particle's neighbours on a full cubic lattice of spacing
+    ``h`` (the liquid at rest around it), support ``H``."""
+    reach = int(np.ceil(H / h))
+    k = np.arange(-reach, reach + 1) * h
+    offsets = np.stack([a.ravel() for a in np.meshgrid(k, k, k, indexing="ij")], axis=1)
+    return float((cubic_grad_W_np(offsets, H) ** 2).sum())
