@@ -437,3 +437,18 @@ def test_held_bar_quick_mode(tmp_path):
     assert [plain["ratio"][k] for k in settling] == [switched["ratio"][k] for k in settling]
     assert [plain["under"][k] for k in settling] == [switched["under"][k] for k in settling]
     assert switched["ratio"][-1] != plain["ratio"][-1]
+
+
+def test_pinned_films_quick_mode(tmp_path):
+    """The pinned-films study: the coarse dam break's compressed particles all keep a diagonal
+    above the floor (so the floor changes nothing there), and the coarse flood runs with and
+    without the floor in both ways of advancing, each run's record complete."""
+    record = _quick("pinned_films.py", tmp_path, "pinned_films_quick")
+    (d,) = record["diagonals"]
+    assert d["scene"] == "dam_break" and d["compressed_samples"] > 1000
+    assert d["least"] > record["floor"] and d["below"]["0.25"] == 0
+    runs = record["flood"]
+    assert {(r["fps"], r["floor"]) for r in runs} == {(0, 0.0), (0, record["floor"]), (30, 0.0), (30, record["floor"])}
+    for r in runs:
+        assert abs(r["simulated_seconds"] - 0.3) < 1e-9 and r["steps"] == len(r["t"]) == len(r["max_velocity"])
+        assert 0.5 < r["fastest"] < 2.0 * 2.0 * np.sqrt(9.81 * 0.35) and r["mean_iterations"] >= 2

@@ -1,0 +1,196 @@
+"""Particles pinned in films between a body and a wall, and the floor under the Jacobi step's
+diagonal (docs/pressure_solve.md, "What changed").
+
+IISPH's relaxed Jacobi step divides a particle's density residual by its diagonal ``a_diag``, the
+density change per unit of its own pressure. A particle in a film between two walls (a crate
+closing on the tank's side wall, a block sliding on the floor) has walls on both sides whose
+pushes cancel, so its diagonal is small and the step's pressure large; the package divides by at
+least ``DIAGONAL_FLOOR`` (a quarter) of a particle's inside resting liquid. Two parts:
+
+- ``diagonals``: every step's compressed particles (advected density above rho0), frame by frame,
+  their ``a_diag`` as a fraction of the bulk's ``dt^2 (m / rho0)^2 sum_j |grad W_ij|^2`` (a full
+  lattice): the dam break (1.5 s), the flood (1 s) and SPHERIC Test 2 at 5 cm (1 s), at the
+  defaults. Where no particle comes under the floor the floor changes nothing.
+- ``flood``: the bundled ``flood`` (free crates and a block) to its end, with the package's floor
+  and without one (``DIAGONAL_FLOOR`` set to 0 for the run: a study's device, not an option), in
+  one call and frame by frame at 25, 30 (``warp-iisph run``) and 60 fps, as each landing schedule
+  makes the films' particles meet the walls at other steps: the fastest particle, the steps with a
+  particle faster than 5 m/s (the wave's front is 2 sqrt(g H) = 3.7 m/s), the steps, the pressure
+  iterations and the containment's put-backs.
+
+Writes benchmarks/results/pinned_films.json and pinned_films.png.
+
+    python benchmarks/pinned_films.py [--parts diagonals,flood] [--quick]
+
+--quick (the test suite's): the flood at 4 cm for 0.3 s, in one call and at 30 fps, and the
+diagonals of the dam break at 4 cm for 0.2 s.
+"""
+
+import argparse
+import time
+
+import numpy as np
+import warp as wp
+from common import RESULTS, header, pyplot, save
+
+import warp_iisph.sph.solvers.iisph as iisph
+from warp_iisph import Simulation
+from warp_iisph.scene import load_scene
+from warp_iisph.sph.kernel import lattice_grad_W_squared
+
+PARTS = ("diagonals", "flood")
+FAST = 5.0  # m/s: faster than the flood's wave front (3.7 m/s)
+THRESHOLDS = (0.05, 0.1, 0.25, 0.37)  # fractions of the bulk's diagonal counted below
+
+
+def advance(sim: Simulation, duration: float, fps: float, callback) -> None:
+    """``duration`` seconds in one call (``fps`` 0) or frame by frame at ``fps``."""
+    if fps == 0:
+        sim.advance(duration, callback=callback)
+        return
+    k = 0
+    while sim.time < duration - 1e-9:
+        k += 1
+        sim.advance(min(k / fps, duration) - sim.time, callback=callback)
+
+
+def diagonals(name: str, duration: float, overrides: list) -> dict:
+    """The compressed particles' diagonals against the bulk's over a run (see the module)."""
+    scene = load_scene(name, overrides)
+    h = scene.spacing
+    bulk = h**6 * lattice_grad_W_squared(h, 2.0 * h)  # |a_ii| / dt^2 inside resting liquid
+    sim = Simulation(scene, "cpu", history=1)
+    ratios, steps = [], 0
+
+    def on_step(record: dict) -> None:
+        nonlocal steps
+        steps += 1
+        n = sim.state.n
+        terms = sim.solver.terms
+        compressed = terms.rho_adv.numpy()[:n] > scene.physics.rho0
+        ratios.append(terms.a_diag.numpy()[:n][compressed] / (-(record["dt"] ** 2) * bulk))
+
+    advance(sim, duration, scene.output.fps, on_step)
+    r = np.concatenate(ratios)
+    return {
+        "scene": name,
+        "overrides": overrides,
+        "duration": duration,
+        "steps": steps,
+        "compressed_samples": int(len(r)),
+        "least": float(r.min()),
+        "percentiles": {str(q): float(np.percentile(r, q)) for q in (0.01, 0.1, 1, 50)},
+        "below": {str(t): int((r < t).sum()) for t in THRESHOLDS},
+    }
+
+
+def flood(floor: float, fps: float, duration: float, overrides: list) -> dict:
+    """The flood with the diagonal's floor ``floor`` advanced as ``fps`` says (see the module)."""
+    package = iisph.DIAGONAL_FLOOR
+    iisph.DIAGONAL_FLOOR = floor  # read when the solver is built
+    try:
+        scene = load_scene("flood", overrides)
+        sim = Simulation(scene, "cpu", history=1)
+    finally:
+        iisph.DIAGONAL_FLOOR = package
+    duration = duration or scene.output.duration
+    rows = []
+    t0 = time.perf_counter()
+    advance(
+        sim,
+        duration,
+        fps,
+        lambda r: rows.append((r["t"], r["max_velocity"], r["iterations"], r["obstacle_corrections"])),
+    )
+    r = np.array(rows)
+    return {
+        "floor": floor,
+        "fps": fps,
+        "simulated_seconds": sim.time,
+        "steps": len(r),
+        "fastest": float(r[:, 1].max()),
+        "fastest_at": float(r[int(np.argmax(r[:, 1])), 0]),
+        "fast_steps": int((r[:, 1] > FAST).sum()),
+        "mean_iterations": float(r[:, 2].mean()),
+        "put_back": int(r[:, 3].sum()),
+        "wall_seconds": time.perf_counter() - t0,
+        "t": r[:, 0].tolist(),
+        "max_velocity": r[:, 1].tolist(),
+    }
+
+
+def chart(record: dict, path) -> None:
+    plt = pyplot()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    runs = record.get("flood", [])
+    for run in runs:
+        if run["fps"] == record["frame_rate"]:
+            label = f"floor {run['floor']:g}" if run["floor"] else "no floor"
+            a.plot(run["t"], run["max_velocity"], lw=0.8, label=f"{label}: {run['steps']} steps")
+    a.axhline(FAST, color="k", lw=0.6, ls="--")
+    a.set(
+        xlabel="t (s)",
+        ylabel="fastest particle (m/s)",
+        title=f"flood, frame by frame at {record['frame_rate']:g} fps",
+    )
+    schedules = sorted({run["fps"] for run in runs})
+    for k, floor in enumerate(sorted({run["floor"] for run in runs})):
+        ys = [next((r["fastest"] for r in runs if r["fps"] == f and r["floor"] == floor), np.nan) for f in schedules]
+        b.bar(np.arange(len(schedules)) + 0.4 * k, ys, 0.4, label=f"floor {floor:g}" if floor else "no floor")
+    b.set_xticks(np.arange(len(schedules)) + 0.2, ["one call" if f == 0 else f"{f:g} fps" for f in schedules])
+    b.set(ylabel="fastest particle over the run (m/s)", title="flood, by how the run is advanced")
+    for ax in (a, b):
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--parts", default=",".join(PARTS))
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(RESULTS))
+    args = ap.parse_args()
+    wp.config.log_level = wp.LOG_WARNING
+    parts = args.parts.split(",")
+    record = header("pinned_films", floor=iisph.DIAGONAL_FLOOR, fast=FAST, frame_rate=30.0)
+    if args.quick:
+        cases, flood_overrides, duration, schedules = (
+            [("dam_break", 0.2, ["spacing=0.04"])],
+            ["spacing=0.04"],
+            0.3,
+            (0, 30),
+        )
+    else:
+        cases = [("dam_break", 1.5, []), ("flood", 1.0, []), ("spheric_test2", 1.0, ["spacing=0.05"])]
+        flood_overrides, duration, schedules = [], None, (0, 25, 30, 60)
+    if "diagonals" in parts:
+        record["diagonals"] = []
+        for name, seconds, overrides in cases:
+            d = diagonals(name, seconds, overrides)
+            record["diagonals"].append(d)
+            print(
+                f"{name} {' '.join(overrides)}: {d['compressed_samples']} compressed particle-steps, least diagonal "
+                f"{d['least']:.3f} of the bulk's, below 0.25: {d['below']['0.25']}",
+                flush=True,
+            )
+    if "flood" in parts:
+        record["flood"] = []
+        for fps in schedules:
+            for floor in (0.0, iisph.DIAGONAL_FLOOR):
+                r = flood(floor, fps, duration, flood_overrides)
+                record["flood"].append(r)
+                how = "one call" if fps == 0 else f"{fps} fps"
+                print(
+                    f"flood, {how}, floor {floor:g}: fastest {r['fastest']:.2f} m/s at {r['fastest_at']:.3f} s, "
+                    f"{r['fast_steps']} steps over {FAST:g} m/s, {r['steps']} steps, "
+                    f"{r['mean_iterations']:.2f} iterations a step, {r['put_back']} put back, "
+                    f"{r['wall_seconds']:.0f} s",
+                    flush=True,
+                )
+    chart(record, save(record, args.out, "pinned_films", args.quick))
+
+
+if __name__ == "__main__":
+    main()
