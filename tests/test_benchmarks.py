@@ -441,12 +441,12 @@ def test_held_bar_quick_mode(tmp_path):
 
 def test_pinned_films_quick_mode(tmp_path):
     """The pinned-films study: the coarse dam break's compressed particles all keep a diagonal
-    above the floor (so the floor changes nothing there), and the coarse flood runs with and
+    above the floor and the run ends bit for bit as without it, and the coarse flood runs with and
     without the floor in both ways of advancing, each run's record complete."""
     record = _quick("pinned_films.py", tmp_path, "pinned_films_quick")
     (d,) = record["diagonals"]
     assert d["scene"] == "dam_break" and d["compressed_samples"] > 1000
-    assert d["least"] > record["floor"] and d["below"]["0.25"] == 0
+    assert d["least"] > record["floor"] and d["below"]["0.25"] == 0 and d["identical_without_floor"]
     runs = record["flood"]
     assert {(r["fps"], r["floor"]) for r in runs} == {(0, 0.0), (0, record["floor"]), (30, 0.0), (30, record["floor"])}
     for r in runs:

@@ -16,7 +16,8 @@ Beside a free body (a particle with one of its boundary particles as a neighbour
 least half the last step's pressure: a column's estimate counts only the liquid above a particle,
 not the weight of a body resting on it, and from the estimate alone the film under a sinking box
 kept it jittering at 0.1 m/s and the bundled ``flood`` shot particles out of such films at 8.9 m/s
-(4.96 with this rule, 4.50 from the half start; docs/physics.md 4.14).
+(4.96 with this rule, 4.50 from the half start, advanced in one call before the Jacobi step's
+diagonal had its floor; docs/physics.md 4.14).
 ``"half_hydrostatic"`` starts from half of it (ungated) plus half of the last step's pressure.
 
 A column's height is the largest of its particles' (``wp.atomic_max``: the same on every device

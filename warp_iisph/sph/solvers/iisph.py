@@ -41,8 +41,8 @@ from .base import Fluid, SPHSolver
 from .forces import ViscousTerms, advected_velocity
 from .iteration import IterativeSolve
 
-# The least magnitude of the diagonal a Jacobi step divides by, as a fraction of a particle's inside
-# resting liquid: above it only particles pinned between walls (jacobi_update).
+# The least magnitude of the diagonal a Jacobi step divides by, as a fraction of the diagonal of a
+# particle inside resting liquid: only particles pinned between walls fall below it (jacobi_update).
 DIAGONAL_FLOOR = 0.25
 
 
@@ -251,14 +251,14 @@ def jacobi_update(
     written in IISPH's form), ``a_ii`` plus the share p_i has through the walls' extrapolated
     pressures with those (:func:`wall_diagonal`).
 
-    A diagonal smaller in magnitude than ``a_least`` (:data:`DIAGONAL_FLOOR` of a particle's inside
-    resting liquid; 0: none) is taken as ``-a_least``: a particle pinned in a film between two
-    walls (a body closing on a tank wall) has walls on both sides whose pushes cancel, so its own
-    pressure barely changes its density, and the unguarded step raised its pressure by 40 times a
-    bulk particle's per unit of compression, to 0.8 MPa in one step in the ``flood``, which shot it
-    out at 20 m/s. The floor changes the step, not the solution it converges to (its residual is
-    still ``rho0 - rho_pred``); in the dam breaks and SPHERIC no compressed particle's diagonal
-    comes below 0.37 of the bulk's, so they are not touched."""
+    A diagonal above ``-a_least`` (small, or of the wrong sign; ``a_least``: :data:`DIAGONAL_FLOOR`
+    of the diagonal of a particle inside resting liquid, 0 for none) is taken as ``-a_least``: a
+    particle pinned in a film between two walls (a body closing on a tank wall) has walls on both
+    sides whose pushes cancel, so its own pressure barely changes its density, and the unguarded
+    step raised its pressure by 40 times a bulk particle's per unit of compression, to 0.8 MPa in
+    one step in the ``flood``, which shot it out at 20 m/s. The floor changes the step, not the
+    solution it converges to (its residual is still ``rho0 - rho_pred``); the dam break and SPHERIC
+    run bit for bit as without it (benchmarks/pinned_films.py)."""
     p_next = float(0.0)
     rho_pred = rho_adv_i + a * p_i + sigma
     if wp.abs(a) > 1.0e-12:
