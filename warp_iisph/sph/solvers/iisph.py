@@ -15,7 +15,8 @@ iteration's pressures: known values like the neighbours', so they enter ``s_i``;
 + sum_b psi_b sum_dij_pj_i . grad W_ib``, the predicted density ``rho_adv + a_ii p_i + s_i`` and
 ``p_i = max(p_i + omega (rho0 - rho_pred_i) / a_diag_i, 0)`` (``a_diag``: the system's diagonal,
 ``a_ii`` plus the share p_i has in the walls' pressures near i; ``a_ii`` itself with Akinci's
-walls, where the step is written ``(1 - omega) p_i + omega / a_ii (rho0 - rho_adv_i - s_i)``),
+walls, where the step is written ``(1 - omega) p_i + omega / a_ii (rho0 - rho_adv_i - s_i)``; taken
+as at least :data:`DIAGONAL_FLOOR` of a bulk particle's in magnitude),
 until the average predicted density error ``mean(max(rho_i/rho0 - 1, 0))`` (reduced in float64)
 is at most ``eta`` and at least ``min_iterations`` ran, or ``max_iterations`` is reached. The
 error is that of the iteration's input pressures (the residual; see ``jacobi_update``).
