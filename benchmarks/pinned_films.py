@@ -38,7 +38,6 @@ from common import RESULTS, header, pyplot, save
 import warp_iisph.sph.solvers.iisph as iisph
 from warp_iisph import Simulation
 from warp_iisph.scene import load_scene
-from warp_iisph.sph.kernel import lattice_grad_W_squared
 
 PARTS = ("diagonals", "flood")
 FAST = 5.0  # m/s: faster than the flood's wave front (3.7 m/s)
@@ -70,9 +69,7 @@ def diagonals(name: str, duration: float, overrides: list) -> dict:
     """The compressed particles' diagonals against the bulk's over a run, and whether the run
     without the floor ends with the same positions (see the module)."""
     sim = simulation(name, overrides, iisph.DIAGONAL_FLOOR)
-    scene, model = sim.scene, sim.model
-    h = model.spacing
-    bulk = h**6 * lattice_grad_W_squared(h, model.support_radius)  # |a_ii| / dt^2 inside resting liquid
+    scene, bulk = sim.scene, sim.solver.a_bulk  # |a_ii| / dt^2 inside resting liquid, the solver's own
     ratios, steps = [], 0
 
     def on_step(record: dict) -> None:

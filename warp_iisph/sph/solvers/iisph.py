@@ -387,9 +387,10 @@ class IISPHSolver(SPHSolver):
         t.a_diag = scalars() if self.walls.extrapolated else t.a_ii
         self.terms = t
         self.p_next = scalars()
-        # |a_ii| / dt^2 inside resting liquid, (m / rho0)^2 sum_j |grad W_ij|^2, times the floor
+        # |a_ii| / dt^2 inside resting liquid, (m / rho0)^2 sum_j |grad W_ij|^2, and the floor's share
         h = model.spacing
-        self.a_least = DIAGONAL_FLOOR * h**6 * lattice_grad_W_squared(h, model.support_radius)
+        self.a_bulk = h**6 * lattice_grad_W_squared(h, model.support_radius)
+        self.a_least = DIAGONAL_FLOOR * self.a_bulk
         self.solve = IterativeSolve(n, dev)  # the pressure solve: relaxed Jacobi, ending where its error reaches eta
         self.free_bodies = model.rigid is not None
         self.warm_start = self.physics.pressure_start(self.free_bodies)  # physics.warm_start, resolved
