@@ -45,6 +45,22 @@ def save(record: dict, out, stem: str, quick: bool) -> Path:
     return out / f"{stem}.png"
 
 
+def keep_parts(record: dict, out, stem: str, parts: dict, run: set, quick: bool) -> None:
+    """Fill ``record`` (this run's header) with the parts of ``stem``'s saved file not run this time,
+    and set ``part_dates``, the day each part was last measured (this run's date for those it
+    measures). ``parts`` maps a part to the record's keys that hold it. Quick runs keep nothing."""
+    path = Path(out) / f"{stem}.json"
+    old = json.loads(path.read_text()) if path.is_file() and not quick else {}
+    dates = dict(old.get("part_dates", {}))
+    for part, keys in parts.items():
+        if part in run:
+            dates[part] = record["date"]
+        elif all(k in old for k in keys):
+            record.update({k: old[k] for k in keys})
+            dates.setdefault(part, old.get(f"{part}_date", old["date"]))  # (older files: a key per part)
+    record["part_dates"] = {p: d for p, d in dates.items() if p in run or all(k in record for k in parts.get(p, ()))}
+
+
 def saved(out, stem: str, quick: bool = False) -> tuple[dict, Path]:
     """The record :func:`save` wrote for ``stem`` in ``out`` and its chart's path (for --replot)."""
     out = Path(out)

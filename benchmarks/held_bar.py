@@ -34,11 +34,10 @@ the day each part was measured) and held_bar.png.
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 import warp as wp
-from common import RESULTS, header, pyplot, save, saved
+from common import RESULTS, header, keep_parts, pyplot, save
 from validation import LOADS_TANK, RHO0, G, loads_scene
 
 from warp_iisph import Simulation
@@ -245,27 +244,22 @@ def main():
     spacings = [8] if args.quick else [int(s) for s in args.spacings.split(",")]
     crossed = [8] if args.quick else [int(s) for s in args.crossed.split(",")]
     duration, window, switch = (1.0, 0.3, 0.5) if args.quick else (3.0, 0.5, SWITCH)
-    kept = {}
-    if not args.quick and parts != {"plain", "crossed"} and (Path(args.out) / "held_bar.json").exists():
-        kept = saved(args.out, "held_bar")[0]
     record = header("held_bar", duration=duration, window=window, switch=switch)
-    dates = dict(kept.get("part_dates", {}))
-    record["results"], record["crossed"] = kept.get("results", []), kept.get("crossed", [])
+    keep_parts(record, args.out, "held_bar", {"plain": ("results",), "crossed": ("crossed",)}, parts, args.quick)
+    record.setdefault("results", [])
+    record.setdefault("crossed", [])
     if "plain" in parts:
         record["results"] = []
         for n in spacings:
             for start in STARTS:
                 record["results"].append(measure(n, start, duration, window))
                 report(record["results"][-1])
-        dates["plain"] = record["date"]
     if "crossed" in parts:
         record["crossed"] = []
         for n in crossed:
             for first, then in CROSSINGS:
                 record["crossed"].append(measure(n, then, duration, window, settled_from=first, switch=switch))
                 report(record["crossed"][-1])
-        dates["crossed"] = record["date"]
-    record["part_dates"] = dates
     chart(record, save(record, args.out, "held_bar", args.quick))
 
 
