@@ -19,13 +19,22 @@ least ``DIAGONAL_FLOOR`` (a quarter) of a particle's inside resting liquid. Two 
   makes the films' particles meet the walls at other steps: the fastest particle, the steps with a
   particle faster than 5 m/s (the wave's front is 2 sqrt(g H) = 3.7 m/s), the steps, the pressure
   iterations and the containment's put-backs.
+- ``dfsph``: the same for DFSPH (``physics.method = "dfsph"``), whose constant-density solve
+  divides by at least ``DENOMINATOR_FLOOR`` (a quarter) of a bulk particle's denominator of
+  ``alpha_i / rho_i``, ``m^2 sum_j |grad W_ij|^2``: the flood frame by frame at 30 fps with the
+  floor and without (a run that diverges is recorded with the time it reached), and the dam break
+  (1.5 s) and SPHERIC Test 2 at 5 cm (1 s) at 30 fps once more without the floor, compared bit for
+  bit; with the denominators of the particles the density solve pushed (a stiffness above zero
+  after the step) as a fraction of the bulk's.
 
-Writes benchmarks/results/pinned_films.json and pinned_films.png.
+Writes benchmarks/results/pinned_films.json (a part not run this time kept from the file there,
+with the day it was measured: ``part_dates``) and pinned_films.png.
 
-    python benchmarks/pinned_films.py [--parts diagonals,flood] [--quick]
+    python benchmarks/pinned_films.py [--parts diagonals,flood,dfsph] [--quick] [--replot]
 
 --quick (the test suite's): the flood at 4 cm for 0.3 s, in one call and at 30 fps, and the
-diagonals of the dam break at 4 cm for 0.2 s.
+diagonals of the dam break at 4 cm for 0.2 s; DFSPH's flood at 4 cm for 0.3 s at 30 fps and its
+dam break at 4 cm for 0.2 s.
 """
 
 import argparse
@@ -33,13 +42,15 @@ import time
 
 import numpy as np
 import warp as wp
-from common import RESULTS, header, pyplot, save
+from common import RESULTS, header, keep_parts, pyplot, save, saved
 
+import warp_iisph.sph.solvers.dfsph as dfsph
 import warp_iisph.sph.solvers.iisph as iisph
-from warp_iisph import Simulation
+from warp_iisph import DivergenceError, Simulation
 from warp_iisph.scene import load_scene
 
-PARTS = ("diagonals", "flood")
+# each part and the record's keys it writes (a part not run keeps its saved measurement)
+PARTS = {"diagonals": ("diagonals",), "flood": ("flood",), "dfsph": ("dfsph_denominators", "dfsph_flood")}
 FAST = 5.0  # m/s: faster than the flood's wave front (3.7 m/s)
 THRESHOLDS = (0.05, 0.1, 0.25, 0.37)  # fractions of the bulk's diagonal counted below
 
@@ -55,14 +66,16 @@ def advance(sim: Simulation, duration: float, fps: float, callback) -> None:
         sim.advance(min(k / fps, duration) - sim.time, callback=callback)
 
 
-def simulation(name: str, overrides: list, floor: float) -> Simulation:
-    """The bundled scene ``name`` built with the diagonal's floor ``floor``."""
-    package = iisph.DIAGONAL_FLOOR
-    iisph.DIAGONAL_FLOOR = floor  # read when the solver is built
+def simulation(name: str, overrides: list, floor: float, method: str = "iisph") -> Simulation:
+    """The bundled scene ``name`` built with ``method``'s floor set to ``floor`` (IISPH's
+    ``DIAGONAL_FLOOR``, DFSPH's ``DENOMINATOR_FLOOR``)."""
+    module, constant = (dfsph, "DENOMINATOR_FLOOR") if method == "dfsph" else (iisph, "DIAGONAL_FLOOR")
+    package = getattr(module, constant)
+    setattr(module, constant, floor)  # read when the solver is built
     try:
-        return Simulation(load_scene(name, overrides), "cpu", history=1)
+        return Simulation(load_scene(name, [*overrides, f"physics.method={method}"]), "cpu", history=1)
     finally:
-        iisph.DIAGONAL_FLOOR = package
+        setattr(module, constant, package)
 
 
 def diagonals(name: str, duration: float, overrides: list) -> dict:
@@ -97,22 +110,28 @@ def diagonals(name: str, duration: float, overrides: list) -> dict:
     }
 
 
-def flood(floor: float, fps: float, duration: float, overrides: list) -> dict:
-    """The flood with the diagonal's floor ``floor`` advanced as ``fps`` says (see the module)."""
-    sim = simulation("flood", overrides, floor)
+def flood(floor: float, fps: float, duration: float, overrides: list, method: str = "iisph") -> dict:
+    """The flood with ``method``'s floor ``floor`` advanced as ``fps`` says (see the module); a run
+    that diverges ends there, its reason recorded."""
+    sim = simulation("flood", overrides, floor, method)
     duration = duration or sim.scene.output.duration
-    rows = []
+    rows, diverged = [], None
     t0 = time.perf_counter()
-    advance(
-        sim,
-        duration,
-        fps,
-        lambda r: rows.append((r["t"], r["max_velocity"], r["iterations"], r["obstacle_corrections"])),
-    )
+    try:
+        advance(
+            sim,
+            duration,
+            fps,
+            lambda r: rows.append((r["t"], r["max_velocity"], r["iterations"], r["obstacle_corrections"])),
+        )
+    except DivergenceError as e:
+        diverged = e.reason
     r = np.array(rows)
     return {
+        "method": method,
         "floor": floor,
         "fps": fps,
+        "diverged": diverged,
         "simulated_seconds": sim.time,
         "steps": len(r),
         "fastest": float(r[:, 1].max()),
@@ -126,14 +145,50 @@ def flood(floor: float, fps: float, duration: float, overrides: list) -> dict:
     }
 
 
+def dfsph_denominators(name: str, duration: float, overrides: list) -> dict:
+    """DFSPH's run of ``name``: the denominators of ``alpha_i / rho_i`` of the particles its
+    constant-density solve pushed, against the bulk's, and whether the run without the floor ends
+    with the same positions (see the module)."""
+    sim = simulation(name, overrides, dfsph.DENOMINATOR_FLOOR, "dfsph")
+    bulk = sim.solver.denominator_bulk
+    ratios, steps = [], 0
+
+    def on_step(record: dict) -> None:
+        nonlocal steps
+        steps += 1
+        n = sim.state.n
+        pushed = sim.solver.kappa.numpy()[:n] > 0.0
+        factor = sim.solver.factor.numpy()[:n][pushed]
+        ratios.append(1.0 / factor[factor > 0.0] / bulk)
+
+    advance(sim, duration, sim.scene.output.fps, on_step)
+    without = simulation(name, overrides, 0.0, "dfsph")
+    advance(without, duration, sim.scene.output.fps, None)
+    r = np.concatenate(ratios)
+    return {
+        "scene": name,
+        "overrides": overrides,
+        "duration": duration,
+        "steps": steps,
+        "pushed_samples": int(len(r)),
+        "least": float(r.min()),
+        "percentiles": {str(q): float(np.percentile(r, q)) for q in (0.01, 0.1, 1, 50)},
+        "below": {str(t): int((r < t).sum()) for t in THRESHOLDS},
+        "identical_without_floor": bool(np.array_equal(sim.positions, without.positions)),
+    }
+
+
 def chart(record: dict, path) -> None:
     plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     runs = record.get("flood", [])
-    for run in runs:
+    for run in [*runs, *record.get("dfsph_flood", [])]:
         if run["fps"] == record["frame_rate"]:
             label = f"floor {run['floor']:g}" if run["floor"] else "no floor"
-            a.plot(run["t"], run["max_velocity"], lw=0.8, label=f"{label}: {run['steps']} steps")
+            label = f"{run.get('method', 'iisph').upper()}, {label}: {run['steps']} steps"
+            if run.get("diverged"):
+                label += f", diverged at {run['simulated_seconds']:.2f} s"
+            a.plot(run["t"], run["max_velocity"], lw=0.8, label=label)
     a.axhline(FAST, color="k", lw=0.6, ls="--")
     a.set(
         xlabel="t (s)",
@@ -145,9 +200,10 @@ def chart(record: dict, path) -> None:
         ys = [next((r["fastest"] for r in runs if r["fps"] == f and r["floor"] == floor), np.nan) for f in schedules]
         b.bar(np.arange(len(schedules)) + 0.4 * k, ys, 0.4, label=f"floor {floor:g}" if floor else "no floor")
     b.set_xticks(np.arange(len(schedules)) + 0.2, ["one call" if f == 0 else f"{f:g} fps" for f in schedules])
-    b.set(ylabel="fastest particle over the run (m/s)", title="flood, by how the run is advanced")
+    b.set(ylabel="fastest particle over the run (m/s)", title="IISPH's flood, by how the run is advanced")
     for ax in (a, b):
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -158,10 +214,23 @@ def main():
     ap.add_argument("--parts", default=",".join(PARTS))
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--replot", action="store_true", help="redraw the chart from the JSON already in --out")
     args = ap.parse_args()
+    if args.replot:
+        chart(*saved(args.out, "pinned_films", args.quick))
+        return
     wp.config.log_level = wp.LOG_WARNING
     parts = args.parts.split(",")
-    record = header("pinned_films", floor=iisph.DIAGONAL_FLOOR, fast=FAST, frame_rate=30.0)
+    record = header(
+        "pinned_films",
+        floor=iisph.DIAGONAL_FLOOR,
+        denominator_floor=dfsph.DENOMINATOR_FLOOR,
+        fast=FAST,
+        frame_rate=30.0,
+    )
+    if set(parts) - set(PARTS):
+        ap.error(f"--parts: among {', '.join(PARTS)}")
+    keep_parts(record, args.out, "pinned_films", PARTS, set(parts), args.quick)
     if args.quick:
         cases, flood_overrides, duration, schedules = (
             [("dam_break", 0.2, ["spacing=0.04"])],
@@ -169,9 +238,11 @@ def main():
             0.3,
             (0, 30),
         )
+        dfsph_cases = cases
     else:
         cases = [("dam_break", 1.5, []), ("flood", 1.0, []), ("spheric_test2", 1.0, ["spacing=0.05"])]
         flood_overrides, duration, schedules = [], None, (0, 25, 30, 60)
+        dfsph_cases = [("dam_break", 1.5, []), ("spheric_test2", 1.0, ["spacing=0.05"])]
     if "diagonals" in parts:
         record["diagonals"] = []
         for name, seconds, overrides in cases:
@@ -197,6 +268,29 @@ def main():
                     f"{r['wall_seconds']:.0f} s",
                     flush=True,
                 )
+    if "dfsph" in parts:
+        record["dfsph_denominators"] = []
+        for name, seconds, overrides in dfsph_cases:
+            d = dfsph_denominators(name, seconds, overrides)
+            record["dfsph_denominators"].append(d)
+            print(
+                f"DFSPH {name} {' '.join(overrides)}: {d['pushed_samples']} pushed particle-steps, least denominator "
+                f"{d['least']:.3f} of the bulk's, below 0.25: {d['below']['0.25']}, the same without the floor: "
+                f"{d['identical_without_floor']}",
+                flush=True,
+            )
+        record["dfsph_flood"] = []
+        for floor in (0.0, dfsph.DENOMINATOR_FLOOR):
+            r = flood(floor, record["frame_rate"], duration, flood_overrides, "dfsph")
+            record["dfsph_flood"].append(r)
+            print(
+                f"DFSPH flood, {record['frame_rate']:g} fps, floor {floor:g}: reached {r['simulated_seconds']:.3f} s"
+                + (f" (diverged: {r['diverged']})" if r["diverged"] else "")
+                + f", fastest {r['fastest']:.2f} m/s at {r['fastest_at']:.3f} s, {r['fast_steps']} steps over "
+                f"{FAST:g} m/s, {r['steps']} steps, {r['mean_iterations']:.2f} iterations a step, "
+                f"{r['put_back']} put back, {r['wall_seconds']:.0f} s",
+                flush=True,
+            )
     chart(record, save(record, args.out, "pinned_films", args.quick))
 
 

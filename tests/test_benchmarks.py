@@ -442,7 +442,8 @@ def test_held_bar_quick_mode(tmp_path):
 def test_pinned_films_quick_mode(tmp_path):
     """The pinned-films study: the coarse dam break's compressed particles all keep a diagonal
     above the floor and the run ends bit for bit as without it, and the coarse flood runs with and
-    without the floor in both ways of advancing, each run's record complete."""
+    without the floor in both ways of advancing, each run's record complete; the same for DFSPH's
+    denominator floor (its flood frame by frame)."""
     record = _quick("pinned_films.py", tmp_path, "pinned_films_quick")
     (d,) = record["diagonals"]
     assert d["scene"] == "dam_break" and d["compressed_samples"] > 1000
@@ -451,4 +452,15 @@ def test_pinned_films_quick_mode(tmp_path):
     assert {(r["fps"], r["floor"]) for r in runs} == {(0, 0.0), (0, record["floor"]), (30, 0.0), (30, record["floor"])}
     for r in runs:
         assert abs(r["simulated_seconds"] - 0.3) < 1e-9 and r["steps"] == len(r["t"]) == len(r["max_velocity"])
+        assert 0.5 < r["fastest"] < 2.0 * 2.0 * np.sqrt(9.81 * 0.35) and r["mean_iterations"] >= 2
+    (d,) = record["dfsph_denominators"]
+    assert d["scene"] == "dam_break" and d["pushed_samples"] > 1000
+    assert d["least"] > record["denominator_floor"] and d["below"]["0.25"] == 0 and d["identical_without_floor"]
+    runs = record["dfsph_flood"]
+    assert [(r["method"], r["fps"], r["floor"]) for r in runs] == [
+        ("dfsph", 30.0, 0.0),
+        ("dfsph", 30.0, record["denominator_floor"]),
+    ]
+    for r in runs:
+        assert r["diverged"] is None and abs(r["simulated_seconds"] - 0.3) < 1e-9 and r["steps"] == len(r["t"])
         assert 0.5 < r["fastest"] < 2.0 * 2.0 * np.sqrt(9.81 * 0.35) and r["mean_iterations"] >= 2

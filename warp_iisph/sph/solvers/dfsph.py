@@ -21,10 +21,12 @@ A step (stages as :data:`~.base.STAGES`):
 - pressure (constant-density solve), on ``v_adv``: until the mean predicted compression
   ``max(rho*_i / rho0 - 1, 0)``, ``rho*_i = rho_i + dt D rho_i/Dt``, is at most ``eta`` (at least
   ``min_iterations``, at most ``max_iterations``), ``kappa_i / rho_i = max(kappa_i / rho_i +
-  omega (rho*_i - rho0) / dt^2 * alpha_i / rho_i, 0)``. As IISPH's, the solve ends at the Jacobi
-  update of the iterate at which the error (taken as linear between the last two iterates)
-  reaches eta: the iteration that crosses eta applies only that share of its increments, and the
-  step reports eta as its error.
+  omega (rho*_i - rho0) / dt^2 * alpha_i / rho_i, 0)``, with ``alpha_i / rho_i`` at most the
+  inverse of :data:`DENOMINATOR_FLOOR` of a bulk particle's denominator (as IISPH's diagonal
+  floor: a particle pinned between two walls would otherwise take unbounded steps). As IISPH's,
+  the solve ends at the Jacobi update of the iterate at which the error (taken as linear between
+  the last two iterates) reaches eta: the iteration that crosses eta applies only that share of
+  its increments, and the step reports eta as its error.
 - integration: ``v = v_adv``, ``x += dt v``; ``p_i = (kappa_i + kappa_v_i) rho_i`` (the pressure
   both solves applied this step) for frames, viewers and the hydrostatic check.
 
@@ -47,6 +49,7 @@ from contextlib import nullcontext
 import warp as wp
 
 from ...engine.launch import launch_particles
+from ..kernel import lattice_grad_W_squared
 from ..neighbors import NeighborList, entry
 from ..wall_pressure import Walls, walls_of
 from .base import Fluid, SPHSolver
@@ -61,6 +64,11 @@ MIN_NEIGHBORS = wp.constant(20)
 WARM_START = wp.constant(0.5)
 # The Jacobi relaxation of both solves (0.75 and 1 diverge: docs/physics.md 4.13).
 OMEGA = wp.constant(0.5)
+# The constant-density solve divides by at least this share of a bulk particle's denominator of
+# alpha: a particle pinned in a film between two walls has next to none (its own stiffness hardly
+# moves it) and took unbounded steps (the flood diverged at 0.56 s). As IISPH's DIAGONAL_FLOOR; the
+# divergence solve keeps the raw factor (a floor there changed the dam break's sheets along walls).
+DENOMINATOR_FLOOR = 0.25
 
 
 @wp.kernel
@@ -199,17 +207,19 @@ def density_jacobi(
     v: wp.array(dtype=wp.vec3),
     rho: wp.array(dtype=float),
     factor: wp.array(dtype=float),
+    factor_most: float,
     kappa: wp.array(dtype=float),
     delta: wp.array(dtype=float),
     error: wp.array(dtype=wp.float64),
 ):
-    """The stiffness change towards bringing particle i's predicted density ``rho*_i`` to rho0,
-    and the predicted compression ``max(rho*_i / rho0 - 1, 0)``."""
+    """The stiffness change towards bringing particle i's predicted density ``rho*_i`` to rho0
+    (``factor``: ``alpha_i / rho_i``, taken as at most ``factor_most``), and the predicted
+    compression ``max(rho*_i / rho0 - 1, 0)``."""
     i = wp.tid() + offset
     dt = fluid.dt[0]
     rho0 = fluid.rho0
     rho_star = rho[i] + dt * density_rate(i, v, fluid, nf, nb, walls)
-    delta[i] = relaxed_step(kappa[i], (rho_star - rho0) / (dt * dt) * factor[i])
+    delta[i] = relaxed_step(kappa[i], (rho_star - rho0) / (dt * dt) * wp.min(factor[i], factor_most))
     error[i] = wp.max(wp.float64(rho_star / rho0) - wp.float64(1.0), wp.float64(0.0))
 
 
@@ -290,6 +300,9 @@ class DFSPHSolver(SPHSolver):
         # a denominator of alpha below this is a particle with next to no neighbours: (m / H^4)^2
         # is the scale of one neighbour's |m grad W|^2, 1e-6 of it a neighbour at the support's edge
         self.min_denominator = 1.0e-6 * (model.mass / model.support_radius**4) ** 2
+        # the denominator of alpha of a particle inside resting liquid (|sum m grad W|^2 vanishes there)
+        self.denominator_bulk = model.mass**2 * lattice_grad_W_squared(model.spacing, model.support_radius)
+        self.factor_most = 1.0 / (DENOMINATOR_FLOOR * self.denominator_bulk) if DENOMINATOR_FLOOR > 0 else 1.0e30
         self.walls = walls_of(model)  # Akinci's walls: the fluid particle's own stiffness pushes
         self.carried = {"dfsph_kappa": self.kappa, "dfsph_kappa_v_dt": self.kappa_v_dt}
 
@@ -368,7 +381,16 @@ class DFSPHSolver(SPHSolver):
         launch_particles(
             density_jacobi,
             state.n,
-            [*self.common(), self.v_adv, state.rho, self.factor, self.kappa, self.delta, self.density_solve.error],
+            [
+                *self.common(),
+                self.v_adv,
+                state.rho,
+                self.factor,
+                self.factor_most,
+                self.kappa,
+                self.delta,
+                self.density_solve.error,
+            ],
             model.device,
         )
 
