@@ -14,8 +14,13 @@ the tank (a corner of its box beyond a face by more than a spacing).
 
 (b) Archimedes: the draft of a box of density 500 and one of 250 (0.16 x 0.08 x 0.16 m, in a
 0.4 m square pool 0.2 m deep, as tests/test_bodies.py's ``pool``) at spacings 0.02 and 0.01 m,
-the mean over t = 1.0 .. 1.6 s against the liquid's level by its rest volume, as % error against
-half and a quarter of the box's height.
+the mean over t = 1.0 .. 1.6 s, as % error against half and a quarter of the box's height, below
+two levels of the liquid: by its rest volume (particles times h^3 filling the pool from its floor,
+less the box's submerged volume), and as six level gauges read it (``kind = "level"``, where the
+smoothed occupancy falls through 1/2; at the pool's corners and the middles of two sides, 0.06 m
+from the walls and the box), which sees where the liquid's surface stands whatever gap the walls
+keep the particles at. Part ``dfsph_drafts``: the same with DFSPH
+(``physics.method = "dfsph"``; its walls are Akinci's).
 
 (c) Heave: the density 500 box of (b) placed 2 cm below its draft and held there for 0.5 s
 (``release_time``) while the liquid settles around it, then released from rest; its centre's
@@ -35,24 +40,26 @@ released from rest as far from rest as the box, and fitted the same way; skipped
 Capytaine); the period of the first swing (twice the time between the first two crossings of
 rest) beside the fit.
 
-Writes benchmarks/results/bodies.json and .png.
+Writes benchmarks/results/bodies.json (a part not run this time kept from the file there, with the
+day it was measured: ``part_dates``) and .png.
 
-    python benchmarks/bodies.py [--repeats 3] [--spacings 0.02,0.01] [--parts flood,drafts,heave] [--quick] [--replot]
+    python benchmarks/bodies.py [--repeats 3] [--spacings 0.02,0.01] [--parts flood,drafts,heave,dfsph_drafts]
+        [--quick] [--replot]
 """
 
 import argparse
 import json
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
-from common import RESULTS, header, pyplot, save, warm_up
+from common import RESULTS, header, keep_parts, pyplot, save, warm_up
 
 from warp_iisph import Box, Physics, Scene, Simulation
 from warp_iisph.engine.launch import get_threads
 from warp_iisph.scene import load_scene
 from warp_iisph.scene.bodies import quaternion_matrix
+from warp_iisph.scene.probes import Probe
 
 FLOOD_VARIANTS = ("free", "fixed", "fixed_half", "free_hydrostatic")
 VARIANT_WARM_STARTS = {"fixed_half": "half", "free_hydrostatic": "hydrostatic"}  # the others: the scene's own
@@ -164,9 +171,18 @@ def pool(spacing: float, density: float, width: float = 0.4) -> Scene:
     return scene
 
 
-def run_draft(spacing: float, density: float, settle: float, end: float) -> dict:
-    """tests/test_bodies.py's settled_draft at ``spacing``: the mean draft over settle .. end."""
+# where the drafts' level gauges stand, as fractions of the pool's width: its corners and the
+# middles of two sides, 0.06 m from the walls and from the box in the 0.4 m pool
+GAUGES = ((0.15, 0.15), (0.85, 0.15), (0.15, 0.85), (0.85, 0.85), (0.5, 0.15), (0.15, 0.5))
+
+
+def run_draft(spacing: float, density: float, settle: float, end: float, method: str = "iisph") -> dict:
+    """tests/test_bodies.py's settled_draft at ``spacing``: the mean draft over settle .. end,
+    below the liquid's level by its rest volume and below the level the gauges read."""
     scene = pool(spacing, density)
+    scene.physics.method = method
+    for k, (u, w) in enumerate(GAUGES):
+        scene.add_probe(Probe(f"gauge{k}", "level", position=(0.4 * u, 0.4 * w)))
     sim = Simulation(scene, "cpu", history=1)
     area, a_box, drafts, bottoms = 0.4 * 0.4, 0.16 * 0.16, [], []
     t0 = time.perf_counter()
@@ -180,14 +196,21 @@ def run_draft(spacing: float, density: float, settle: float, end: float) -> dict
     wall = time.perf_counter() - t0
     target = density / 1000.0 * 0.08
     draft = float(np.mean(drafts))
+    late = sim.probes.time > settle
+    gauges = [float(np.mean(sim.probes[f"gauge{k}"][late])) for k in range(len(GAUGES))]
+    draft_gauges = float(np.mean(gauges) - np.mean(bottoms))
     b = sim.bodies
     return {
+        "method": method,
         "spacing": spacing,
         "density": density,
         "particles": sim.n_particles,
         "draft": draft,
         "target": target,
         "error_percent": 100.0 * (draft / target - 1.0),
+        "gauge_levels": gauges,
+        "draft_gauges": draft_gauges,
+        "error_percent_gauges": 100.0 * (draft_gauges / target - 1.0),
         "heave_ptp": float(np.ptp(bottoms)),
         "tilt": float(np.abs(b["orientation"][0, :3]).max()),
         "drift": float(np.abs(b["position"][0][[0, 2]] - 0.2).max()),
@@ -195,7 +218,13 @@ def run_draft(spacing: float, density: float, settle: float, end: float) -> dict
     }
 
 
-PARTS = ("flood", "drafts", "heave")
+# each part and the record's keys it writes (a part not run keeps its saved measurement)
+PARTS = {
+    "flood": ("flood",),
+    "drafts": ("drafts", "settle"),
+    "heave": ("heave",),
+    "dfsph_drafts": ("dfsph_drafts", "settle"),
+}
 HEAVE_DROP = 0.02  # m below the placed draft
 HEAVE_HOLD = 0.5  # s the box is held there while the liquid settles around it, then released
 PLATE_CA = 0.579  # DNV-RP-H103 Table A-2, a square flat plate (b / a = 1), on V_R = pi / 4 a^2 b
@@ -345,22 +374,27 @@ def chart(record: dict, path) -> None:
         ),
         fontsize=9,
     )
-    for density, marker in ((500.0, "o"), (250.0, "s")):
-        rows = [r for r in record["drafts"] if r["density"] == density]
-        b.plot(
-            [r["spacing"] for r in rows],
-            [r["error_percent"] for r in rows],
-            marker=marker,
-            label=f"density {density:g}",
-        )
+    for key, name, color in (("drafts", "IISPH", "C0"), ("dfsph_drafts", "DFSPH", "C3")):
+        for density, marker in ((500.0, "o"), (250.0, "s")):
+            rows = [r for r in record.get(key, []) if r["density"] == density]
+            h = [r["spacing"] for r in rows]
+            if rows and "error_percent_gauges" in rows[0]:
+                gauged = [r["error_percent_gauges"] for r in rows]
+                b.plot(h, gauged, marker=marker, color=color, label=f"{name}, density {density:g}")
+            if rows:
+                b.plot(h, [r["error_percent"] for r in rows], marker=marker, color=color, ls=":", fillstyle="none")
     b.axhline(0.0, color="k", lw=0.8)
     for y in (-2.0, 2.0):
-        b.axhline(y, color="grey", ls=":", lw=0.8)
+        b.axhline(y, color="grey", lw=0.8)
     b.set_xscale("log")
     b.set_xlabel("spacing h (m)")
     b.set_ylabel("draft error (%) vs half / quarter of the box height")
-    b.set_title("Archimedes: floating drafts (dotted: the issue's 2 %)", fontsize=10)
-    b.legend()
+    b.set_title(
+        "Archimedes: drafts below the gauges' level (solid)\n"
+        "and the rest volume's (dotted, open); grey: the issue's 2 %",
+        fontsize=9,
+    )
+    b.legend(fontsize=8)
     heave = record.get("heave")
     if heave:
         est = heave["estimate"]["period"]
@@ -405,7 +439,8 @@ def chart(record: dict, path) -> None:
     else:
         c.set_axis_off()
     fig.suptitle(
-        f"{record['device_name']}, {record['threads']} threads, {record['date']}"
+        f"{record['device_name']}, {record['threads']} threads, "
+        + ", ".join(f"{part} {day}" for part, day in record.get("part_dates", {"run": record["date"]}).items())
         + (" (shared machine: timings noisy)" if record.get("shared_machine") else ""),
         fontsize=9,
     )
@@ -448,19 +483,13 @@ def main():
         ap.error(f"--parts: must be among {', '.join(PARTS)}")
     warm_up()
     record = header("bodies", threads=get_threads(), quick=args.quick, shared_machine=args.shared_machine)
-    saved = Path(args.out) / "bodies.json"
-    if parts != set(PARTS) and not args.quick:  # the other parts' measurements, with their dates
-        old = json.loads(saved.read_text())
-        for part in set(PARTS) - parts:
-            if part in old:
-                record[part] = old[part]
-                record[f"{part}_date"] = old.get(f"{part}_date", old["date"])
-            if part == "drafts":
-                record["settle"] = old["settle"]
+    keep_parts(record, args.out, "bodies", PARTS, parts, args.quick)
     if "flood" in parts:
         measure_flood(record, overrides, duration, repeats)
     if "drafts" in parts:
         measure_drafts(record, spacings, settle, end)
+    if "dfsph_drafts" in parts:
+        measure_drafts(record, spacings, settle, end, "dfsph")
     if "heave" in parts:
         measure_heave(record, spacings, 0.6 if args.quick else 1.5, args.quick)
     chart(record, save(record, args.out, "bodies", args.quick))
@@ -490,22 +519,22 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
         f"{summary.get('cost_ratio_hydrostatic_start', float('nan')):.3f}"
     )
     record["flood"] = {"overrides": overrides, "repeats": repeats, "runs": runs, "summary": summary}
-    record["flood_date"] = record["date"]
 
 
-def measure_drafts(record: dict, spacings: list, settle: float, end: float) -> None:
+def measure_drafts(record: dict, spacings: list, settle: float, end: float, method: str = "iisph") -> None:
     drafts = []
     for h in spacings:
         for density in (500.0, 250.0):
-            d = run_draft(h, density, settle, end)
+            d = run_draft(h, density, settle, end, method)
             drafts.append(d)
             print(
-                f"draft h {h:g} density {density:g}: {d['draft']:.5f} m against {d['target']:.5f} "
-                f"({d['error_percent']:+.1f} %), {d['particles']} particles, {d['wall_seconds']:.0f} s",
+                f"{method} draft h {h:g} density {density:g}: {d['draft']:.5f} m against {d['target']:.5f} "
+                f"({d['error_percent']:+.1f} %) below the level by the rest volume, {d['draft_gauges']:.5f} m "
+                f"({d['error_percent_gauges']:+.1f} %) below the gauges' level, {d['particles']} particles, "
+                f"{d['wall_seconds']:.0f} s",
                 flush=True,
             )
-    record["drafts"] = drafts
-    record["drafts_date"] = record["date"]
+    record["drafts" if method == "iisph" else f"{method}_drafts"] = drafts
     record["settle"] = [settle, end]
 
 
@@ -599,7 +628,6 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
             flush=True,
         )
     record["heave"].update(open_pool=open_runs["heave scene"]["width"], open=open_runs, reference=reference)
-    record["heave_date"] = record["date"]
 
 
 def seconds(value) -> str:

@@ -462,8 +462,8 @@ def test_momentum_balances_in_a_closed_tank():
 
 def test_bodies_benchmark_quick_mode(tmp_path):
     """benchmarks/bodies.py --quick: the flood (coarse, short) with free and with fixed bodies (from
-    the default and from the half warm start), and the drafts, into its JSON and chart; the liquid
-    is never found past a wall."""
+    the default and from the half warm start), and the drafts (IISPH's and DFSPH's), into its JSON
+    and chart; the liquid is never found past a wall."""
     import json
     import subprocess
     import sys
@@ -490,6 +490,13 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     (heave,) = record["heave"]["runs"]  # the fit found an oscillation, not a flat line
     assert 0.2 < heave["damped_period"] < 2.0 and 0.0 <= heave["damping_ratio"] < 0.95
     assert [(d["spacing"], d["density"]) for d in record["drafts"]] == [(0.04, 500.0), (0.04, 250.0)]
+    assert [(d["method"], d["spacing"], d["density"]) for d in record["dfsph_drafts"]] == [
+        ("dfsph", 0.04, 500.0),
+        ("dfsph", 0.04, 250.0),
+    ]
+    for d in record["drafts"] + record["dfsph_drafts"]:  # below both levels: the rest volume's, the gauges'
+        assert 0.0 < d["draft"] < 0.08 and 0.0 < d["draft_gauges"] < 0.08 and len(d["gauge_levels"]) == 6
+    assert set(record["part_dates"]) == {"flood", "drafts", "heave", "dfsph_drafts"}
 
 
 def test_a_particle_put_back_where_its_path_entered_a_body_keeps_only_the_motion_it_kept():
