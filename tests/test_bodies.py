@@ -462,8 +462,8 @@ def test_momentum_balances_in_a_closed_tank():
 
 def test_bodies_benchmark_quick_mode(tmp_path):
     """benchmarks/bodies.py --quick: the flood (coarse, short) with free and with fixed bodies (from
-    the default and from the half warm start), and the drafts (IISPH's and DFSPH's), into its JSON
-    and chart; the liquid is never found past a wall."""
+    the default and from the half warm start), the drafts (IISPH's and DFSPH's) and DFSPH's heave,
+    into its JSON and chart; the liquid is never found past a wall."""
     import json
     import subprocess
     import sys
@@ -496,7 +496,9 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     ]
     for d in record["drafts"] + record["dfsph_drafts"]:  # below both levels: the rest volume's, the gauges'
         assert 0.0 < d["draft"] < 0.08 and 0.0 < d["draft_gauges"] < 0.08 and len(d["gauge_levels"]) == 6
-    assert set(record["part_dates"]) == {"flood", "drafts", "heave", "dfsph_drafts"}
+    dfsph_heave = record["dfsph_heave"]  # DFSPH in the heave scene (coarse): a swing, fitted
+    assert dfsph_heave["spacing"] == 0.04 and 0.2 < dfsph_heave["damped_period"] < 2.0
+    assert set(record["part_dates"]) == {"flood", "drafts", "heave", "dfsph_drafts", "dfsph_heave"}
 
 
 def test_a_particle_put_back_where_its_path_entered_a_body_keeps_only_the_motion_it_kept():
