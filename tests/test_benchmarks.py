@@ -125,6 +125,30 @@ def test_validation_beside_the_peer_quick_mode(tmp_path):
     assert "SPlisHSPlasH IISPH, Martin & Moyce nx 10" in proc.stdout
 
 
+def test_keep_parts_keeps_what_was_not_run_with_the_day_it_was_measured(tmp_path):
+    """benchmarks/common.keep_parts: a part not run this time comes from the saved file with its
+    date (from ``part_dates``, else an older file's ``<part>_date``, else the file's date), a part
+    run now is dated today and not copied, a part the file lacks stays absent; quick runs keep
+    nothing."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from common import keep_parts
+    finally:
+        sys.path.pop(0)
+    old = {"date": "2026-01-03", "a": [1], "b": [2], "b_date": "2026-01-02", "c": [3], "settle": [1, 2]}
+    old["part_dates"] = {"c": "2026-01-01"}
+    (tmp_path / "x.json").write_text(json.dumps(old))
+    parts = {"a": ("a",), "b": ("b", "settle"), "c": ("c",), "d": ("d",)}
+    record = {"date": "2026-12-05"}
+    keep_parts(record, tmp_path, "x", parts, {"a"}, quick=False)
+    assert "a" not in record and record["b"] == [2] and record["settle"] == [1, 2] and record["c"] == [3]
+    assert "d" not in record
+    assert record["part_dates"] == {"a": "2026-12-05", "b": "2026-01-02", "c": "2026-01-01"}
+    quick = {"date": "2026-12-05"}
+    keep_parts(quick, tmp_path, "x", parts, {"a"}, quick=True)
+    assert quick == {"date": "2026-12-05", "part_dates": {"a": "2026-12-05"}}
+
+
 def _quick(script: str, tmp_path, stem: str, *extra) -> dict:
     proc = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(tmp_path), *extra],
@@ -456,6 +480,7 @@ def test_pinned_films_quick_mode(tmp_path):
     (d,) = record["dfsph_denominators"]
     assert d["scene"] == "dam_break" and d["pushed_samples"] > 1000
     assert d["least"] > record["denominator_floor"] and d["below"]["0.25"] == 0 and d["identical_without_floor"]
+    assert abs(d["percentiles"]["50"] - 1.0) < 0.05  # the bulk's denominator: the median pushed particle's
     runs = record["dfsph_flood"]
     assert [(r["method"], r["fps"], r["floor"]) for r in runs] == [
         ("dfsph", 30.0, 0.0),
