@@ -43,7 +43,19 @@ SCENE = {
 }
 
 
-def cli(*args, cwd=None, timeout=120, **popen):
+def foreground(then=None):
+    """A child's start as a terminal's foreground command has it (:func:`conftest.terminal_signals`),
+    then ``then`` (a further preexec_fn)."""
+
+    def start():
+        terminal_signals()
+        if then is not None:
+            then()
+
+    return start
+
+
+def cli(*args, cwd=None, timeout=120, preexec_fn=None, **popen):
     """``warp-iisph ARGS`` in a fresh process: (exit status, stdout, stderr lines)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.run(
@@ -53,6 +65,7 @@ def cli(*args, cwd=None, timeout=120, **popen):
         cwd=cwd,
         env=env,
         timeout=timeout,
+        preexec_fn=foreground(preexec_fn),
         **popen,
     )
     return p.returncode, p.stdout, [line for line in p.stderr.splitlines() if line.strip()]
@@ -62,7 +75,12 @@ def child(code: str, timeout=120):
     """Python ``code`` in a fresh process (the package on its path): (exit status, stderr lines)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, env=env, timeout=timeout
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+        preexec_fn=terminal_signals,
     )
     return p.returncode, [line for line in p.stderr.splitlines() if line.strip()]
 
