@@ -500,10 +500,14 @@ def main():
     keep_parts(record, args.out, "bodies", PARTS, parts, args.quick)
     if "flood" in parts:
         measure_flood(record, overrides, duration, repeats)
+
+    def checkpoint():
+        save(record, args.out, "bodies", args.quick)
+
     if "drafts" in parts:
-        measure_drafts(record, spacings, settle, end)
+        measure_drafts(record, spacings, settle, end, checkpoint=checkpoint)
     if "dfsph_drafts" in parts:
-        measure_drafts(record, spacings, settle, end, "dfsph")
+        measure_drafts(record, spacings, settle, end, "dfsph", checkpoint)
     if "dfsph_heave" in parts:
         measure_dfsph_heave(record, spacings[0], 0.6 if args.quick else 1.5, args.quick)
     if "heave" in parts:
@@ -537,7 +541,11 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
     record["flood"] = {"overrides": overrides, "repeats": repeats, "runs": runs, "summary": summary}
 
 
-def measure_drafts(record: dict, spacings: list, settle: float, end: float, method: str = "iisph") -> None:
+def measure_drafts(
+    record: dict, spacings: list, settle: float, end: float, method: str = "iisph", checkpoint=None
+) -> None:
+    """Each spacing's drafts of the density 500 and 250 boxes; ``checkpoint()`` after each, with
+    the record holding the drafts measured so far (a long run stopped keeps what it measured)."""
     drafts = []
     for h in spacings:
         for density in (500.0, 250.0):
@@ -550,8 +558,10 @@ def measure_drafts(record: dict, spacings: list, settle: float, end: float, meth
                 f"{d['wall_seconds']:.0f} s",
                 flush=True,
             )
-    record["drafts" if method == "iisph" else f"{method}_drafts"] = drafts
-    record["settle"] = [settle, end]
+            record["drafts" if method == "iisph" else f"{method}_drafts"] = drafts
+            record["settle"] = [settle, end]
+            if checkpoint is not None:
+                checkpoint()
 
 
 def crossing_period(t, y, rest: float) -> float | None:
