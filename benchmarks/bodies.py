@@ -631,14 +631,11 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
 
     # the bundled heave scene (the open pool) against linear theory, as it is, at the default
     # viscosity and without viscosity; quick: coarser, held shorter
-    overrides = [f"spacing={spacings[0]}", f"bodies.0.release_time={hold}"] if quick else []
+    overrides = heave_scene_overrides(spacings[0], hold, quick)
     open_runs = {name: run_heave(load_scene("heave", overrides), duration, **ph) for name, ph in OPEN_RUNS.items()}
     reference = None if quick else heave_reference(open_runs["heave scene"])
     for name, run in open_runs.items():
-        if reference is not None:
-            for key in ("damped_period", "natural_period", "crossing_period"):
-                if run[key] is not None and reference[key] is not None:
-                    run[f"{key}_error_percent"] = 100.0 * (run[key] / reference[key] - 1.0)
+        score(run, reference)
         print(
             f"heave h {run['spacing']:g} in a {run['width']:g} m pool, {name}, from its release: damped period "
             f"{run['damped_period']:.3f} s (first swing {seconds(run['crossing_period'])}), damping ratio "
@@ -656,17 +653,25 @@ def measure_heave(record: dict, spacings: list, duration: float, quick: bool) ->
     record["heave"].update(open_pool=open_runs["heave scene"]["width"], open=open_runs, reference=reference)
 
 
+def heave_scene_overrides(spacing: float, hold: float, quick: bool) -> list:
+    """The bundled heave scene as it is; quick: coarser, held shorter."""
+    return [f"spacing={spacing}", f"bodies.0.release_time={hold}"] if quick else []
+
+
+def score(run: dict, reference) -> None:
+    """A heave run's periods as per cent off linear theory's (``reference``; none: nothing)."""
+    for key in ("damped_period", "natural_period", "crossing_period"):
+        if reference and run[key] is not None and reference[key] is not None:
+            run[f"{key}_error_percent"] = 100.0 * (run[key] / reference[key] - 1.0)
+
+
 def measure_dfsph_heave(record: dict, spacing: float, duration: float, quick: bool) -> None:
     """The bundled heave scene as it is, with DFSPH, against the linear theory the heave part
     computed (kept from the saved file where that part is not run; none in quick mode)."""
-    hold = 0.2 if quick else HEAVE_HOLD
-    overrides = [f"spacing={spacing}", f"bodies.0.release_time={hold}"] if quick else []
+    overrides = heave_scene_overrides(spacing, 0.2 if quick else HEAVE_HOLD, quick)
     run = run_heave(load_scene("heave", [*overrides, "physics.method=dfsph"]), duration)
     reference = (record.get("heave") or {}).get("reference")
-    if reference:
-        for key in ("damped_period", "natural_period", "crossing_period"):
-            if run[key] is not None and reference[key] is not None:
-                run[f"{key}_error_percent"] = 100.0 * (run[key] / reference[key] - 1.0)
+    score(run, reference)
     print(
         f"DFSPH heave h {run['spacing']:g} in a {run['width']:g} m pool, the heave scene: damped period "
         f"{run['damped_period']:.3f} s (first swing {seconds(run['crossing_period'])}), damping ratio "

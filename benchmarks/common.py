@@ -51,14 +51,16 @@ def keep_parts(record: dict, out, stem: str, parts: dict, run: set, quick: bool)
     measures). ``parts`` maps a part to the record's keys that hold it. Quick runs keep nothing."""
     path = Path(out) / f"{stem}.json"
     old = json.loads(path.read_text()) if path.is_file() and not quick else {}
-    dates = dict(old.get("part_dates", {}))
+    measured = old.get("part_dates", {})
+    dates = {}
     for part, keys in parts.items():
         if part in run:
             dates[part] = record["date"]
         elif all(k in old for k in keys):
             record.update({k: old[k] for k in keys})
-            dates.setdefault(part, old.get(f"{part}_date", old["date"]))  # (older files: a key per part)
-    record["part_dates"] = {p: d for p, d in dates.items() if p in run or all(k in record for k in parts.get(p, ()))}
+            # (older files: a key per part, or only the file's date)
+            dates[part] = measured.get(part, old.get(f"{part}_date", old["date"]))
+    record["part_dates"] = dates
 
 
 def saved(out, stem: str, quick: bool = False) -> tuple[dict, Path]:

@@ -78,36 +78,54 @@ def simulation(name: str, overrides: list, floor: float, method: str = "iisph") 
         setattr(module, constant, package)
 
 
-def diagonals(name: str, duration: float, overrides: list) -> dict:
-    """The compressed particles' diagonals against the bulk's over a run, and whether the run
+def against_bulk(name: str, duration: float, overrides: list, method: str, sample, samples_key: str) -> dict:
+    """A run of ``name`` with ``method``'s floor: ``sample(sim, record)`` gives each step's ratios of
+    a particle's diagonal (or denominator) to the bulk's, summarised here; and whether the run
     without the floor ends with the same positions (see the module)."""
-    sim = simulation(name, overrides, iisph.DIAGONAL_FLOOR)
-    scene, bulk = sim.scene, sim.solver.a_bulk  # |a_ii| / dt^2 inside resting liquid, the solver's own
-    ratios, steps = [], 0
-
-    def on_step(record: dict) -> None:
-        nonlocal steps
-        steps += 1
-        n = sim.state.n
-        terms = sim.solver.terms
-        compressed = terms.rho_adv.numpy()[:n] > scene.physics.rho0
-        ratios.append(terms.a_diag.numpy()[:n][compressed] / (-(record["dt"] ** 2) * bulk))
-
-    advance(sim, duration, scene.output.fps, on_step)
-    without = simulation(name, overrides, 0.0)
-    advance(without, duration, scene.output.fps, None)
+    floor = dfsph.DENOMINATOR_FLOOR if method == "dfsph" else iisph.DIAGONAL_FLOOR
+    sim = simulation(name, overrides, floor, method)
+    ratios = []
+    advance(sim, duration, sim.scene.output.fps, lambda record: ratios.append(sample(sim, record)))
+    without = simulation(name, overrides, 0.0, method)
+    advance(without, duration, sim.scene.output.fps, None)
     r = np.concatenate(ratios)
     return {
         "scene": name,
         "overrides": overrides,
         "duration": duration,
-        "steps": steps,
-        "compressed_samples": int(len(r)),
+        "steps": len(ratios),
+        samples_key: int(len(r)),
         "least": float(r.min()),
         "percentiles": {str(q): float(np.percentile(r, q)) for q in (0.01, 0.1, 1, 50)},
         "below": {str(t): int((r < t).sum()) for t in THRESHOLDS},
         "identical_without_floor": bool(np.array_equal(sim.positions, without.positions)),
     }
+
+
+def compressed_diagonals(sim: Simulation, record: dict) -> np.ndarray:
+    """IISPH: the step's compressed particles' diagonals over the bulk's (``a_bulk``: |a_ii| / dt^2
+    inside resting liquid, the solver's own)."""
+    n, terms = sim.state.n, sim.solver.terms
+    compressed = terms.rho_adv.numpy()[:n] > sim.scene.physics.rho0
+    return terms.a_diag.numpy()[:n][compressed] / (-(record["dt"] ** 2) * sim.solver.a_bulk)
+
+
+def pushed_denominators(sim: Simulation, record: dict) -> np.ndarray:
+    """DFSPH: the denominators of ``alpha_i / rho_i`` of the particles its constant-density solve
+    pushed (a stiffness above zero after the step) over the bulk's."""
+    n = sim.state.n
+    factor = sim.solver.factor.numpy()[:n][sim.solver.kappa.numpy()[:n] > 0.0]
+    return 1.0 / factor[factor > 0.0] / sim.solver.denominator_bulk
+
+
+def diagonals(name: str, duration: float, overrides: list) -> dict:
+    """IISPH's compressed particles' diagonals against the bulk's over a run (see the module)."""
+    return against_bulk(name, duration, overrides, "iisph", compressed_diagonals, "compressed_samples")
+
+
+def dfsph_denominators(name: str, duration: float, overrides: list) -> dict:
+    """DFSPH's pushed particles' denominators against the bulk's over a run (see the module)."""
+    return against_bulk(name, duration, overrides, "dfsph", pushed_denominators, "pushed_samples")
 
 
 def flood(floor: float, fps: float, duration: float, overrides: list, method: str = "iisph") -> dict:
@@ -145,39 +163,6 @@ def flood(floor: float, fps: float, duration: float, overrides: list, method: st
     }
 
 
-def dfsph_denominators(name: str, duration: float, overrides: list) -> dict:
-    """DFSPH's run of ``name``: the denominators of ``alpha_i / rho_i`` of the particles its
-    constant-density solve pushed, against the bulk's, and whether the run without the floor ends
-    with the same positions (see the module)."""
-    sim = simulation(name, overrides, dfsph.DENOMINATOR_FLOOR, "dfsph")
-    bulk = sim.solver.denominator_bulk
-    ratios, steps = [], 0
-
-    def on_step(record: dict) -> None:
-        nonlocal steps
-        steps += 1
-        n = sim.state.n
-        pushed = sim.solver.kappa.numpy()[:n] > 0.0
-        factor = sim.solver.factor.numpy()[:n][pushed]
-        ratios.append(1.0 / factor[factor > 0.0] / bulk)
-
-    advance(sim, duration, sim.scene.output.fps, on_step)
-    without = simulation(name, overrides, 0.0, "dfsph")
-    advance(without, duration, sim.scene.output.fps, None)
-    r = np.concatenate(ratios)
-    return {
-        "scene": name,
-        "overrides": overrides,
-        "duration": duration,
-        "steps": steps,
-        "pushed_samples": int(len(r)),
-        "least": float(r.min()),
-        "percentiles": {str(q): float(np.percentile(r, q)) for q in (0.01, 0.1, 1, 50)},
-        "below": {str(t): int((r < t).sum()) for t in THRESHOLDS},
-        "identical_without_floor": bool(np.array_equal(sim.positions, without.positions)),
-    }
-
-
 def chart(record: dict, path) -> None:
     plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
@@ -207,6 +192,31 @@ def chart(record: dict, path) -> None:
         ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def study_row(d: dict, samples_key: str) -> dict:
+    """Print one scene's diagonals (or denominators) against the bulk's, and return them."""
+    print(
+        f"{d['scene']} {' '.join(d['overrides'])}: {d[samples_key]} particle-steps ({samples_key}), least "
+        f"{d['least']:.3f} of the bulk's, below 0.25: {d['below']['0.25']}, the same without the floor: "
+        f"{d['identical_without_floor']}",
+        flush=True,
+    )
+    return d
+
+
+def flood_row(r: dict) -> dict:
+    """Print one flood run, and return it."""
+    how = "one call" if r["fps"] == 0 else f"{r['fps']:g} fps"
+    print(
+        f"{r['method']} flood, {how}, floor {r['floor']:g}: reached {r['simulated_seconds']:.3f} s"
+        + (f" (diverged: {r['diverged']})" if r["diverged"] else "")
+        + f", fastest {r['fastest']:.2f} m/s at {r['fastest_at']:.3f} s, {r['fast_steps']} steps over "
+        f"{FAST:g} m/s, {r['steps']} steps, {r['mean_iterations']:.2f} iterations a step, "
+        f"{r['put_back']} put back, {r['wall_seconds']:.0f} s",
+        flush=True,
+    )
+    return r
 
 
 def main():
@@ -244,53 +254,19 @@ def main():
         flood_overrides, duration, schedules = [], None, (0, 25, 30, 60)
         dfsph_cases = [("dam_break", 1.5, []), ("spheric_test2", 1.0, ["spacing=0.05"])]
     if "diagonals" in parts:
-        record["diagonals"] = []
-        for name, seconds, overrides in cases:
-            d = diagonals(name, seconds, overrides)
-            record["diagonals"].append(d)
-            print(
-                f"{name} {' '.join(overrides)}: {d['compressed_samples']} compressed particle-steps, least diagonal "
-                f"{d['least']:.3f} of the bulk's, below 0.25: {d['below']['0.25']}, the same without the floor: "
-                f"{d['identical_without_floor']}",
-                flush=True,
-            )
+        record["diagonals"] = [study_row(diagonals(*case), "compressed_samples") for case in cases]
     if "flood" in parts:
-        record["flood"] = []
-        for fps in schedules:
-            for floor in (0.0, iisph.DIAGONAL_FLOOR):
-                r = flood(floor, fps, duration, flood_overrides)
-                record["flood"].append(r)
-                how = "one call" if fps == 0 else f"{fps} fps"
-                print(
-                    f"flood, {how}, floor {floor:g}: fastest {r['fastest']:.2f} m/s at {r['fastest_at']:.3f} s, "
-                    f"{r['fast_steps']} steps over {FAST:g} m/s, {r['steps']} steps, "
-                    f"{r['mean_iterations']:.2f} iterations a step, {r['put_back']} put back, "
-                    f"{r['wall_seconds']:.0f} s",
-                    flush=True,
-                )
+        record["flood"] = [
+            flood_row(flood(floor, fps, duration, flood_overrides))
+            for fps in schedules
+            for floor in (0.0, iisph.DIAGONAL_FLOOR)
+        ]
     if "dfsph" in parts:
-        record["dfsph_denominators"] = []
-        for name, seconds, overrides in dfsph_cases:
-            d = dfsph_denominators(name, seconds, overrides)
-            record["dfsph_denominators"].append(d)
-            print(
-                f"DFSPH {name} {' '.join(overrides)}: {d['pushed_samples']} pushed particle-steps, least denominator "
-                f"{d['least']:.3f} of the bulk's, below 0.25: {d['below']['0.25']}, the same without the floor: "
-                f"{d['identical_without_floor']}",
-                flush=True,
-            )
-        record["dfsph_flood"] = []
-        for floor in (0.0, dfsph.DENOMINATOR_FLOOR):
-            r = flood(floor, record["frame_rate"], duration, flood_overrides, "dfsph")
-            record["dfsph_flood"].append(r)
-            print(
-                f"DFSPH flood, {record['frame_rate']:g} fps, floor {floor:g}: reached {r['simulated_seconds']:.3f} s"
-                + (f" (diverged: {r['diverged']})" if r["diverged"] else "")
-                + f", fastest {r['fastest']:.2f} m/s at {r['fastest_at']:.3f} s, {r['fast_steps']} steps over "
-                f"{FAST:g} m/s, {r['steps']} steps, {r['mean_iterations']:.2f} iterations a step, "
-                f"{r['put_back']} put back, {r['wall_seconds']:.0f} s",
-                flush=True,
-            )
+        record["dfsph_denominators"] = [study_row(dfsph_denominators(*case), "pushed_samples") for case in dfsph_cases]
+        record["dfsph_flood"] = [
+            flood_row(flood(floor, record["frame_rate"], duration, flood_overrides, "dfsph"))
+            for floor in (0.0, dfsph.DENOMINATOR_FLOOR)
+        ]
     chart(record, save(record, args.out, "pinned_films", args.quick))
 
 
