@@ -162,3 +162,48 @@ def test_landing_on_frame_times_leaves_no_sliver_of_a_fixed_step(substeps):
         assert abs(sim.time - k * 0.0091) < 1e-9
     assert min(s["dt"] for s in sim.stats) >= 0.5 * 0.004
     assert max(s["dt"] for s in sim.stats) <= 0.004 * 1.05 + 1e-9
+
+
+def test_a_run_with_steps_too_long_for_the_solve_warns_and_names_the_cure(tmp_path, capsys):
+    """The solve's criterion is met on its linearised prediction, so a fixed step too long for
+    it (substeps off) leaves the liquid compressed well above eta without a step stopping at
+    max_iterations: the run's mean compression says so, and the command warns with the keys to
+    change; the same scene at its CFL defaults does not warn."""
+    from warp_iisph.cli import main
+
+    path = tmp_path / "column.toml"
+    path.write_text("""
+spacing = 0.02
+name = "column"
+[tank]
+lower = [0, 0, 0]
+upper = [0.6, 0.5, 0.2]
+[[fluids]]
+lower = [0, 0, 0]
+upper = [0.25, 0.4, 0.2]
+""")
+    out = str(tmp_path / "out")
+    too_long = ["--set", "physics.dt=0.01", "--set", "physics.substeps=false"]
+    for extra, warned in ((too_long, True), ([], False)):
+        args = ["run", str(path), "--duration", "0.4", "--out", out, "--overwrite", "--no-progress"]
+        assert main(args + extra) == 0
+        err = capsys.readouterr().err
+        assert ("too long for the pressure solve" in err) is warned, err
+        if warned:
+            assert "physics.dt (now 0.01 s) or set physics.substeps = true" in err
+
+
+def test_the_compression_warning_names_the_setting_that_sets_the_steps():
+    from warp_iisph.run.run_record import COMPRESSION_WARNING, run_warnings
+
+    def warnings(compression, unconverged=0, **physics):
+        totals = {"steps": 100, "mean_compression": compression, "unconverged_steps": unconverged}
+        totals["worst_unconverged_error"] = 0.01
+        return run_warnings({"totals": totals}, Physics(**physics))
+
+    eta = Physics().eta
+    assert warnings(0.99 * COMPRESSION_WARNING * eta) == []
+    assert "lower physics.cfl (now 0.5)" in warnings(1.01 * COMPRESSION_WARNING * eta)[0]
+    assert "shorten physics.dt (now 0.003 s)" in warnings(0.01, dt=0.003)[0]
+    assert "raise physics.max_iterations" in warnings(0.01, 3, dt=0.003, substeps=False)[1]
+    assert warnings(0.01, method="wcsph") == []  # WCSPH's compression is set by its stiffness

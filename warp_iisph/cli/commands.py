@@ -220,21 +220,10 @@ def _run(args) -> int:
         )
         + (f" -> {out}" if t["frames"] else f"; nothing written ({out} as it was)")
     )
-    if t.get("not_emitted"):
-        print(
-            f"warp-iisph: warning: the emitters could not add {t['not_emitted']} particles: "
-            f"the liquid reached its capacity of "
-            f"{record['particles']['capacity']} (raise max_particles)",
-            file=sys.stderr,
-        )
-    if t["unconverged_steps"]:
-        ph = scene.physics
-        print(
-            f"warp-iisph: warning: {t['unconverged_steps']} of {t['steps']} steps stopped at "
-            f"max_iterations = {ph.max_iterations} "
-            f"above eta = {100 * ph.eta:g} % (worst {100 * t['worst_unconverged_error']:.3f} %)",
-            file=sys.stderr,
-        )
+    from ..run.run_record import run_warnings
+
+    for warning in run_warnings(record, scene.physics):
+        print(f"warp-iisph: warning: {warning}", file=sys.stderr)
     if record["ended"] == "completed":
         print(summary)
         return 0

@@ -20,6 +20,9 @@ from .frame_queue import FrameQueue
 FRAME_KINDS = ("particles", "mesh")
 # what every step record holds that the totals sum
 STEP_SUMS = ("iterations", "density_error", "compression")
+# A run whose mean compression ends above this many times eta gets a warning: a converged solve
+# holds it near eta or below (the bundled dam break at its defaults: 0.46 eta; at CFL 2: 0.9).
+COMPRESSION_WARNING = 2.0
 
 
 def versions() -> dict:
@@ -183,6 +186,40 @@ class StepTotals:
             "unconverged_steps": self.unconverged,
             "worst_unconverged_error": self.worst_unconverged,
         }
+
+
+def run_warnings(record: dict, physics) -> list[str]:
+    """What a finished run's record says its user should know, one sentence each: particles the
+    emitters could not add, steps that stopped at ``max_iterations``, and a density held looser
+    than asked (a step too long for the pressure solve, which the solve's own criterion, met on
+    the linearised prediction, does not see)."""
+    t, ph = record["totals"], physics
+    warnings = []
+    if t.get("not_emitted"):
+        warnings.append(
+            f"the emitters could not add {t['not_emitted']} particles: the liquid reached its capacity of "
+            f"{record['particles']['capacity']} (raise max_particles)"
+        )
+    if t["unconverged_steps"]:
+        warnings.append(
+            f"{t['unconverged_steps']} of {t['steps']} steps stopped at max_iterations = {ph.max_iterations} "
+            f"above eta = {100 * ph.eta:g} % (worst {100 * t['worst_unconverged_error']:.3f} %)"
+        )
+    compression = t["mean_compression"]
+    if ph.method in ("iisph", "dfsph") and t["steps"] and compression > COMPRESSION_WARNING * ph.eta:
+        if ph.dt is None:
+            cure = f"lower physics.cfl (now {ph.cfl:g}) or physics.dt_max (now {ph.dt_max:g} s)"
+        elif ph.substeps:
+            cure = f"shorten physics.dt (now {ph.dt:g} s)"
+        else:
+            cure = f"shorten physics.dt (now {ph.dt:g} s) or set physics.substeps = true"
+        if t["unconverged_steps"]:
+            cure = f"raise physics.max_iterations, or {cure}"
+        warnings.append(
+            f"mean compression {100 * compression:.3f} %, {compression / ph.eta:.1f} times eta = {100 * ph.eta:g} %: "
+            f"the steps are too long for the pressure solve to hold the density; {cure}"
+        )
+    return warnings
 
 
 def _stage_seconds(times: StageTimes, mesher, queue: FrameQueue) -> dict:
