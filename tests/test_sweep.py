@@ -449,3 +449,22 @@ def test_render_on_two_workers_writes_and_skips_the_frames_render_does(tiny_run,
     assert main(["render", str(farm), "--scheduler", scheduler, *args]) == 0
     assert "rendered 1 frames (3 already there)" in capsys.readouterr().out
     assert (farm / "frames" / "frame_00002.png").read_bytes() == (tiny_run / "frames" / "frame_00002.png").read_bytes()
+
+
+def test_a_variant_whose_steps_are_too_long_for_the_solve_is_warned_about(tmp_path, capsys):
+    """Each variant's run ends with the warnings a run would print (run_record.run_warnings),
+    kept in sweep.json and printed again when the sweep is resumed complete."""
+    path = tmp_path / "column.toml"
+    path.write_text(
+        'spacing = 0.02\nname = "column"\n[tank]\nlower = [0, 0, 0]\nupper = [0.6, 0.5, 0.2]\n'
+        "[[fluids]]\nlower = [0, 0, 0]\nupper = [0.25, 0.4, 0.2]\n"
+    )
+    out = tmp_path / "sweep"
+    args = ["sweep", str(path), "--vary", "physics.dt=0.01,0.002", "--set", "physics.substeps=false"]
+    assert main([*args, "--duration", "0.4", "--out", str(out), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "variant physics.dt=0.01: mean compression" in err and "physics.dt=0.002:" not in err, err
+    warnings = {e["name"]: e["summary"]["warnings"] for e in json.loads((out / "sweep.json").read_text())["variants"]}
+    assert len(warnings["physics.dt=0.01"]) == 1 and warnings["physics.dt=0.002"] == []
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
+    assert "variant physics.dt=0.01: mean compression" in capsys.readouterr().err

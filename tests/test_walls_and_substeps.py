@@ -197,9 +197,11 @@ def test_the_compression_warning_names_the_setting_that_sets_the_steps():
     from warp_iisph.run.run_record import COMPRESSION_WARNING, run_warnings
 
     def warnings(compression, unconverged=0, **physics):
+        import dataclasses
+
         totals = {"steps": 100, "mean_compression": compression, "unconverged_steps": unconverged}
         totals["worst_unconverged_error"] = 0.01
-        return run_warnings({"totals": totals}, Physics(**physics))
+        return run_warnings({"totals": totals, "scene": {"physics": dataclasses.asdict(Physics(**physics))}})
 
     eta = Physics().eta
     assert warnings(0.99 * COMPRESSION_WARNING * eta) == []

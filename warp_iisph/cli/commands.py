@@ -222,7 +222,7 @@ def _run(args) -> int:
     )
     from ..run.run_record import run_warnings
 
-    for warning in run_warnings(record, scene.physics):
+    for warning in run_warnings(record):
         print(f"warp-iisph: warning: {warning}", file=sys.stderr)
     if record["ended"] == "completed":
         print(summary)
@@ -295,6 +295,8 @@ def _sweep(args) -> int:
     for e in variants:
         if e["ended"] not in sw.DONE:
             print(f"warp-iisph: warning: variant {e['name']} {e['ended']}: {e['message']}", file=sys.stderr)
+        for warning in (e.get("summary") or {}).get("warnings", ()):
+            print(f"warp-iisph: warning: variant {e['name']}: {warning}", file=sys.stderr)
     if record["chart"] is None:
         names = charts.measure_names(e["summary"] for e in variants if e["summary"])
         print(

@@ -188,12 +188,12 @@ class StepTotals:
         }
 
 
-def run_warnings(record: dict, physics) -> list[str]:
-    """What a finished run's record says its user should know, one sentence each: particles the
-    emitters could not add, steps that stopped at ``max_iterations``, and a density held looser
-    than asked (a step too long for the pressure solve, which the solve's own criterion, met on
-    the linearised prediction, does not see)."""
-    t, ph = record["totals"], physics
+def run_warnings(record: dict) -> list[str]:
+    """What a finished run's record (``run.json``: its totals and its scene's physics) says its
+    user should know, one sentence each: particles the emitters could not add, steps that stopped
+    at ``max_iterations``, and a density held looser than asked (a step too long for the pressure
+    solve, which the solve's own criterion, met on the linearised prediction, does not see)."""
+    t, ph = record["totals"], record["scene"]["physics"]
     warnings = []
     if t.get("not_emitted"):
         warnings.append(
@@ -202,21 +202,21 @@ def run_warnings(record: dict, physics) -> list[str]:
         )
     if t["unconverged_steps"]:
         warnings.append(
-            f"{t['unconverged_steps']} of {t['steps']} steps stopped at max_iterations = {ph.max_iterations} "
-            f"above eta = {100 * ph.eta:g} % (worst {100 * t['worst_unconverged_error']:.3f} %)"
+            f"{t['unconverged_steps']} of {t['steps']} steps stopped at max_iterations = {ph['max_iterations']} "
+            f"above eta = {100 * ph['eta']:g} % (worst {100 * t['worst_unconverged_error']:.3f} %)"
         )
-    compression = t["mean_compression"]
-    if ph.method in ("iisph", "dfsph") and t["steps"] and compression > COMPRESSION_WARNING * ph.eta:
-        if ph.dt is None:
-            cure = f"lower physics.cfl (now {ph.cfl:g}) or physics.dt_max (now {ph.dt_max:g} s)"
-        elif ph.substeps:
-            cure = f"shorten physics.dt (now {ph.dt:g} s)"
+    compression, eta, dt = t["mean_compression"], ph["eta"], ph.get("dt")
+    if ph["method"] in ("iisph", "dfsph") and t["steps"] and compression > COMPRESSION_WARNING * eta:
+        if dt is None:
+            cure = f"lower physics.cfl (now {ph['cfl']:g}) or physics.dt_max (now {ph['dt_max']:g} s)"
+        elif ph["substeps"]:
+            cure = f"shorten physics.dt (now {dt:g} s)"
         else:
-            cure = f"shorten physics.dt (now {ph.dt:g} s) or set physics.substeps = true"
+            cure = f"shorten physics.dt (now {dt:g} s) or set physics.substeps = true"
         if t["unconverged_steps"]:
             cure = f"raise physics.max_iterations, or {cure}"
         warnings.append(
-            f"mean compression {100 * compression:.3f} %, {compression / ph.eta:.1f} times eta = {100 * ph.eta:g} %: "
+            f"mean compression {100 * compression:.3f} %, {compression / eta:.1f} times eta = {100 * eta:g} %: "
             f"the steps are too long for the pressure solve to hold the density; {cure}"
         )
     return warnings

@@ -34,7 +34,7 @@ from ..scene.library import bundled_scenes, resolve_scene
 from .atomic import write_json
 from .folder import RECORD, RunError, run_around
 from .progress import frame_bar
-from .run_record import blank_record
+from .run_record import blank_record, run_warnings
 from .runner import Terminated, plan_frames
 from .sweep_chart import DEFAULT_MEASURE, DONE, SUMMARY, _bare, chart, check_measure
 
@@ -286,8 +286,12 @@ def _run_record(folder: Path) -> dict:
 
 
 def summary(run_record: dict) -> dict:
-    """What a variant's entry in sweep.json keeps of its run.json."""
-    return {k: run_record[k] for k in SUMMARY if k in run_record}
+    """What a variant's entry in sweep.json keeps of its run.json, with the warnings its run ended
+    with (:func:`.run_record.run_warnings`)."""
+    kept = {k: run_record[k] for k in SUMMARY if k in run_record}
+    if "totals" in run_record and "scene" in run_record:
+        kept["warnings"] = run_warnings(run_record)
+    return kept
 
 
 # --- running ---------------------------------------------------------------------------------------
