@@ -73,6 +73,13 @@ def watch_bodies(scene, sim):
     return check, worst
 
 
+def assert_contained(worst: dict, h: float) -> None:
+    """What :func:`watch_bodies` saw: no fluid particle inside a body after any step, no body
+    through a wall (its samples inside the tank) nor its corners between samples."""
+    assert worst["inside"] == 0 and worst["samples_beyond"] < 0.0, worst
+    assert worst["beyond"] < 0.5 * np.sqrt(3.0) * h, worst
+
+
 def test_flood_sweeps_its_bodies_and_the_liquid_stays_out_of_them():
     """The flood scene at its defaults, advanced frame by frame as `warp-iisph run` does, runs to
     its end: after every step no fluid particle is inside a body and every body is inside the
@@ -87,9 +94,7 @@ def test_flood_sweeps_its_bodies_and_the_liquid_stays_out_of_them():
     for k in range(1, frames + 1):
         sim.advance(k / fps - sim.time, callback=check)
     assert abs(sim.time - scene.output.duration) < 1e-9
-    assert worst["inside"] == 0, worst  # no particle inside a body after any step
-    assert worst["samples_beyond"] < 0.0, worst  # no body through a wall: its samples inside the tank
-    assert worst["beyond"] < 0.5 * np.sqrt(3.0) * scene.spacing, worst  # nor its corners between samples
+    assert_contained(worst, scene.spacing)
     end = sim.bodies["position"]
     crates = [k for k, b in enumerate(scene.bodies) if b.density < 1000.0]
     assert np.all(end[crates, 1] > start[crates, 1] + 0.03)  # afloat: lifted off the floor
@@ -115,8 +120,7 @@ def test_flood_in_one_advance_passes_the_film_between_a_crate_and_a_wall():
     front = 2.0 * np.sqrt(9.81 * scene.fluids[0].upper[1])
     assert abs(sim.time - 1.0) < 1e-9 and max(fastest) < 2.0 * front, max(fastest)  # no runaway
     assert max(fastest[-round(0.1 / sim.stats[-1]["dt"]) :]) < front, fastest[-10:]
-    assert worst["inside"] == 0 and worst["samples_beyond"] < 0.0, worst
-    assert worst["beyond"] < 0.5 * np.sqrt(3.0) * scene.spacing, worst
+    assert_contained(worst, scene.spacing)
 
 
 def test_flood_with_dfsph_passes_the_film_pinned_at_half_a_second():
@@ -137,7 +141,7 @@ def test_flood_with_dfsph_passes_the_film_pinned_at_half_a_second():
     front = 2.0 * np.sqrt(9.81 * scene.fluids[0].upper[1])
     assert abs(sim.time - 0.9) < 1e-9
     assert max(fastest[-round(0.1 / sim.stats[-1]["dt"]) :]) < front, fastest[-10:]
-    assert worst["inside"] == 0 and worst["samples_beyond"] < 0.0, worst
+    assert_contained(worst, scene.spacing)
 
 
 def test_heave_holds_the_box_then_lets_it_swing_about_its_draft():
