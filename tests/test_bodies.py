@@ -54,6 +54,12 @@ def test_body_keys_are_validated(tmp_path):
         ({"upper": [0.2, 0.5, 0.2]}, "must lie inside the tank"),
         ({"lower": [0.1, 0.1, 0.1], "upper": [0.11, 0.11, 0.11]}, "smaller than two spacings"),
         ({"name": "a b"}, "bodies[0].name"),
+        ({"name": "caf\u00e9"}, "bodies[0].name"),  # bodies.csv's columns are ASCII
+        (
+            {"lower": [0.1, 0.2, 0.1], "upper": [0.2, 0.2 + 1e-9, 0.2]},
+            "gives the body a mass of",
+        ),  # a sheet below the least mass
+        ({"inertia": [1e300, 1e300, 1e300], "angular_velocity": [0, 1, 0]}, "principal moments must lie in"),
         ({"colour": "red"}, "bodies[0].colour: unknown key"),
         ({"density": None, "mass": 0.0}, "bodies[0].mass"),
         ({"angular_velocity": [0.0, 2000.0, 0.0]}, "bodies[0].angular_velocity"),
@@ -77,6 +83,21 @@ def test_body_keys_are_validated(tmp_path):
     two = {**base, "bodies": [ok, {**ok, "lower": [0.15, 0.15, 0.15], "upper": [0.25, 0.25, 0.25]}]}
     with pytest.raises(ValueError, match=r"bodies\[0\] and bodies\[1\] overlap"):
         scene_from_dict(two)
+    crossing = {**ok, "lower": [0.12, 0.05, 0.12], "upper": [0.18, 0.35, 0.18]}  # through ok, no corner inside it
+    with pytest.raises(ValueError, match=r"bodies\[0\] and bodies\[1\] overlap"):
+        scene_from_dict({**base, "bodies": [ok, crossing]})
+    held = {
+        "lower": crossing["lower"],
+        "upper": crossing["upper"],
+        "motion": {"times": [0, 1], "translate": [[0.2, 0, 0], [0, 0, 0]]},
+    }
+    with pytest.raises(
+        ValueError, match=r"bodies\[0\] and obstacles\[0\] overlap"
+    ):  # where its keyframes put it at t = 0
+        scene_from_dict(
+            {**base, "bodies": [{**ok, "lower": [0.3, 0.1, 0.1], "upper": [0.36, 0.2, 0.2]}], "obstacles": [held]}
+        )
+    assert scene_from_dict({**base, "bodies": [ok], "obstacles": [held]})  # it has moved away from ok by then
     beside = {**base, "bodies": [ok, {**ok, "lower": [0.2, 0.1, 0.1], "upper": [0.3, 0.2, 0.2]}]}
     assert len(scene_from_dict(beside).bodies) == 2  # touching faces do not overlap
     with pytest.raises(ValueError, match=r"bodies\[1\]\.name = 'box': another body has that name"):
@@ -87,6 +108,56 @@ def test_body_keys_are_validated(tmp_path):
     named["bodies"] = [{**beside["bodies"][0], "name": 5}, beside["bodies"][1]]
     with pytest.raises(ValueError, match=r"bodies\[0\]\.name = 5"):  # the body's own key, before a probe reads it
         scene_from_dict(named)
+
+
+def test_a_body_must_be_a_mesh_wound_outward_and_inside_a_mesh_tanks_walls(tmp_path):
+    import trimesh
+
+    trimesh.creation.box(extents=[0.1, 0.1, 0.1]).export(tmp_path / "cube.obj")
+    inverted = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
+    inverted.invert()
+    inverted.export(tmp_path / "inside_out.obj")
+    base = {
+        "spacing": 0.04,
+        "tank": {"lower": [0, 0, 0], "upper": [0.4, 0.4, 0.4]},
+        "fluids": [{"lower": [0, 0, 0], "upper": [0.4, 0.2, 0.4]}],
+    }
+    body = {"shape": "mesh", "path": "inside_out.obj", "translate": [0.2, 0.3, 0.2], "density": 500}
+    with pytest.raises(ValueError, match=r"bodies\[0\]\.path = 'inside_out.obj': the mesh is inside out"):
+        scene_from_dict({**base, "bodies": [body]}, tmp_path)
+    # a cube tank turned 45 degrees about y: a body in a corner of its box but outside its walls
+    tank = {"shape": "mesh", "path": "cube.obj", "scale": 6.0, "rotate": [0, 45, 0], "translate": [0.5, 0.3, 0.5]}
+    corner = {"shape": "box", "lower": [0.1, 0.3, 0.1], "upper": [0.18, 0.38, 0.18], "density": 500}
+    fluid = {"lower": [0.4, 0.05, 0.4], "upper": [0.6, 0.2, 0.6]}
+    with pytest.raises(ValueError, match=r"bodies\[0\]: must lie inside the tank's mesh"):
+        scene_from_dict({"spacing": 0.04, "tank": tank, "fluids": [fluid], "bodies": [corner]}, tmp_path)
+    middle = {**corner, "lower": [0.46, 0.3, 0.46], "upper": [0.54, 0.38, 0.54]}
+    assert scene_from_dict({"spacing": 0.04, "tank": tank, "fluids": [fluid], "bodies": [middle]}, tmp_path)
+
+
+def test_a_body_thrown_in_fast_sets_the_first_step_and_one_gone_astray_stops_the_run():
+    """A body's fastest point counts in the first step's CFL rule and in the derived divergence
+    limit (a body at 20 m/s crossed two spacings in the first step, 5 ms, and the splash passed
+    the 33 m/s limit in the second); a body whose state turns non-finite or leaves the domain
+    ends the run as diverged."""
+    from warp_iisph import DivergenceError
+
+    scene = pool(velocity=(0.0, -20.0, 0.0))
+    sim = Simulation(scene, "cpu")
+    assert sim.loop.velocity_limit >= 60.0
+    first = sim.step()
+    assert first["dt"] * 20.0 <= 0.5 * scene.spacing * (1 + 1e-6)  # the CFL number 0.5 at the body's speed
+    sim = Simulation(pool(), "cpu")
+    sim.step()
+    state = {k: v.copy() for k, v in sim.model.rigid.host().items() if k != "spin"}
+    state["position"][0] = [0.2, -1.0, 0.2]  # below the floor: out of the domain
+    sim.model.rigid.assign(state)
+    with pytest.raises(DivergenceError, match="body body0 left the domain"):
+        sim.step()
+    state["position"][0] = [0.2, np.nan, 0.2]
+    sim.model.rigid.assign(state)
+    with pytest.raises(DivergenceError, match="body body0 has a non-finite"):
+        sim.step()
 
 
 def _toml(data: dict) -> str:

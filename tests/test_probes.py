@@ -106,6 +106,10 @@ def _probe(*lines):
             '[[probes]]\nname = "a,b"\nkind = "level"\nposition = [0.2, 0.1]',
             r"probes\[4\]\.name = 'a,b': must be 1-64 letters",
         ),
+        (
+            '[[probes]]\nname = "P1\\n"\nkind = "level"\nposition = [0.2, 0.1]',  # a line break would split the header
+            r"probes\[4\]\.name = 'P1\\n': must be 1-64 letters",
+        ),
         (_probe('kind = "level"', "position = [0.2, 0.1]", "colour = 1"), r"probes\[4\]\.colour: unknown key"),
         (
             '[[probes]]\nname = "load.Fp_x"\nkind = "level"\nposition = [0.2, 0.1]',
@@ -127,6 +131,9 @@ def test_bad_probe_settings_stop_the_command_with_one_line(tmp_path, capsys):
     assert main(["run", str(path), "--out", str(tmp_path / "run"), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "scene.toml: output.probe_interval = -1: must be in [0, 1e+06]" in err
+    path = scene_file(tmp_path, output="probe_interval = 5e-324")  # no step is that short: one row in all
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--no-progress"]) == 2
+    assert "output.probe_interval = 5e-324: must be 0 (every step) or at least 1e-07 s" in capsys.readouterr().err
     bad = SCENE.format(output="", probes="").replace('sampling = "faces"', 'sampling = "layers"')
     (tmp_path / "bad.toml").write_text(bad)
     assert main(["run", str(tmp_path / "bad.toml"), "--no-progress"]) == 2
@@ -179,6 +186,28 @@ def test_probes_are_the_same_bits_on_every_path_and_leave_the_run_unchanged(tmp_
     assert load.shape == (len(reference), 12) and np.array_equal(load[:, 3], plain.probes["load.Fv_x"])
     with pytest.raises(KeyError, match="no such probe"):
         plain.probes["loa"]
+
+
+def test_a_normal_too_long_for_a_float_is_still_a_direction_and_probes_edited_in_a_run_are_not_resumed(
+    tmp_path, capsys
+):
+    """A normal whose length overflows float64 is scaled before it is normalised (it was stored as
+    [0, 0, 0], with NumPy's overflow warnings on stderr, and the run could not be resumed), and a
+    checkpoint remembers the probes it was taken with: a run.json whose probes were edited since
+    is not resumed into the same probes.csv."""
+    import json
+
+    path = scene_file(tmp_path)
+    out = tmp_path / "run"
+    args = ["run", str(path), "--out", str(out), "--duration", "0.1", "--no-progress"]
+    assert main([*args, "--set", "probes.0.normal=[1e308,1e308,0]"]) == 0
+    assert capsys.readouterr().err == ""
+    record = json.loads((out / "run.json").read_text())
+    np.testing.assert_allclose(record["scene"]["probes"][0]["normal"], [0.5**0.5, 0.5**0.5, 0.0])
+    record["scene"]["probes"][1]["position"][1] += 0.01
+    (out / "run.json").write_text(json.dumps(record))
+    assert main(["run", "--resume", str(out), "--duration", "0.2", "--no-progress"]) == 2
+    assert "other probes than" in capsys.readouterr().err
 
 
 def test_probe_interval_samples_the_first_step_at_or_after_each_multiple(tmp_path):

@@ -131,6 +131,19 @@ def test_bad_override_is_clear(tmp_path):
         load_scene(path, ["spacing"])
     with pytest.raises(SceneFileError, match="fluids.3"):
         load_scene(path, ["fluids.3.radius=1"])
+    with pytest.raises(
+        SceneFileError, match=r"--set fluids\.\u00b2\.radius: fluids\.\u00b2 must index one of the 1 items"
+    ):
+        load_scene(path, ["fluids.\u00b2.radius=1"])  # a superscript two is a digit to str.isdigit, not an index
+    with pytest.raises(SceneFileError, match=r"--set fluids\.\uff10\.radius: fluids\.\uff10 must index"):
+        load_scene(path, ["fluids.\uff10.radius=1"])  # nor a full-width zero (int() reads it as 0)
+    with pytest.raises(SceneFileError, match=r"--set probes\.0\.name: the scene has no probes to index"):
+        load_scene(path, ["probes.0.name=x"])
+    big = "1" + "0" * 400  # TOML integers have no size limit; float() of this one overflows
+    with pytest.raises(SceneFileError, match=rf"--set physics\.eta={big}: physics\.eta = {big}: must be a number in"):
+        load_scene(path, [f"physics.eta={big}"])
+    with pytest.raises(SceneFileError, match=r"fluids\[0\]\.lower = .*: must be three numbers"):
+        load_scene(path, [f"fluids.0.lower=[{big},0,0]"])
 
 
 def test_an_emitter_switched_to_the_other_nozzle_by_set_drops_the_old_key():

@@ -199,6 +199,11 @@ def check_checkpoint(state: dict, run: RunFolder, record: dict, scene, fps: floa
         )
     if taken.get("geometry") != now["geometry"]:
         raise RunError(f"{where}: was taken of another scene geometry than {run.record_path} records")
+    if "probes" in taken and taken["probes"] != now["probes"]:  # checkpoints before 2026-12-05 have none
+        raise RunError(
+            f"{where}: was taken with other probes than {run.record_path} records; "
+            "probes.csv's columns would mix two sets of sensors"
+        )
     try:
         _check_values(state, fps, float(record.get("duration") or 0.0), scene)
     except ValueError as e:

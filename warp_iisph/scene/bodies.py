@@ -16,19 +16,24 @@ test's release, or a crate dropped once the water has calmed.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, Record, floats, in_range, position, vec3
+from .checks import MAX_COORDINATE, Record, floats, in_range, magnitude, position, vec3
 from .shapes import Box, MeshShape, Sphere, contains, shape_mesh
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
+NAME = re.compile(r"[A-Za-z0-9_]{1,64}")  # a body's name: bodies.csv's columns and force probes' ``body``
 # Densities (kg/m^3) and masses (kg) a body may have: from expanded polystyrene to osmium, and
 # a few grams to a small ship.
 DENSITY_RANGE = (1.0, 1.0e5)
 MASS_RANGE = (1.0e-6, 1.0e9)
+# Principal moments of inertia (kg m^2) a given inertia may have: the mass range's bodies at sizes
+# from a millimetre to the scene's extent (float64 state; 1e300 turned a body's spin into NaN).
+INERTIA_RANGE = (1.0e-15, 1.0e15)
 MAX_SPEED = 100.0  # m/s: the fastest a body may start
 MAX_SPIN = 1000.0  # rad/s
 
@@ -65,12 +70,24 @@ class Body(Record):
         if isinstance(self.shape, MeshShape):
             if self.shape.shell:
                 raise ValueError(f"{name}.shell: a body must be closed; an open mesh has no volume to float")
-            if not self.shape.load().is_watertight:
+            mesh = self.shape.load()
+            if not mesh.is_watertight:
                 raise ValueError(f"{name}.path = {self.shape.path!r}: a body's mesh must be closed (watertight)")
+            if not mesh.volume > 0.0:
+                raise ValueError(
+                    f"{name}.path = {self.shape.path!r}: the mesh is inside out (its volume is {mesh.volume:.3g} m^3); "
+                    "its faces must wind counter-clockwise seen from outside"
+                )
         if (self.density is None) == (self.mass is None):
             raise ValueError(f"{name}: give exactly one of density (kg/m^3) and mass (kg)")
         if self.density is not None:
             self.density = in_range(self.density, f"{name}.density", *DENSITY_RANGE, "kg/m^3")
+            mass = self.density * _uniform(self.shape)[0]
+            if not MASS_RANGE[0] <= mass <= MASS_RANGE[1]:
+                raise ValueError(
+                    f"{name}.density = {self.density:g}: gives the body a mass of {mass:.3g} kg, outside "
+                    f"[{MASS_RANGE[0]:g}, {MASS_RANGE[1]:g}] kg (its volume is {_uniform(self.shape)[0]:.3g} m^3)"
+                )
         else:
             self.mass = in_range(self.mass, f"{name}.mass", *MASS_RANGE, "kg")
         lo, hi = self.shape.bounds
@@ -98,8 +115,10 @@ class Body(Record):
                 f"{name}.release_time = {self.release_time:g}: a held body starts from rest; give it no "
                 "velocity or angular_velocity"
             )
-        if self.name is not None and (not isinstance(self.name, str) or not self.name.isidentifier()):
-            raise ValueError(f"{name}.name = {self.name!r}: must be a plain name (letters, digits, _), bodies.csv's")
+        if self.name is not None and (not isinstance(self.name, str) or not NAME.fullmatch(self.name)):
+            raise ValueError(
+                f"{name}.name = {self.name!r}: must be a plain name of 1-64 letters, digits or _ (ASCII), bodies.csv's"
+            )
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -152,7 +171,7 @@ def _uniform(shape) -> tuple[float, np.ndarray, np.ndarray]:
 
 def _bounded(value, name: str, most: float, unit: str) -> np.ndarray:
     v = vec3(value, name)
-    if float(np.linalg.norm(v)) > most:
+    if magnitude(v) > most:
         raise ValueError(f"{name} = {list(value)}: must be at most {most:g} {unit} in magnitude")
     return v
 
@@ -164,7 +183,7 @@ def _inertia(value, name: str) -> tuple:
         if isinstance(value, (str, bytes)) or any(isinstance(c, (bool, str)) for c in value):
             raise TypeError
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(
             f"{name} = {value!r}: must be [Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m^2)"
         ) from None
@@ -175,6 +194,11 @@ def _inertia(value, name: str) -> tuple:
         raise ValueError(
             f"{name} = {list(floats(arr))}: must be positive definite with principal moments meeting "
             "I1 + I2 >= I3 (a rigid body's)"
+        )
+    if moments[0] < INERTIA_RANGE[0] or moments[2] > INERTIA_RANGE[1]:
+        raise ValueError(
+            f"{name} = {list(floats(arr))}: principal moments must lie in [{INERTIA_RANGE[0]:g}, "
+            f"{INERTIA_RANGE[1]:g}] kg m^2"
         )
     return floats(arr)
 
@@ -214,32 +238,59 @@ def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
                 f"bodies[{k}].name = {n!r}: another body has that name"
                 + ("" if bodies[k].name else " (the default of an unnamed body: bodyK, K its place)")
             )
+    if not isinstance(tank, Box):  # a container mesh: the body inside its walls, not only its box
+        for k, b in enumerate(bodies):
+            if not np.all(contains(tank, _samples(b.shape))):
+                raise ValueError(f"bodies[{k}]: must lie inside the tank's mesh where the scene places it")
     shapes = [(f"bodies[{k}]", b.shape) for k, b in enumerate(bodies)]
-    others = [(f"obstacles[{k}]", o) for k, o in enumerate(obstacles) if o.motion is None]
+    others = [(f"obstacles[{k}]", o) for k, o in enumerate(obstacles)]
     for i, (name, a) in enumerate(shapes):
         for other, b in shapes[i + 1 :] + others:
             if _overlap(a, b):
-                raise ValueError(f"{name} and {other} overlap where the scene places them; move one")
+                raise ValueError(f"{name} and {other} overlap where the scene places them at t = 0; move one")
+
+
+# Points per axis of the grid that probes where two shapes' boxes overlap (crossing shapes have
+# no vertex inside each other).
+OVERLAP_GRID = 10
+
+
+def _samples(s) -> np.ndarray:
+    """Points of a shape where the scene places it at t = 0 (a moving obstacle's keyframes applied),
+    pulled a millionth of its size towards its centre: a box's corners and centre, a sphere's or a
+    mesh's vertices (at most about 200) and centroid."""
+    if isinstance(s, Box):
+        lo, hi = s.bounds
+        points = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        centre = 0.5 * (lo + hi)
+    else:
+        m = shape_mesh(s)
+        points, centre = np.asarray(m.vertices)[:: max(1, len(m.vertices) // 200)], np.asarray(m.centroid)
+    points = np.vstack([centre + (1.0 - 1e-6) * (points - centre), centre])
+    if getattr(s, "motion", None) is not None:
+        lo, hi = s.bounds
+        pivot = s.motion.pivot if s.motion.pivot is not None else 0.5 * (lo + hi)
+        m = s.motion.matrix(0.0, np.asarray(pivot, dtype=np.float64))
+        points = points @ m[:3, :3].T + m[:3, 3]
+    return points
 
 
 def _overlap(a, b) -> bool:
-    """Whether two shapes share a volume: their boxes overlap and a vertex (or centre) of one
-    lies inside the other."""
-    alo, ahi = a.bounds
-    blo, bhi = b.bounds
-    if not np.all(np.minimum(ahi, bhi) - np.maximum(alo, blo) > 1e-9):
+    """Whether two shapes share a volume at t = 0: their boxes there overlap, and a sample point of
+    one lies inside the other or a point of a grid over the boxes' common part lies inside both
+    (two boxes that cross, neither's corner inside the other)."""
+    pa, pb = _samples(a), _samples(b)
+    if isinstance(a, Box) and isinstance(b, Box):  # axis-aligned: the sample points' boxes are theirs
+        pa, pb = pa[:-1], pb[:-1]
+    lo = np.maximum(pa.min(axis=0), pb.min(axis=0))
+    hi = np.minimum(pa.max(axis=0), pb.max(axis=0))
+    if not np.all(hi - lo > 1e-9):
         return False
-
-    def points(s):
-        if isinstance(s, Box):
-            lo, hi = s.bounds
-            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-            shrink = 1e-6 * (hi - lo)  # corners touching a face do not overlap
-            return np.vstack([np.clip(corners, lo + shrink, hi - shrink), 0.5 * (lo + hi)])
-        m = shape_mesh(s)
-        return np.vstack([np.asarray(m.vertices)[:: max(1, len(m.vertices) // 200)], m.centroid])
-
-    return bool(np.any(contains(b, points(a))) or np.any(contains(a, points(b))))
+    if np.any(contains(b, pa)) or np.any(contains(a, pb)):
+        return True
+    axes = [lo[d] + (np.arange(OVERLAP_GRID) + 0.5) * (hi[d] - lo[d]) / OVERLAP_GRID for d in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    return bool(np.any(contains(a, grid) & contains(b, grid)))
 
 
 def quaternion_matrix(q) -> np.ndarray:

@@ -42,7 +42,7 @@ def _same(a, b) -> bool:
         return False
     try:
         return bool(np.all(a == b))
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return a is b
 
 
@@ -76,11 +76,32 @@ def vec3(value, name: str) -> np.ndarray:
         if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, np.bool_, str)) for c in value):
             raise TypeError
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} = {value!r}: must be three numbers [x, y, z]") from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} = {value!r}: must be three finite numbers [x, y, z]")
     return arr
+
+
+def magnitude(v: np.ndarray) -> float:
+    """A finite vector's length, scaled first so that no square overflows (a component near 1e308
+    would read as inf, and NumPy would warn on stderr)."""
+    top = float(np.max(np.abs(v)))
+    if top == 0.0:
+        return 0.0
+    with np.errstate(over="ignore"):
+        return top * float(np.linalg.norm(v / top))
+
+
+def unit(value, name: str, what: str) -> np.ndarray:
+    """A direction: three finite numbers, not all zero, scaled to length 1 (``what`` says what it
+    is, for the message)."""
+    v = vec3(value, name)
+    top = float(np.max(np.abs(v)))
+    if top == 0.0:
+        raise ValueError(f"{name} = {value!r}: must be non-zero ({what})")
+    v = v / top
+    return v / np.linalg.norm(v)
 
 
 def box_corners(lower, upper, name: str) -> tuple[tuple, tuple]:
@@ -103,7 +124,7 @@ def position(value, name: str) -> np.ndarray:
 def positive(value, name: str, unit: str) -> float:
     try:
         v = _number(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} = {value!r}: must be a number > 0 ({unit})") from None
     if not math.isfinite(v) or v <= 0.0:
         raise ValueError(f"{name} = {value!r}: must be > 0 ({unit})")
@@ -111,15 +132,15 @@ def positive(value, name: str, unit: str) -> float:
 
 
 def in_range(value, name: str, lo: float, hi: float, unit: str, lo_open=False, hi_open=False) -> float:
+    lb = "(" if lo_open else "["
+    rb = ")" if hi_open else "]"
     try:
         v = _number(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r}: must be a number") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} = {value!r}: must be a number in {lb}{lo:g}, {hi:g}{rb} ({unit})") from None
     lo_ok = v > lo if lo_open else v >= lo
     hi_ok = v < hi if hi_open else v <= hi
     if not (math.isfinite(v) and lo_ok and hi_ok):
-        lb = "(" if lo_open else "["
-        rb = ")" if hi_open else "]"
         raise ValueError(f"{name} = {value!r}: must be in {lb}{lo:g}, {hi:g}{rb} ({unit})")
     return v
 

@@ -74,9 +74,11 @@ def apply_override(data: dict, assignment: str) -> None:
     for depth, part in enumerate(parts[:-1]):
         where = ".".join(parts[: depth + 1])
         if isinstance(node, list):
-            if not part.isdigit() or int(part) >= len(node):
-                raise SceneFileError(f"--set {key}: {where} must index one of the {len(node)} items")
+            if not re.fullmatch(r"[0-9]+", part) or int(part) >= len(node):
+                raise SceneFileError(f"--set {key}: {where} must index one of the {len(node)} items (0, 1, ...)")
             node = node[int(part)]
+        elif part not in node and re.fullmatch(r"[0-9]+", parts[depth + 1]):
+            raise SceneFileError(f"--set {key.strip()}: the scene has no {where} to index; add them to the file")
         else:
             node = node.setdefault(part, {})
         if not isinstance(node, (dict, list)):  # e.g. spacing.x: spacing is a number
@@ -271,8 +273,8 @@ GEOMETRY_KEYS = ("spacing", "tank", "fluids", "obstacles", "emitters", "sinks", 
 
 def scene_fingerprint(scene: Scene) -> dict:
     """What a checkpoint was taken of: a hash of the scene's geometry (its table, mesh paths
-    included) and of each mesh file's contents, by key (``tank``, ``obstacles[0]``), so that a
-    resume can say what changed."""
+    included), of each mesh file's contents, by key (``tank``, ``obstacles[0]``), and of its probes,
+    so that a resume can say what changed."""
     table = scene_to_dict(scene)
     # a scene without bodies hashes as it did before they existed
     parts = {k: table.get(k) for k in GEOMETRY_KEYS if k in table or k != "bodies"}
@@ -287,7 +289,13 @@ def scene_fingerprint(scene: Scene) -> dict:
                 meshes[key] = hashlib.sha256(path.read_bytes()).hexdigest()
             except OSError as e:
                 raise ValueError(f"{key}.path = {shape.path!r}: cannot be read ({e.strerror})") from None
-    return {"geometry": hashlib.sha256(geometry.encode()).hexdigest(), "meshes": meshes}
+    # the sensors probes.csv's columns were read at: a resume must read the same ones
+    probes = json.dumps(table.get("probes") or [], sort_keys=True, separators=(",", ":"))
+    return {
+        "geometry": hashlib.sha256(geometry.encode()).hexdigest(),
+        "meshes": meshes,
+        "probes": hashlib.sha256(probes.encode()).hexdigest(),
+    }
 
 
 def load_scene(path, overrides=()) -> Scene:

@@ -9,7 +9,7 @@ from typing import Optional
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, Record, box_corners, floats, in_range, position, vec3
+from .checks import MAX_COORDINATE, Record, box_corners, floats, in_range, position, unit
 
 NOZZLES = ("disc", "rectangle")
 
@@ -33,10 +33,7 @@ class Emitter(Record):
 
     def validate(self, name: str) -> None:
         self.center = floats(position(self.center, f"{name}.center"))
-        d = vec3(self.direction, f"{name}.direction")
-        if np.linalg.norm(d) == 0.0:
-            raise ValueError(f"{name}.direction = {list(floats(d))}: must not be zero")
-        self.direction = tuple(float(c) for c in d / np.linalg.norm(d))
+        self.direction = floats(unit(self.direction, f"{name}.direction", "the way the nozzle points"))
         self.speed = in_range(self.speed, f"{name}.speed", 0.0, 100.0, "m/s", lo_open=True)
         if self.shape not in NOZZLES:
             raise ValueError(f"{name}.shape = {self.shape!r}: must be one of {', '.join(NOZZLES)}")
@@ -49,7 +46,7 @@ class Emitter(Record):
                 raise ValueError(f"{name}.size: required for shape = 'rectangle' ([width, height], metres)")
             try:
                 w, h = (float(v) for v in self.size)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise ValueError(f"{name}.size = {self.size!r}: must be [width, height] in metres") from None
             for v in (w, h):
                 in_range(v, f"{name}.size", 0.0, MAX_COORDINATE, "metres", lo_open=True)

@@ -41,7 +41,7 @@ class Motion(Record):
             times = np.asarray(t, dtype=np.float64)
             if times.ndim != 1:  # [[0, 1]]: a nested list is not a list of times
                 raise TypeError
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(f"{name}.times = {t!r}: must be a list of numbers (seconds)") from None
         if not np.all(np.isfinite(times)) or np.any(times < 0) or np.any(np.diff(times) <= 0):
             raise ValueError(f"{name}.times = {t!r}: must be finite, >= 0 and increasing")

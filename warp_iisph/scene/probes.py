@@ -23,7 +23,7 @@ from typing import Optional, Union
 import numpy as np
 
 from .bodies import body_names
-from .checks import Record, floats, in_range, position, vec3
+from .checks import Record, floats, in_range, position, unit
 
 PROBE_KINDS = ("pressure", "level", "force")
 # the keys each kind takes besides name and kind
@@ -34,7 +34,7 @@ KIND_KEYS = {
 }
 REQUIRED = {"pressure": ("position", "normal"), "level": ("position",), "force": ()}  # a force: obstacle or body
 # a probe's name heads columns of probes.csv: letters, digits, _ - . only
-NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")
+NAME = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
 # a force probe's columns, after its name: the pressure and viscous parts of the force and moment
 FORCE_PARTS = ("Fp", "Fv", "Mp", "Mv")
 
@@ -56,7 +56,7 @@ class Probe(Record):
 
     def validate(self, where: str, tank_bounds, obstacles: list, bodies: tuple = ()) -> None:
         """Check every value against the scene's tank, obstacles and bodies, and normalise it."""
-        if not isinstance(self.name, str) or not NAME.match(self.name):
+        if not isinstance(self.name, str) or not NAME.fullmatch(self.name):
             raise ValueError(
                 f"{where}.name = {self.name!r}: must be 1-64 letters, digits, '_', '-' or '.' (it heads a column)"
             )
@@ -78,13 +78,8 @@ class Probe(Record):
                 raise ValueError(
                     f"{where}.position = {list(floats(p))}: must lie inside the tank {floats(lo)}..{floats(hi)}"
                 )
-            n = vec3(self.normal, f"{where}.normal")
-            length = float(np.linalg.norm(n))
-            if not length > 0.0:
-                raise ValueError(
-                    f"{where}.normal = {self.normal!r}: must be non-zero (the wall's normal, into the liquid)"
-                )
-            self.position, self.normal = floats(p), floats(n / length)
+            n = unit(self.normal, f"{where}.normal", "the wall's normal, into the liquid")
+            self.position, self.normal = floats(p), floats(n)
         elif self.kind == "level":
             xz = _pair(self.position, f"{where}.position")
             if not (lo[0] <= xz[0] <= hi[0] and lo[2] <= xz[1] <= hi[2]):
@@ -122,7 +117,7 @@ def _pair(value, name: str) -> tuple:
         if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, str)) for c in value):
             raise TypeError
         arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} = {value!r}: must be two numbers [x, z]") from None
     if arr.shape != (2,) or not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} = {value!r}: must be two finite numbers [x, z]")

@@ -102,6 +102,11 @@ class Output(Record):
         self.probe_interval = in_range(
             self.probe_interval, "output.probe_interval", 0.0, 1.0e6, "seconds between probe samples, 0: every step"
         )
+        if 0.0 < self.probe_interval < MIN_STEP:  # no step is that short: ask for every step
+            raise ValueError(
+                f"output.probe_interval = {self.probe_interval!r}: must be 0 (every step) or at least "
+                f"{MIN_STEP:g} s, the shortest step"
+            )
 
 
 @dataclass
@@ -188,7 +193,8 @@ class Physics(Record):
       sound sqrt(7 k / rho0), 0 for IISPH and DFSPH); the last steps before a time the run must
       land on (a frame, the end) are fitted to it.
     - ``max_velocity``: a speed (m/s) beyond which the run counts as diverged; ``None`` derives
-      one from the domain height (10 x the free-fall speed over it, at least 10 m/s).
+      one from the domain height (10 x the free-fall speed over it, at least 10 m/s, and at least
+      3 x the fastest point of a free body at its start).
     """
 
     method: str = "iisph"

@@ -7,9 +7,11 @@ from collections import deque
 from typing import Callable, Optional
 
 import numpy as np
+import warp as wp
 
 from ..engine.devices import init_warp
 from ..scene import Scene
+from ..scene.bodies import body_names
 from ..scene.settings import MIN_STEP
 from ..setup import build_model
 from ..sph.solvers import make_solver
@@ -17,6 +19,10 @@ from .flows import Flows
 from .graph import LoopGraph
 from .probing import ProbeSampler, ProbeSamples
 from .time_loop import TimeLoop
+
+# The derived velocity limit is at least this many times the fastest point of a body at its start
+# (a body thrown into the liquid: its splash may outrun it).
+BODY_SPEED_MARGIN = 3.0
 
 
 class DivergenceError(RuntimeError):
@@ -71,7 +77,16 @@ class Simulation:
         self.stats: list[dict] | deque = [] if history is None else deque(maxlen=max(1, int(history)))
         height = float(self.model.domain_upper[1] - self.model.domain_lower[1])
         g = float(np.linalg.norm(self.physics.gravity))
-        velocity_limit = self.physics.max_velocity or max(10.0, 10.0 * math.sqrt(2.0 * g * height))
+        # a body thrown in at speed: its fastest point counts in the first step's CFL rule (as it does
+        # in every later one) and raises the derived limit, as the splash it makes may be faster
+        body_top = 0.0
+        if self.model.rigid is not None:
+            top2 = wp.zeros(1, dtype=float, device=self.model.device)
+            self.model.rigid.speeds(top2)
+            body_top = math.sqrt(float(top2.numpy()[0]))
+        velocity_limit = self.physics.max_velocity or max(
+            10.0, 10.0 * math.sqrt(2.0 * g * height), BODY_SPEED_MARGIN * body_top
+        )
         # Gravity-driven flows reach about sqrt(2 g y_top) (y_top: the liquid's top above the floor). The
         # CFL rule uses at least that speed, so the first steps, taken from rest, are not so long
         # that IISPH's linearised density prediction breaks down near the walls.
@@ -84,6 +99,7 @@ class Simulation:
         self.flows = Flows(self.scene, self.state, self.device)
         self.flows.emit(self.time)  # the layers due at the start are there from the start
         self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)
+        self.loop.max_speed2.fill_(body_top * body_top)
         body_loads = self.loop.bodies.loads if self.loop.bodies is not None else None  # the free bodies'
         self.loop.probes = (
             ProbeSampler(self.scene, self.model, self.solver, self.loop.capacity, body_loads)
@@ -168,6 +184,8 @@ class Simulation:
         elif record["escaped"]:
             lo, hi = (", ".join(f"{c:.3g}" for c in b) for b in (self.model.domain_lower, self.model.domain_upper))
             reason = f"{record['escaped']} particles left the domain ({lo})..({hi})"
+        elif (body := self._body_astray()) is not None:
+            reason = body
         elif record["max_velocity"] > self.loop.velocity_limit:
             reason = (
                 f"max velocity {record['max_velocity']:.3g} m/s exceeds the limit {self.loop.velocity_limit:.3g} m/s"
@@ -175,6 +193,22 @@ class Simulation:
         if reason:
             raise DivergenceError(self.step_count, self.time, reason)
         return record
+
+    def _body_astray(self) -> str | None:
+        """Why a free body ended the step where none can be (its state not finite, or its centre of
+        mass outside the domain the particles must stay in), or ``None``."""
+        rigid = self.model.rigid
+        if rigid is None or not rigid.n:
+            return None
+        state = {name: getattr(rigid.state, name).numpy().reshape(rigid.n, -1) for name in rigid.fields()}
+        lo, hi = np.asarray(self.model.domain_lower), np.asarray(self.model.domain_upper)
+        for k, name in enumerate(body_names(self.scene.bodies)):
+            if not all(np.all(np.isfinite(a[k])) for a in state.values()):
+                return f"body {name} has a non-finite position, orientation or velocity"
+            c = state["position"][k]
+            if np.any(c < lo) or np.any(c > hi):
+                return f"body {name} left the domain ({', '.join(f'{v:.3g}' for v in c)} m)"
+        return None
 
     def checkpoint(self) -> dict:
         """Everything the next step depends on, as NumPy arrays: the particles in their memory
