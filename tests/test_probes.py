@@ -236,6 +236,8 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
     assert (whole / "probes.png").stat().st_size > 10_000
     assert main(["plot", str(tmp_path / "nowhere")]) == 2
     assert "no such run folder" in capsys.readouterr().err
+    assert main(["plot", str(path)]) == 2  # the scene file, not its run
+    assert "a file, not a run folder" in capsys.readouterr().err
     (tmp_path / "folder").mkdir()
     for out, message in [("folder", "is a folder"), ("chart", "must end in .png"), ("chart.txt", "must end in .png")]:
         assert main(["plot", str(whole), "--out", str(tmp_path / out)]) == 2

@@ -101,6 +101,8 @@ class RunFolder:
     def existing(cls, path) -> "RunFolder":
         """A run folder that must exist already (``RunError`` otherwise)."""
         run = cls(path)
+        if run.path.exists() and not run.path.is_dir():
+            raise RunError(f"{run.path}: a file, not a run folder (give the folder a run wrote)")
         if not run.path.is_dir():
             raise RunError(f"{run.path}: no such run folder")
         return run
