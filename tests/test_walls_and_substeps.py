@@ -209,3 +209,37 @@ def test_the_compression_warning_names_the_setting_that_sets_the_steps():
     assert "shorten physics.dt (now 0.003 s)" in warnings(0.01, dt=0.003)[0]
     assert "raise physics.max_iterations" in warnings(0.01, 3, dt=0.003, substeps=False)[1]
     assert warnings(0.01, method="wcsph") == []  # WCSPH's compression is set by its stiffness
+
+
+def test_step_rules_take_heights_along_gravity_whichever_way_it_points():
+    """The same resting column, 0.8 m deep along gravity and 0.12 m across, with gravity along -y
+    and along -x: the first step's length, a fixed step's substeps and the divergence limit are
+    the same (they were taken from the y extent: along -x the 6 ms step was not cut and the
+    column, never at rest, diverged at 0.18 s)."""
+    sims = []
+    for axis in (1, 0):
+        deep = np.full(3, 0.12)
+        deep[axis] = 0.8
+        top = deep.copy()
+        top[axis] += 0.1  # room above the water, along gravity
+        gravity = [0.0, 0.0, 0.0]
+        gravity[axis] = -G
+        scene = Scene(spacing=0.02, tank=Box((0, 0, 0), tuple(top)), name="column")
+        scene.physics = Physics(gravity=tuple(gravity), dt=0.006)
+        scene.add_fluid_box((0, 0, 0), tuple(deep))
+        sims.append(Simulation(scene, "cpu"))
+    first = [sim.step() for sim in sims]
+    assert first[0]["substeps"] == first[1]["substeps"] > 1
+    assert first[0]["dt"] == pytest.approx(first[1]["dt"], rel=1e-9)
+    assert sims[0].loop.velocity_limit == pytest.approx(sims[1].loop.velocity_limit, rel=1e-9)
+
+
+def test_a_level_gauge_needs_gravity_along_minus_y():
+    from warp_iisph import Probe
+
+    scene = Scene(spacing=0.04, tank=Box((0, 0, 0), (0.4, 0.4, 0.4)), name="gauge")
+    scene.add_fluid_box((0, 0, 0), (0.4, 0.2, 0.4))
+    scene.add_probe(Probe("h", "level", position=(0.2, 0.2)))
+    scene.physics = Physics(gravity=(-9.81, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"probes\[0\]: a level gauge reads the water's height along y"):
+        scene.validate()

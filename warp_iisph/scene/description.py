@@ -179,6 +179,13 @@ class Scene(Record):
         self.output.validate()  # before the counts: the emitters' particles follow output.duration
         self._check_particle_counts()
         self.physics.validate()
+        gx, gy, gz = self.physics.gravity
+        for k, p in enumerate(self.probes):  # a gauge's column stands along y (scene coordinates are y up)
+            if p.kind == "level" and (gx != 0.0 or gz != 0.0 or gy > 0.0):
+                raise ValueError(
+                    f"probes[{k}]: a level gauge reads the water's height along y; physics.gravity = "
+                    f"{list(self.physics.gravity)} must point along -y (or be zero) for it"
+                )
         self.surface.validate()
         self.camera.validate()
         self._validated = self._fingerprint()

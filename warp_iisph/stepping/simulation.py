@@ -75,8 +75,13 @@ class Simulation:
         self.time = 0.0
         self.step_count = 0
         self.stats: list[dict] | deque = [] if history is None else deque(maxlen=max(1, int(history)))
-        height = float(self.model.domain_upper[1] - self.model.domain_lower[1])
-        g = float(np.linalg.norm(self.physics.gravity))
+        # heights are taken against gravity, whichever way it points (y up when it has none)
+        g_vector = np.asarray(self.physics.gravity, dtype=np.float64)
+        g = float(np.linalg.norm(g_vector))
+        up = -g_vector / g if g > 0.0 else np.array([0.0, 1.0, 0.0])
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in (self.model.domain_lower, self.model.domain_upper))
+        height = float(np.abs(up) @ (hi - lo))
+        floor = float(np.minimum(lo * up, hi * up).sum())  # the domain's lowest point along up
         # a body thrown in at speed: its fastest point counts in the first step's CFL rule (as it does
         # in every later one) and raises the derived limit, as the splash it makes may be faster
         body_top = 0.0
@@ -90,12 +95,11 @@ class Simulation:
         # Gravity-driven flows reach about sqrt(2 g y_top) (y_top: the liquid's top above the floor). The
         # CFL rule uses at least that speed, so the first steps, taken from rest, are not so long
         # that IISPH's linearised density prediction breaks down near the walls.
-        x = self.state.x.numpy()[: self.state.n]
-        floor = float(self.model.domain_lower[1])
-        fall = float(x[:, 1].max()) - floor if len(x) else 0.0
+        x = self.state.x.numpy()[: self.state.n].astype(np.float64)
+        fall = float((x @ up).max()) - floor if len(x) else 0.0
         speed = math.sqrt(2.0 * g * max(fall, 0.0))
         for e in self.scene.emitters:  # an emitted stream falls from its nozzle
-            speed = max(speed, math.sqrt(e.speed**2 + 2.0 * g * max(e.center[1] - floor, 0.0)))
+            speed = max(speed, math.sqrt(e.speed**2 + 2.0 * g * max(float(np.asarray(e.center) @ up) - floor, 0.0)))
         self.flows = Flows(self.scene, self.state, self.device)
         self.flows.emit(self.time)  # the layers due at the start are there from the start
         self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)

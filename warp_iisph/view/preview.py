@@ -224,8 +224,17 @@ def _preview(run, record, files, source, out, width, height, fps, gif, yaw, pitc
     splat(still, still_depth, view, edges, np.full((len(edges), 3), 0.45), 0.5 / view.scale, shade_spheres=False)
     moving = run.obstacles_move
     still_obstacles = ObstacleLayer(view, obstacles) if obstacles is not None and not moving else None
-    g = 9.81
-    v_ref = math.sqrt(2 * g * max(float(bounds[1][1] - bounds[0][1]), h))
+    # the colour scale's top: the speed of a fall over the tank's height along the run's gravity
+    # (Earth's along -y where the record has none, or none that reads as a vector)
+    try:
+        gravity = np.asarray(record["scene"]["physics"]["gravity"], dtype=np.float64).reshape(3)
+    except (KeyError, TypeError, ValueError):
+        gravity = np.array([0.0, -9.81, 0.0])
+    g = float(np.linalg.norm(gravity))
+    if not (math.isfinite(g) and g > 0.0):
+        gravity, g = np.array([0.0, -9.81, 0.0]), 9.81
+    height = float(np.abs(gravity / g) @ (np.asarray(bounds[1], float) - np.asarray(bounds[0], float)))
+    v_ref = math.sqrt(2 * g * max(height, h))
     timing = []
 
     def images():
