@@ -119,6 +119,26 @@ def test_mesh_and_preview_work_on_a_vtu_run(runs, tmp_path, capsys):
     assert ((last[..., 2] - last[..., 0]) > 60).mean() > 0.01
 
 
+def test_meshing_particle_files_never_writes_over_an_input(runs, tmp_path, capsys):
+    """A mesh is named after its particle file with the mesh format's suffix: meshed beside itself
+    as PLY, a PLY frame would be replaced by its own mesh, and a folder holding a.ply and a.vtu
+    would mesh both into a.obj. Both are refused before anything is written."""
+    import shutil
+
+    frame = tmp_path / "loose" / "frame_00001.ply"
+    frame.parent.mkdir()
+    shutil.copy(runs / "ply" / "particles" / "frame_00001.ply", frame)
+    kept = frame.read_bytes()
+    for extra in ([], ["--overwrite"]):
+        args = ["mesh", str(frame), "--spacing", "0.04", "--format", "ply", "--no-progress", *extra]
+        assert main(args) == 2
+        assert "would be written over frame_00001.ply" in capsys.readouterr().err
+        assert frame.read_bytes() == kept
+    shutil.copy(runs / "vtu" / "particles" / "frame_00001.vtu", frame.with_suffix(".vtu"))
+    assert main(["mesh", str(frame.parent), "--spacing", "0.04", "--out", str(tmp_path / "m"), "--no-progress"]) == 2
+    assert "would both be meshed into it" in capsys.readouterr().err and not list((tmp_path / "m").glob("*.obj"))
+
+
 def test_cli_format_flag_writes_vtu(tmp_path, capsys):
     out = tmp_path / "run"
     assert (

@@ -228,6 +228,10 @@ def test_render_run_writes_frames_and_video_and_skips_done_frames(tiny_run, caps
     assert len(video_frames(tiny_run / "video.mp4")) == 4
     assert main(args + ["--walls"]) == 0
     assert "rendered 0 frames (4 already there)" in capsys.readouterr().out
+    # a range is seen by the whole run's camera: the frames outside it stay, and so does the video
+    assert main(args + ["--walls", "--frames", "1:3", "--overwrite"]) == 0
+    assert "rendered 2 frames (0 already there)" in capsys.readouterr().out
+    assert sorted((tiny_run / "frames").glob("frame_*.png")) == pngs and len(video_frames(tiny_run / "video.mp4")) == 4
     # frames rendered with other settings are stale: they are made again, not reused
     assert main(args) == 0
     assert "rendered 4 frames (0 already there)" in capsys.readouterr().out

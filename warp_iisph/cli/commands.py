@@ -61,7 +61,7 @@ def _render(args) -> int:
         raise ValueError(f"render: {e}") from None
     print(
         f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
-        f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']}"
+        f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']} ({r['video_frames']} frames)"
     )
     return 0
 

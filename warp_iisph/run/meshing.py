@@ -173,6 +173,28 @@ def _jobs_of_files(path: Path, overrides, spacing, out):
     return [(f, target / f"{f.stem}.obj") for f in files], spacing, _settings({}, overrides), target
 
 
+def _check_targets(jobs, mesher: FrameMesher) -> None:
+    """``RunError`` when a mesh would be written over a particle file being meshed (a mesh's name
+    is its input's with the mesh format's suffix: ``a.ply`` meshed as PLY beside itself), or two
+    inputs would be meshed into one file (``a.ply`` and ``a.vtu`` into ``a.obj``)."""
+    inputs = {f.resolve(): f for f, _ in jobs}
+    made = {}
+    for source, mesh_file in jobs:
+        target = mesher.target(mesh_file)
+        key = target.resolve()
+        if key in inputs:
+            raise RunError(
+                f"{target}: the mesh of {source.name} would be written over {inputs[key].name}, a particle file "
+                "being meshed; choose another --out or --format"
+            )
+        if key in made:
+            raise RunError(
+                f"{target}: {made[key].name} and {source.name} would both be meshed into it; "
+                "mesh them into separate folders (--out)"
+            )
+        made[key] = source
+
+
 def _mesh_jobs(jobs, mesher: FrameMesher, overwrite: bool, progress: bool, out: Path) -> dict:
     """Mesh each (particle file, mesh file) pair, skipping meshes already there unless ``overwrite``."""
     bar = frame_bar(len(jobs), progress)
@@ -229,6 +251,7 @@ def mesh_path(
             return _mesh_run(run, overrides, spacing, overwrite, device, progress)
     jobs, spacing, params, target = _jobs_of_files(path, overrides, spacing, out)
     mesher = _mesher(spacing, params, device)
+    _check_targets(jobs, mesher)
     target.mkdir(parents=True, exist_ok=True)
     with FolderLock(target, "folder"):
         return _mesh_jobs(jobs, mesher, overwrite, progress, target)

@@ -141,11 +141,14 @@ def render_run(
     if not 1 <= spp <= 65536:
         raise RunError(f"--spp {spp}: must be in [1, 65536]")
     color = material_color(material)
-    files = select_frames(run.frames(MESHES), frames)
+    every = run.frames(MESHES)
+    files = select_frames(every, frames)
     chosen_variant, why = choose_variant(str(record.get("device") or "cpu").split(":")[0], variant)
     tank = tank_bounds(record, run.record_path)
     solid = run.obstacle_mesh()
-    box = framing_box(run, record, files, solid)  # the obstacles are framed with the liquid
+    # the camera frames the whole run (and the obstacles with the liquid): a range of frames is seen
+    # as the full video sees it, and keeps the frames rendered outside it
+    box = framing_box(run, record, every, solid)
     eye, target, fov = run_camera(record, box, width / height, run.record_path)
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
@@ -221,7 +224,9 @@ def render_run(
                 bar.close()
         fps = run.fps(record)
         video = run.path / ("video.gif" if gif else "video.mp4")
-        write_video((imageio.imread(p) for p in pngs), video, fps, gif=gif)
+        # every frame of the run rendered so far, in order (a range rendered adds to the video)
+        shown = [png for png in (out / f"frame_{frame_index(p):05d}.png" for p in every) if png.exists()]
+        write_video((imageio.imread(p) for p in shown), video, fps, gif=gif)
         return {
             "variant": chosen_variant,
             "why": why,
@@ -229,6 +234,7 @@ def render_run(
             "skipped": len(files) - len(calls),
             "frames": len(pngs),
             "video": video,
+            "video_frames": len(shown),
             "seconds_per_frame": float(np.median(seconds)) if seconds else 0.0,
         }
     finally:
