@@ -62,6 +62,10 @@ def _stopped(signum) -> int:
     return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
+# The commands that load trimesh (scenes, meshes, viewers): it loads with signals held.
+MESH_COMMANDS = ("run", "sweep", "mesh", "render", "preview", "usd", "blender-script")
+
+
 def _command(argv: list, debug: bool) -> int:
     from .commands import COMMANDS
 
@@ -72,6 +76,9 @@ def _command(argv: list, debug: bool) -> int:
         for key, value in vars(args).items():  # argparse gives [] for --opt=-- (it drops the "--")
             if isinstance(value, list) and key not in repeatable:
                 parser.error(f"argument --{key.replace('_', '-')}: expected one value")
+        if args.command in MESH_COMMANDS:
+            with signals.deferred():  # trimesh's optional imports catch BaseException: a Ctrl-C among them was lost
+                import trimesh  # noqa: F401
         return COMMANDS[args.command](args)
     except KeyboardInterrupt as e:
         return _stopped(signal_of(e))
