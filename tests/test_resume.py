@@ -329,3 +329,17 @@ def test_an_intact_folder_resumes_again_and_again_and_a_mesh_made_again_lets_it(
     one_line(capsys.readouterr().err.strip().splitlines(), str(kept_copy / "mesh" / "frame_00001.obj"), "mesh")
     assert main(["mesh", str(kept_copy), "--no-progress"]) == 0  # made again from its particle frame
     assert main([*resume, "--duration", "0.5"]) == 0
+
+
+def test_meshes_remade_with_other_settings_are_not_mixed_with_the_resumed_runs(kept_copy, capsys):
+    """`warp-iisph mesh RUN --overwrite --cell 1` remakes a run's meshes with other settings; a
+    resume would write the next frames with the run's own beside them (and mesh/source.json
+    claiming the first): refused, until the run is given those settings."""
+    assert main(["mesh", str(kept_copy), "--overwrite", "--cell", "1", "--no-progress"]) == 0
+    capsys.readouterr()
+    resume = ["run", "--resume", str(kept_copy), "--duration", "0.25", "--no-progress"]
+    assert main(resume) == 2
+    assert "holds meshes made with other settings (cell)" in capsys.readouterr().err
+    assert main([*resume, "--set", "surface.cell=1"]) == 0
+    made = json.loads((kept_copy / "mesh" / "source.json").read_text())["settings"]
+    assert made["cell"] == 1.0 and len(list((kept_copy / "mesh").glob("frame_*.obj"))) == 6

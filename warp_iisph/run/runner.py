@@ -107,6 +107,15 @@ def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict
             )
         if run.particle_format != scene.output.format:
             raise ValueError(f"--set output.format: a resumed run keeps its {run.particle_format} frames")
+        made = run.provenance(MESHES)
+        mine = {"run_id": before.get("run_id"), "settings": mesh_settings(scene.surface, scene.spacing)}
+        if scene.output.mesh and made is not None and run.has_frames(MESHES) and made != mine:
+            changed = sorted(k for k in mine["settings"] if (made.get("settings") or {}).get(k) != mine["settings"][k])
+            raise RunError(
+                f"{run.path / MESHES}: holds meshes made with other settings ({', '.join(changed) or 'another run'}) "
+                "than the run writes; resuming would mix the two: give the run those settings "
+                "(--set surface.KEY=VALUE) or remake the meshes with the run's (warp-iisph mesh RUN_DIR --overwrite)"
+            )
         check_checkpoint(checkpoint, run, before, scene, plan.fps)
         kept_steps = check_kept(run, before, checkpoint, scene)
         frame = int(checkpoint["frame"])
