@@ -369,3 +369,20 @@ def test_remeshing_a_run_removes_its_stale_usd_stage(tiny_run, tmp_path, capsys)
     assert (run / "run.usdc").is_file()
     assert main(["mesh", str(run), "--smoothing", "taubin", "--overwrite", "--no-progress"]) == 0
     assert not (run / "run.usdc").exists()
+
+
+def test_frames_of_no_particles_and_meshes_of_no_triangles_are_written_and_read(tmp_path):
+    """An emitter's scene has no particles before it starts: its VTU frames (which meshio writes
+    but cannot read back) read as empty, and an empty surface writes as a PLY mesh (a memoryview
+    cast failed on the empty tables, so such a run could not mesh as PLY)."""
+    from warp_iisph.run.formats import FileFormatError, read_mesh, write_mesh, write_particles
+
+    none, scalars = np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+    write_particles(tmp_path / "empty.vtu", none, none, scalars, scalars)
+    assert read_particles(tmp_path / "empty.vtu")["x"].shape == (0, 3)
+    (tmp_path / "cut.vtu").write_bytes((tmp_path / "empty.vtu").read_bytes()[:100])
+    with pytest.raises(FileFormatError, match="not a readable point file"):  # cut short: still refused
+        read_particles(tmp_path / "cut.vtu")
+    path = write_mesh(tmp_path / "empty.ply", none, np.zeros((0, 3), np.int32), none, fmt="ply")
+    mesh = read_mesh(path)
+    assert len(mesh.vertices) == 0 and len(mesh.faces) == 0

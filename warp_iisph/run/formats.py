@@ -139,11 +139,27 @@ def read_points(path) -> "meshio.Mesh":
     except SystemExit:  # meshio exits on some malformed headers
         raise FileFormatError(f"{path}: not a readable point file (malformed header)") from None
     except Exception as e:  # meshio and NumPy raise many kinds for a bad file
+        if _empty_vtu(path):  # meshio writes a frame of no particles but cannot read it back
+            return meshio.Mesh(np.zeros((0, 3), dtype=np.float32), [])
         raise FileFormatError(f"{path}: not a readable point file ({type(e).__name__}: {e})") from None
     points = np.asarray(mesh.points, dtype=np.float32)
     if points.ndim != 2 or points.shape[1] != 3:
         raise FileFormatError(f"{path}: holds no 3D points")
     return mesh
+
+
+def _empty_vtu(path: Path) -> bool:
+    """Whether ``path`` is a whole VTU file of pieces with no points (an emitter's frames before it
+    starts)."""
+    import xml.etree.ElementTree as ET
+
+    if path.suffix.lower() != ".vtu":
+        return False
+    try:
+        pieces = list(ET.parse(path).getroot().iter("Piece"))
+    except (ET.ParseError, OSError):
+        return False
+    return bool(pieces) and all(p.get("NumberOfPoints") == "0" for p in pieces)
 
 
 def read_mesh(path):
@@ -268,10 +284,10 @@ def ply_chunks(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
     rows = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
     rows["n"] = 3
     rows["i"] = f
-    return [
+    return [  # byte views of the tables (a memoryview cast fails on an empty one)
         ("\n".join(head) + "\n").encode("ascii"),
-        memoryview(np.ascontiguousarray(v)).cast("B"),
-        memoryview(rows).cast("B"),
+        np.ascontiguousarray(v).reshape(-1).view(np.uint8),
+        rows.view(np.uint8),
     ]
 
 
