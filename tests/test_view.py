@@ -54,9 +54,10 @@ def test_preview_bad_input_is_one_line(tiny_run, tmp_path, capsys):
     assert main(["preview", str(tmp_path / "nothing"), "--no-progress"]) == 2
     assert main(["preview", str(tiny_run), "--resolution", "640x361", "--no-progress"]) == 2
     assert main(["preview", str(tiny_run), "--frames", "9:12", "--no-progress"]) == 2
+    assert main(["preview", str(tiny_run), "--fps", "0.001", "--gif", "--no-progress"]) == 2  # no video plays that slow
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 3 and all(line.startswith("warp-iisph: error:") for line in err)
-    assert "no such run folder" in err[0] and "even" in err[1] and "0..3" in err[2]
+    assert len(err) == 4 and all(line.startswith("warp-iisph: error:") for line in err)
+    assert "no such run folder" in err[0] and "even" in err[1] and "0..3" in err[2] and "[0.1, 10000]" in err[3]
 
 
 # --- the viewers' --out: one rule (view/out_file.py) -------------------------------------------------

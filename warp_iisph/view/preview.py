@@ -16,7 +16,7 @@ from ..run.lock import writing_into
 from ..run.progress import frame_bar
 from ..scene.checks import in_range
 from .out_file import view_file
-from .video import parse_resolution, write_video
+from .video import MIN_FPS, parse_resolution, write_video
 
 # Speed colour ramp (slow -> fast): deep blue, blue, cyan, pale yellow, orange.
 RAMP = np.array([[0.05, 0.15, 0.45], [0.10, 0.40, 0.85], [0.30, 0.80, 0.95], [0.95, 0.95, 0.60], [0.95, 0.55, 0.15]])
@@ -173,7 +173,7 @@ def preview_run(
     if source not in (PARTICLES, MESHES):
         raise RunError(f"--source {source!r}: must be particles or mesh")
     files = select_frames(run.frames(source), frames)
-    fps = run.fps(record) if fps is None else _option(fps, "--fps", 0.0, MAX_FPS, "frames per second", lo_open=True)
+    fps = run.fps(record) if fps is None else _option(fps, "--fps", MIN_FPS, MAX_FPS, "frames per second")
     yaw = _option(yaw, "--yaw", -1e6, 1e6, "degrees")
     pitch = _option(pitch, "--pitch", -90.0, 90.0, "degrees")
     out = view_file(

@@ -22,11 +22,16 @@ def parse_resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+# The slowest a video plays (frames per second): a run with fewer frames a second plays at this.
+MIN_FPS = 0.1
+
+
 def write_video(images, path, fps: float, gif: bool = False) -> None:
     """Write RGB uint8 frames (an iterable of (H, W, 3) arrays) as an MP4 (H.264) or a GIF."""
     import imageio.v2 as imageio
 
     path = Path(path)
+    fps = max(float(fps), MIN_FPS)  # ffmpeg reads a rate to two decimals; a GIF's frame time is whole ms
     if path.is_dir():
         raise RunError(f"--out {path}: is a folder; give a video file name (.{'gif' if gif else 'mp4'})")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -47,6 +52,8 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
                 writer.append_data(np.asarray(im))
         finally:
             writer.close()
+        if tmp.stat().st_size == 0:  # the encoder gave up without a word: keep the video that was there
+            raise RuntimeError("the encoder wrote nothing")
         os.chmod(tmp, FILE_MODE)  # readable as any file the user makes (mkstemp's are private)
         tmp.replace(path)  # a video that is there is complete
     except (OSError, RuntimeError) as e:  # a full disk reaches us as a broken pipe to ffmpeg
