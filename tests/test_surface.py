@@ -126,6 +126,27 @@ def test_nan_frame_is_a_clear_error(ball):
         SurfaceReconstructor(H).reconstruct(x)
 
 
+def test_a_particle_far_off_is_a_clear_error_and_the_preview_leaves_it_out(ball):
+    """One particle 1e30 m off: the grid over the particles is refused by its size before any
+    index is cast (a cast of inf to int64 made an internal error), and the preview draws the
+    others (NumPy warned of invalid casts on stderr)."""
+    import warnings
+
+    from warp_iisph.view.preview import OrthoView, splat
+
+    x = ball.copy()
+    x[5, 0] = 1e30
+    with pytest.raises(ValueError, match=r"extent \[1e\+30, .*\] m is too large for cells"):
+        SurfaceReconstructor(H).reconstruct(x)
+    x[6, 1] = np.nan
+    view = OrthoView(x[7:].min(0), x[7:].max(0), 32, 32, 30.0, 20.0)
+    image, depth = np.zeros((32, 32, 3)), np.full((32, 32), -np.inf)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        splat(image, depth, view, x, np.ones((len(x), 3)), H)
+    assert np.isfinite(depth).sum() > 10
+
+
 def test_obj_round_trip(tmp_path, ball):
     m, t = _mesh(ball)
     write_obj(tmp_path / "a.obj", m.vertices, m.faces, m.normals)

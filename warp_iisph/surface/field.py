@@ -180,10 +180,15 @@ def sparse_distance_field(
         raise ValueError(f"{bad} particles have non-finite positions")
     margin = R + 2.0 * cell
     lower = lo - margin
-    block_dims = np.ceil((hi + margin - lower) / (cell * BLOCK)).astype(int)
+    blocks = np.ceil((np.asarray(hi, np.float64) + margin - lower) / (cell * BLOCK))  # float64: no cast yet
+    if not np.all(np.isfinite(blocks)) or float(np.prod(blocks)) > 2.0**31 / (3 * CELLS3):
+        span = (np.asarray(hi, np.float64) - np.asarray(lo, np.float64)).tolist()
+        raise ValueError(
+            f"mesh grid over the particles' extent {[float(f'{v:.3g}') for v in span]} m is too large for "
+            f"cells of {cell:g} m; increase the cell size (a particle far from the others?)"
+        )
+    block_dims = blocks.astype(int)
     n_blocks = int(np.prod(block_dims))
-    if float(np.prod(block_dims.astype(float))) > 2.0**31 / (3 * CELLS3):
-        raise ValueError(f"mesh grid of {(BLOCK * block_dims + 1).tolist()} nodes is too large; increase the cell size")
     cdims = np.ceil(block_dims * BLOCK * cell / R).astype(int) + 1
     n_coarse = int(np.prod(cdims))
     cd = wp.vec3i(*[int(c) for c in cdims])

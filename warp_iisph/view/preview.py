@@ -71,6 +71,10 @@ def splat(
 ) -> None:
     """Draw points as discs of ``radius_m`` metres (lit like spheres), nearest on top."""
     px, py, depth = view.project(x)
+    seen = np.isfinite(px) & np.isfinite(py) & np.isfinite(depth)  # a particle file may hold anything
+    colors = np.broadcast_to(colors, (len(px), 3))[seen]
+    # far off the image is off it: clipped so that no pixel index overflows its integer
+    px, py, depth = np.clip(px[seen], -1e6, 1e6), np.clip(py[seen], -1e6, 1e6), depth[seen]
     r = max(radius_m * view.scale, 0.7)
     ri = int(math.ceil(r))
     dy, dx = np.mgrid[-ri : ri + 1, -ri : ri + 1]
