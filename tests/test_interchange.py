@@ -359,7 +359,7 @@ def test_usd_without_usd_core_says_what_to_install(tiny_run, monkeypatch, capsys
 
 
 @needs_usd
-def test_remeshing_a_run_removes_its_stale_usd_stage(tiny_run, tmp_path, capsys):
+def test_remeshing_a_run_removes_its_stale_usd_stage_and_blender_script(tiny_run, tmp_path, capsys):
     import shutil
 
     run = tmp_path / "run"
@@ -367,8 +367,12 @@ def test_remeshing_a_run_removes_its_stale_usd_stage(tiny_run, tmp_path, capsys)
     assert main(["usd", str(run), "--no-progress"]) == 0 and (run / "run.usdc").is_file()
     assert main(["mesh", str(run), "--no-progress"]) == 0  # nothing re-made: the stage stays
     assert (run / "run.usdc").is_file()
+    assert main(["blender-script", str(run)]) == 0
     assert main(["mesh", str(run), "--smoothing", "taubin", "--overwrite", "--no-progress"]) == 0
     assert not (run / "run.usdc").exists()
+    assert (run / "blender_scene.py").is_file()  # the same files, remade: the script still loads them
+    assert main(["mesh", str(run), "--format", "ply", "--overwrite", "--no-progress"]) == 0
+    assert not (run / "blender_scene.py").exists()  # it named the .obj files that went
 
 
 def test_frames_of_no_particles_and_meshes_of_no_triangles_are_written_and_read(tmp_path):

@@ -57,6 +57,9 @@ class FrameMesher:
         return mesh
 
 
+BLENDER_SCRIPT = "blender_scene.py"  # warp-iisph blender-script's file in the run folder
+
+
 def mesh_settings(params: SurfaceSettings, spacing: float) -> dict:
     """What a set of meshes was made with, as recorded beside them."""
     return {**dataclasses.asdict(params), "spacing": float(spacing)}
@@ -112,7 +115,7 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
         run.write_provenance(MESHES, record.get("run_id"), settings)
         jobs = [(f, run.mesh_frame(frame_index(f))) for f in frames]
         result = _mesh_jobs(jobs, mesher, overwrite, progress, folder)
-        for old in run.usd_files() if overwrite else []:  # nothing made of other meshes outlives them
+        for old in _made_of_meshes(run, made, settings) if overwrite else []:  # nothing outlives its meshes
             old.unlink(missing_ok=True)
         return result
     target = Target(folder, folder, True, None)
@@ -123,7 +126,7 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
         result = _mesh_jobs(jobs, mesher, True, progress, folder)
         with signals.held():  # the meshes and what was made of them change together
             _carry_foreign_files(folder, new)
-            stale = run.usd_files()  # a stage made of the old meshes
+            stale = _made_of_meshes(run, made, settings)  # a stage (and a script) made of the old meshes
             commit(target, new, lock)
             for old in stale:
                 old.unlink(missing_ok=True)
@@ -133,6 +136,16 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
         raise
     lock.release()
     return result
+
+
+def _made_of_meshes(run: RunFolder, made: dict | None, settings: dict) -> list[Path]:
+    """What new meshes leave stale in the run folder: its USD stage (it holds the meshes), and the
+    Blender script when the meshes change format (it names their files)."""
+    stale = run.usd_files()
+    script = run.path / BLENDER_SCRIPT
+    if script.is_file() and ((made or {}).get("settings") or {}).get("format") != settings.get("format"):
+        stale.append(script)
+    return stale
 
 
 def _carry_foreign_files(folder: Path, new: Path) -> None:

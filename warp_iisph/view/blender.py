@@ -18,6 +18,7 @@ import numpy as np
 from ..run.atomic import atomic_write
 from ..run.folder import MESHES, RunError, RunFolder, frame_index, select_frames, tank_bounds
 from ..run.lock import writing_into
+from ..run.meshing import BLENDER_SCRIPT
 from .camera import framing_box, run_camera
 from .materials import THICKNESS, material_color
 from .out_file import view_file
@@ -210,7 +211,7 @@ def blender_script(run_dir, out=None, material: str = "water", frames: str | Non
         raise RunError(
             f"{run.path}: has no run.usdc (or .usda, .usd) for --usd; write it with `warp-iisph usd {run.path}`"
         )
-    out = view_file(run, out, "blender_scene.py", (".py",), "script")
+    out = view_file(run, out, BLENDER_SCRIPT, (".py",), "script")
     # Blender's volume absorption: transmittance exp(-density * (1 - colour) * d); pick the density
     # that gives the preset's colour through THICKNESS for the most absorbed channel.
     k = max(range(3), key=lambda c: -math.log(color[c]))
