@@ -373,6 +373,11 @@ def test_remeshing_a_run_removes_its_stale_usd_stage_and_blender_script(tiny_run
     assert (run / "blender_scene.py").is_file()  # the same files, remade: the script still loads them
     assert main(["mesh", str(run), "--format", "ply", "--overwrite", "--no-progress"]) == 0
     assert not (run / "blender_scene.py").exists()  # it named the .obj files that went
+    (run / "particles" / "frame_00002.ply").unlink()  # a mesh that cannot be made again: not deleted
+    before = {p.name: p.read_bytes() for p in (run / "mesh").iterdir()}
+    assert main(["mesh", str(run), "--smoothing", "none", "--overwrite", "--no-progress"]) == 2
+    assert "frame_00002.ply: its particle frame is missing" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in (run / "mesh").iterdir()} == before
 
 
 def test_frames_of_no_particles_and_meshes_of_no_triangles_are_written_and_read(tmp_path):

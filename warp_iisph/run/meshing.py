@@ -108,6 +108,14 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
     folder = run.path / MESHES
     recover(folder)  # a swap of meshes that a killed process began
     existing = run.has_frames(MESHES)
+    if overwrite and existing:  # the new meshes replace the folder: a mesh with no particles to remake it from would go
+        sources = {frame_index(f) for f in frames}
+        orphan = next((m for m in run.frames(MESHES) if frame_index(m) not in sources), None)
+        if orphan is not None:
+            raise RunError(
+                f"{orphan}: its particle frame is missing, so --overwrite would delete a mesh it cannot make "
+                "again; move it out first"
+            )
     if existing and not overwrite and made != mine:
         what = "another run" if made and made.get("run_id") != mine["run_id"] else "other settings"
         raise RunError(f"{folder}: holds meshes made from {what}; pass --overwrite to replace them")
