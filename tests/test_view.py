@@ -86,8 +86,9 @@ def files_in(*folders) -> dict:
         (lambda run, tmp, suffix: tmp / "a_file" / f"view{suffix}", "a_file is a file, not a folder"),
         (lambda run, tmp, suffix: tmp / "a_file" / "deeper" / f"view{suffix}", "a_file is a file, not a folder"),
         (lambda run, tmp, suffix: "", "--out '': empty; give a file name ending in {suffix}"),
+        (lambda run, tmp, suffix: f"{tmp}/new{suffix}/", "is a folder; give a file name ending in {suffix}"),
     ],
-    ids=["folder", "suffix", "double-suffix", "frame-folder", "frame-file", "under-a-file", "deeper", "empty"],
+    ids=["folder", "suffix", "double-suffix", "frame-folder", "frame-file", "under-a-file", "deeper", "empty", "slash"],
 )
 def test_every_view_refuses_the_same_bad_out_in_one_line(tiny_run, tmp_path, capsys, command, where, says):
     """preview, usd, blender-script and plot apply one rule to --out: no folder, their suffix, none

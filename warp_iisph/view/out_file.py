@@ -21,8 +21,8 @@ def view_file(run: RunFolder, out, default: str, suffixes: tuple[str, ...], what
     if out is not None and not str(out):
         raise RunError(f"--out '': empty; give a file name ending in {allowed}")
     path = Path(out) if out is not None else run.path / default
-    if path.is_dir():
-        raise RunError(f"--out {path}: is a folder; give a file name ending in {allowed}, e.g. {path / default}")
+    if path.is_dir() or str(out or "").endswith(("/", os.sep)):  # a trailing slash asks for a folder
+        raise RunError(f"--out {out or path}: is a folder; give a file name ending in {allowed}, e.g. {path / default}")
     if path.suffix.lower() not in suffixes:
         raise RunError(f"--out {path}: must end in {allowed}")
     if run.holds_as_its_own(path):
