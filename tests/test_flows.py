@@ -113,7 +113,7 @@ def test_a_run_with_emitters_resumes_bitwise(tmp_path):
     "bad, message",
     [
         ({"speed": 0.0}, "emitters[0].speed = 0.0"),
-        ({"direction": [0, 0, 0]}, "emitters[0].direction = [0.0, 0.0, 0.0]: must not be zero"),
+        ({"direction": [0, 0, 0]}, "emitters[0].direction = [0, 0, 0]: must be non-zero (the way the nozzle points)"),
         ({"shape": "rectangle"}, "emitters[0].size: required"),
         ({"center": [5, 0.3, 0.15]}, "emitters[0].center = [5.0, 0.3, 0.15]: must lie inside the tank"),
         ({"end": -1.0}, "emitters[0].end = -1.0"),
