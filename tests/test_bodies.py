@@ -133,6 +133,8 @@ def test_a_body_must_be_a_mesh_wound_outward_and_inside_a_mesh_tanks_walls(tmp_p
         scene_from_dict({"spacing": 0.04, "tank": tank, "fluids": [fluid], "bodies": [corner]}, tmp_path)
     middle = {**corner, "lower": [0.46, 0.3, 0.46], "upper": [0.54, 0.38, 0.54]}
     assert scene_from_dict({"spacing": 0.04, "tank": tank, "fluids": [fluid], "bodies": [middle]}, tmp_path)
+    shell = {**tank, "shell": True}  # a shell tank encloses as much as a closed one does
+    assert scene_from_dict({"spacing": 0.04, "tank": shell, "fluids": [fluid], "bodies": [middle]}, tmp_path)
 
 
 def test_a_body_thrown_in_fast_sets_the_first_step_and_one_gone_astray_stops_the_run():

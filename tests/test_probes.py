@@ -204,6 +204,11 @@ def test_a_normal_too_long_for_a_float_is_still_a_direction_and_probes_edited_in
     assert capsys.readouterr().err == ""
     record = json.loads((out / "run.json").read_text())
     np.testing.assert_allclose(record["scene"]["probes"][0]["normal"], [0.5**0.5, 0.5**0.5, 0.0])
+    # a direction normalised once is kept as it is when run.json is read back (normalising it again
+    # moved a last bit of [0.81, 0.82, 0]'s, and the resume saw other probes than the run's)
+    assert main([*args, "--overwrite", "--set", "probes.0.normal=[0.81,0.82,0]"]) == 0
+    assert main(["run", "--resume", str(out), "--duration", "0.15", "--no-progress"]) == 0
+    record = json.loads((out / "run.json").read_text())
     record["scene"]["probes"][1]["position"][1] += 0.01
     (out / "run.json").write_text(json.dumps(record))
     assert main(["run", "--resume", str(out), "--duration", "0.2", "--no-progress"]) == 2

@@ -108,6 +108,7 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
     folder = run.path / MESHES
     recover(folder)  # a swap of meshes that a killed process began
     existing = run.has_frames(MESHES)
+    old_format = next((m.suffix.lower().lstrip(".") for m in run.frames(MESHES)), None)
     if overwrite and existing:  # the new meshes replace the folder: a mesh with no particles to remake it from would go
         sources = {frame_index(f) for f in frames}
         orphan = next((m for m in run.frames(MESHES) if frame_index(m) not in sources), None)
@@ -123,7 +124,7 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
         run.write_provenance(MESHES, record.get("run_id"), settings)
         jobs = [(f, run.mesh_frame(frame_index(f))) for f in frames]
         result = _mesh_jobs(jobs, mesher, overwrite, progress, folder)
-        for old in _made_of_meshes(run, made, settings) if overwrite else []:  # nothing outlives its meshes
+        for old in _made_of_meshes(run, old_format, settings) if overwrite else []:  # nothing outlives its meshes
             old.unlink(missing_ok=True)
         return result
     target = Target(folder, folder, True, None)
@@ -134,7 +135,7 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
         result = _mesh_jobs(jobs, mesher, True, progress, folder)
         with signals.held():  # the meshes and what was made of them change together
             _carry_foreign_files(folder, new)
-            stale = _made_of_meshes(run, made, settings)  # a stage (and a script) made of the old meshes
+            stale = _made_of_meshes(run, old_format, settings)  # a stage (and a script) made of the old meshes
             commit(target, new, lock)
             for old in stale:
                 old.unlink(missing_ok=True)
@@ -146,12 +147,13 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
     return result
 
 
-def _made_of_meshes(run: RunFolder, made: dict | None, settings: dict) -> list[Path]:
+def _made_of_meshes(run: RunFolder, old_format: str | None, settings: dict) -> list[Path]:
     """What new meshes leave stale in the run folder: its USD stage (it holds the meshes), and the
-    Blender script when the meshes change format (it names their files)."""
+    Blender script when the meshes change format (``old_format``: the suffix of those there; the
+    script names their files)."""
     stale = run.usd_files()
     script = run.path / BLENDER_SCRIPT
-    if script.is_file() and ((made or {}).get("settings") or {}).get("format") != settings.get("format"):
+    if script.is_file() and old_format is not None and old_format != settings.get("format"):
         stale.append(script)
     return stale
 

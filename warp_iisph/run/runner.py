@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..engine import signals
 from ..engine.signals import Terminated
-from ..scene import MeshShape, Scene
+from ..scene import MeshShape, Scene, SurfaceSettings
 from ..scene.checks import in_range
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owner
@@ -107,15 +107,7 @@ def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict
             )
         if run.particle_format != scene.output.format:
             raise ValueError(f"--set output.format: a resumed run keeps its {run.particle_format} frames")
-        made = run.provenance(MESHES)
-        mine = {"run_id": before.get("run_id"), "settings": mesh_settings(scene.surface, scene.spacing)}
-        if scene.output.mesh and made is not None and run.has_frames(MESHES) and made != mine:
-            changed = sorted(k for k in mine["settings"] if (made.get("settings") or {}).get(k) != mine["settings"][k])
-            raise RunError(
-                f"{run.path / MESHES}: holds meshes made with other settings ({', '.join(changed) or 'another run'}) "
-                "than the run writes; resuming would mix the two: give the run those settings "
-                "(--set surface.KEY=VALUE) or remake the meshes with the run's (warp-iisph mesh RUN_DIR --overwrite)"
-            )
+        _check_mesh_settings(run, before, scene)
         check_checkpoint(checkpoint, run, before, scene, plan.fps)
         kept_steps = check_kept(run, before, checkpoint, scene)
         frame = int(checkpoint["frame"])
@@ -139,6 +131,26 @@ def _open_to_resume(out, scene: Scene, plan: FramePlan) -> tuple[RunFolder, dict
         lock.release()
         raise
     return run, before, checkpoint, kept_steps, lock
+
+
+def _check_mesh_settings(run: RunFolder, before: dict, scene: Scene) -> None:
+    """``RunError`` when a resume that writes meshes would put them beside meshes of other settings
+    (remade by ``warp-iisph mesh``, or a ``--set surface.KEY`` on this resume): mesh/source.json
+    names one set of settings for the folder. A key a run of an older version did not record has
+    its default."""
+    made = run.provenance(MESHES)
+    if not scene.output.mesh or made is None or not run.has_frames(MESHES):
+        return
+    mine = mesh_settings(scene.surface, scene.spacing)
+    theirs = {**mesh_settings(SurfaceSettings(), scene.spacing), **(made.get("settings") or {})}
+    changed = sorted(k for k in mine if theirs.get(k) != mine[k])
+    if made.get("run_id") == before.get("run_id") and not changed:
+        return
+    raise RunError(
+        f"{run.path / MESHES}: holds meshes made with other settings ({', '.join(changed) or 'another run'}) "
+        "than this resume writes; it would mix the two: resume with theirs (--set surface.KEY=VALUE), or "
+        "first remake them with this resume's (warp-iisph mesh RUN_DIR --overwrite --KEY VALUE)"
+    )
 
 
 def _failure(e: BaseException) -> str:

@@ -16,6 +16,7 @@ test's release, or a crate dropped once the water has calmed.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass, field
 from typing import Optional, Union
@@ -239,8 +240,9 @@ def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
                 + ("" if bodies[k].name else " (the default of an unnamed body: bodyK, K its place)")
             )
     if not isinstance(tank, Box):  # a container mesh: the body inside its walls, not only its box
+        closed = dataclasses.replace(tank, shell=False) if getattr(tank, "shell", False) else tank  # encloses
         for k, b in enumerate(bodies):
-            if not np.all(contains(tank, _samples(b.shape))):
+            if not np.all(contains(closed, _samples(b.shape))):
                 raise ValueError(f"bodies[{k}]: must lie inside the tank's mesh where the scene places it")
     shapes = [(f"bodies[{k}]", b.shape) for k, b in enumerate(bodies)]
     others = [(f"obstacles[{k}]", o) for k, o in enumerate(obstacles)]
@@ -290,7 +292,10 @@ def _overlap(a, b) -> bool:
         return True
     axes = [lo[d] + (np.arange(OVERLAP_GRID) + 0.5) * (hi[d] - lo[d]) / OVERLAP_GRID for d in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    return bool(np.any(contains(a, grid) & contains(b, grid)))
+    if isinstance(b, (Box, Sphere)) and not isinstance(a, (Box, Sphere)):  # the exact test first
+        a, b = b, a
+    inside = grid[contains(a, grid)]  # the mesh's winding numbers only where the other shape is
+    return bool(len(inside)) and bool(np.any(contains(b, inside)))
 
 
 def quaternion_matrix(q) -> np.ndarray:

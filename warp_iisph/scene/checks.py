@@ -95,11 +95,15 @@ def magnitude(v: np.ndarray) -> float:
 
 def unit(value, name: str, what: str) -> np.ndarray:
     """A direction: three finite numbers, not all zero, scaled to length 1 (``what`` says what it
-    is, for the message)."""
+    is, for the message). One already of length 1 (to rounding) is kept as it is: normalising
+    again moves a last bit, and a resumed run, validated from run.json, must see the direction
+    the run recorded."""
     v = vec3(value, name)
     top = float(np.max(np.abs(v)))
     if top == 0.0:
         raise ValueError(f"{name} = {value!r}: must be non-zero ({what})")
+    if top <= 1.0 and abs(float(np.dot(v, v)) - 1.0) < 1e-12:
+        return v
     v = v / top
     return v / np.linalg.norm(v)
 

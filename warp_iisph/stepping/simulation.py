@@ -173,11 +173,13 @@ class Simulation:
             records = self.graph.replay(restart)
         if self.loop.probes:
             self.probes.add(self.loop.probes.rows(len(records)))
-        for record in records:
-            yield self._accept(record)
+        for k, record in enumerate(records):
+            yield self._accept(record, last=k == len(records) - 1)
 
-    def _accept(self, record: dict) -> dict:
-        """Number and keep a step's record; raise DivergenceError if the step blew up."""
+    def _accept(self, record: dict, last: bool = True) -> dict:
+        """Number and keep a step's record; raise DivergenceError if the step blew up. The free
+        bodies' state is read once a batch (``last``: its last record; a replayed graph's steps
+        end in one state)."""
         self.step_count += 1
         self.time = record["t"]
         record = {"step": self.step_count, **record}
@@ -188,7 +190,7 @@ class Simulation:
         elif record["escaped"]:
             lo, hi = (", ".join(f"{c:.3g}" for c in b) for b in (self.model.domain_lower, self.model.domain_upper))
             reason = f"{record['escaped']} particles left the domain ({lo})..({hi})"
-        elif (body := self._body_astray()) is not None:
+        elif last and (body := self._body_astray()) is not None:
             reason = body
         elif record["max_velocity"] > self.loop.velocity_limit:
             reason = (
