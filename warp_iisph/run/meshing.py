@@ -108,7 +108,7 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
     folder = run.path / MESHES
     recover(folder)  # a swap of meshes that a killed process began
     existing = run.has_frames(MESHES)
-    old_format = next((m.suffix.lower().lstrip(".") for m in run.frames(MESHES)), None)
+    old_format = run.frames(MESHES)[0].suffix.lower().lstrip(".") if existing else None
     if overwrite and existing:  # the new meshes replace the folder: a mesh with no particles to remake it from would go
         sources = {frame_index(f) for f in frames}
         orphan = next((m for m in run.frames(MESHES) if frame_index(m) not in sources), None)
