@@ -134,6 +134,10 @@ def test_meshing_particle_files_never_writes_over_an_input(runs, tmp_path, capsy
         assert main(args) == 2
         assert "would be written over frame_00001.ply" in capsys.readouterr().err
         assert frame.read_bytes() == kept
+    assert main(["mesh", str(frame), "--spacing", "0.04", "--no-progress"]) == 0
+    assert main(["mesh", str(frame), "--spacing", "0.04", "--cell", "1", "--no-progress"]) == 0
+    assert "(1 already there, kept as they are: --overwrite remakes them" in capsys.readouterr().out
+    frame.with_suffix(".obj").unlink()
     shutil.copy(runs / "vtu" / "particles" / "frame_00001.vtu", frame.with_suffix(".vtu"))
     assert main(["mesh", str(frame.parent), "--spacing", "0.04", "--out", str(tmp_path / "m"), "--no-progress"]) == 2
     assert "would both be meshed into it" in capsys.readouterr().err and not list((tmp_path / "m").glob("*.obj"))

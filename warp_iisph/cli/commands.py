@@ -130,7 +130,10 @@ def _mesh(args) -> int:
         out=args.out,
     )
     secs = ", ".join(f"{k} {v:.2f} s" for k, v in result["stage_seconds"].items())
-    print(f"meshed {result['written']} frames ({result['skipped']} already there) -> {result['out']}; {secs}")
+    kept = result["skipped"]
+    # a run's meshes record their settings (refused when other); another tool's files' meshes do not
+    unknown = ", kept as they are: --overwrite remakes them with these settings" if kept and not result["run"] else ""
+    print(f"meshed {result['written']} frames ({kept} already there{unknown}) -> {result['out']}; {secs}")
     return 0
 
 

@@ -262,7 +262,8 @@ def mesh_path(
     particle file (or folder of them) meshio reads, with ``spacing``. Meshes already there are kept
     unless ``overwrite``; a run's meshes made from other settings are refused. Every setting is
     checked before a file changes, and the folder written into is locked (one writer). Returns
-    counts, seconds per stage and where the meshes went."""
+    counts, seconds per stage, where the meshes went and whether they are a run's (``run``: their
+    settings recorded and checked)."""
     path = Path(path)
     if not path.exists():
         raise RunError(f"{path}: no such run folder or particle file")
@@ -271,10 +272,10 @@ def mesh_path(
             raise RunError(f"--out {out}: a run's meshes go into {path / MESHES}; --out is for particle files")
         run = RunFolder(path)
         with FolderLock(run.path):
-            return _mesh_run(run, overrides, spacing, overwrite, device, progress)
+            return {**_mesh_run(run, overrides, spacing, overwrite, device, progress), "run": True}
     jobs, spacing, params, target = _jobs_of_files(path, overrides, spacing, out)
     mesher = _mesher(spacing, params, device)
     _check_targets(jobs, mesher)
     target.mkdir(parents=True, exist_ok=True)
     with FolderLock(target, "folder"):
-        return _mesh_jobs(jobs, mesher, overwrite, progress, target)
+        return {**_mesh_jobs(jobs, mesher, overwrite, progress, target), "run": False}
