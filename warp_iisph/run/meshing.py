@@ -107,11 +107,12 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
     mine = {"run_id": record.get("run_id"), "settings": settings}
     folder = run.path / MESHES
     recover(folder)  # a swap of meshes that a killed process began
-    existing = run.has_frames(MESHES)
-    old_format = run.frames(MESHES)[0].suffix.lower().lstrip(".") if existing else None
+    meshes = run.frames(MESHES) if run.has_frames(MESHES) else []
+    existing = bool(meshes)
+    old_format = meshes[0].suffix.lower().lstrip(".") if existing else None
     if overwrite and existing:  # the new meshes replace the folder: a mesh with no particles to remake it from would go
         sources = {frame_index(f) for f in frames}
-        orphan = next((m for m in run.frames(MESHES) if frame_index(m) not in sources), None)
+        orphan = next((m for m in meshes if frame_index(m) not in sources), None)
         if orphan is not None:
             raise RunError(
                 f"{orphan}: its particle frame is missing, so --overwrite would delete a mesh it cannot make "

@@ -24,7 +24,7 @@ from typing import Optional, Union
 import numpy as np
 
 from .checks import MAX_COORDINATE, Record, floats, in_range, magnitude, position, vec3
-from .shapes import Box, MeshShape, Sphere, contains, shape_mesh
+from .shapes import Box, MeshShape, Sphere, contains, placement, shape_mesh
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 NAME = re.compile(r"[A-Za-z0-9_]{1,64}")  # a body's name: bodies.csv's columns and force probes' ``body``
@@ -83,11 +83,12 @@ class Body(Record):
             raise ValueError(f"{name}: give exactly one of density (kg/m^3) and mass (kg)")
         if self.density is not None:
             self.density = in_range(self.density, f"{name}.density", *DENSITY_RANGE, "kg/m^3")
-            mass = self.density * _uniform(self.shape)[0]
+            volume = _uniform(self.shape)[0]
+            mass = self.density * volume
             if not MASS_RANGE[0] <= mass <= MASS_RANGE[1]:
                 raise ValueError(
                     f"{name}.density = {self.density:g}: gives the body a mass of {mass:.3g} kg, outside "
-                    f"[{MASS_RANGE[0]:g}, {MASS_RANGE[1]:g}] kg (its volume is {_uniform(self.shape)[0]:.3g} m^3)"
+                    f"[{MASS_RANGE[0]:g}, {MASS_RANGE[1]:g}] kg (its volume is {volume:.3g} m^3)"
                 )
         else:
             self.mass = in_range(self.mass, f"{name}.mass", *MASS_RANGE, "kg")
@@ -270,9 +271,7 @@ def _samples(s) -> np.ndarray:
         points, centre = np.asarray(m.vertices)[:: max(1, len(m.vertices) // 200)], np.asarray(m.centroid)
     points = np.vstack([centre + (1.0 - 1e-6) * (points - centre), centre])
     if getattr(s, "motion", None) is not None:
-        lo, hi = s.bounds
-        pivot = s.motion.pivot if s.motion.pivot is not None else 0.5 * (lo + hi)
-        m = s.motion.matrix(0.0, np.asarray(pivot, dtype=np.float64))
+        m = placement(s, 0.0)
         points = points @ m[:3, :3].T + m[:3, 3]
     return points
 

@@ -168,15 +168,21 @@ def shape_mesh(shape) -> "object":
     return mesh
 
 
+def placement(shape, time: float) -> np.ndarray:
+    """The 4x4 rigid transform a moving shape's keyframes give at ``time`` (about its pivot, by
+    default its box's centre)."""
+    lo, hi = shape.bounds
+    pivot = shape.motion.pivot if shape.motion.pivot is not None else 0.5 * (lo + hi)
+    return shape.motion.matrix(time, np.asarray(pivot, dtype=np.float64))
+
+
 def contains(shape, points, time: float = 0.0) -> np.ndarray:
     """Which ``points`` ((P, 3), metres) lie inside ``shape`` where its motion has it at ``time``:
     boxes and spheres exactly, closed meshes by their winding number (an open ``shell`` mesh
     encloses nothing). NumPy only, for checks while a scene is validated."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if shape.motion is not None:  # into the shape's own placement: the inverse of its rigid motion
-        lo, hi = shape.bounds
-        pivot = shape.motion.pivot if shape.motion.pivot is not None else 0.5 * (lo + hi)
-        m = shape.motion.matrix(time, np.asarray(pivot, dtype=np.float64))
+        m = placement(shape, time)
         p = (p - m[:3, 3]) @ m[:3, :3]
     if isinstance(shape, Box):
         lo, hi = shape.bounds

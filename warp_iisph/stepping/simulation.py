@@ -206,7 +206,7 @@ class Simulation:
         rigid = self.model.rigid
         if rigid is None or not rigid.n:
             return None
-        state = {name: getattr(rigid.state, name).numpy().reshape(rigid.n, -1) for name in rigid.fields()}
+        state = rigid.host()
         lo, hi = np.asarray(self.model.domain_lower), np.asarray(self.model.domain_upper)
         for k, name in enumerate(body_names(self.scene.bodies)):
             if not all(np.all(np.isfinite(a[k])) for a in state.values()):
