@@ -344,6 +344,7 @@ def test_meshes_remade_with_other_settings_are_not_mixed_with_the_resumed_runs(k
     made = json.loads(source.read_text())
     del made["settings"]["feature_weights"]  # as an older version wrote it: the key's default is meant
     source.write_text(json.dumps(made))
+    assert main(["mesh", str(kept_copy), "--cell", "1", "--no-progress"]) == 0  # read alike by `mesh`
     assert main([*resume, "--set", "surface.cell=1"]) == 0
     made = json.loads(source.read_text())["settings"]
     assert made["cell"] == 1.0 and len(list((kept_copy / "mesh").glob("frame_*.obj"))) == 6

@@ -65,6 +65,19 @@ def mesh_settings(params: SurfaceSettings, spacing: float) -> dict:
     return {**dataclasses.asdict(params), "spacing": float(spacing)}
 
 
+def recorded_mesh_settings(made: dict | None, spacing: float) -> dict:
+    """The settings a folder's source.json records, a key an older version did not record read as
+    its default (the resume's check and ``mesh``'s read them alike)."""
+    return {**mesh_settings(SurfaceSettings(), spacing), **((made or {}).get("settings") or {})}
+
+
+def same_meshes(made: dict | None, run_id, settings: dict) -> bool:
+    """Whether meshes recorded as ``made`` come from run ``run_id`` with ``settings``."""
+    if made is None or made.get("run_id") != run_id:
+        return False
+    return recorded_mesh_settings(made, settings["spacing"]) == settings
+
+
 def _settings(stored: dict, overrides: dict | None) -> SurfaceSettings:
     """The surface settings: a run's, changed by the command's options (named as options)."""
     known = {f.name for f in dataclasses.fields(SurfaceSettings)}
@@ -104,7 +117,6 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
     mesher = _mesher(spacing, params, device)
     settings = mesh_settings(params, mesher.reconstructor.h)
     made = run.provenance(MESHES)
-    mine = {"run_id": record.get("run_id"), "settings": settings}
     folder = run.path / MESHES
     recover(folder)  # a swap of meshes that a killed process began
     meshes = run.frames(MESHES) if run.has_frames(MESHES) else []
@@ -118,8 +130,8 @@ def _mesh_run(run: RunFolder, overrides, spacing, overwrite: bool, device, progr
                 f"{orphan}: its particle frame is missing, so --overwrite would delete a mesh it cannot make "
                 "again; move it out first"
             )
-    if existing and not overwrite and made != mine:
-        what = "another run" if made and made.get("run_id") != mine["run_id"] else "other settings"
+    if existing and not overwrite and not same_meshes(made, record.get("run_id"), settings):
+        what = "another run" if made and made.get("run_id") != record.get("run_id") else "other settings"
         raise RunError(f"{folder}: holds meshes made from {what}; pass --overwrite to replace them")
     if not (overwrite and folder.exists()):
         run.write_provenance(MESHES, record.get("run_id"), settings)

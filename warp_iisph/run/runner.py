@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..engine import signals
 from ..engine.signals import Terminated
-from ..scene import MeshShape, Scene, SurfaceSettings
+from ..scene import MeshShape, Scene
 from ..scene.checks import in_range
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owner
@@ -40,7 +40,7 @@ from .frame_queue import FrameQueue
 from .frame_writer import FrameWriter
 from .kept import check_kept
 from .lock import FolderLock
-from .meshing import FrameMesher, mesh_settings
+from .meshing import FrameMesher, mesh_settings, recorded_mesh_settings
 from .probe_file import open_probe_file
 from .progress import frame_bar
 from .replace import OutputExistsError, commit, discard, prepare, recover, resolved, stage
@@ -142,7 +142,7 @@ def _check_mesh_settings(run: RunFolder, before: dict, scene: Scene) -> None:
     if not scene.output.mesh or made is None or not run.has_frames(MESHES):
         return
     mine = mesh_settings(scene.surface, scene.spacing)
-    theirs = {**mesh_settings(SurfaceSettings(), scene.spacing), **(made.get("settings") or {})}
+    theirs = recorded_mesh_settings(made, scene.spacing)
     changed = sorted(k for k in mine if theirs.get(k) != mine[k])
     if made.get("run_id") == before.get("run_id") and not changed:
         return
