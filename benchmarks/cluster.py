@@ -23,8 +23,8 @@ benchmarks/results/cluster.json and cluster.png.
 
     python benchmarks/cluster.py [--workers 2] [--quick] [--replot]
 
---quick (proves it works; its times say little): 0.5 s of simulation per variant, 160x90 frames
-at 4 samples. Needs the cluster extra (Dask) and, for the render, the render extra (Mitsuba).
+--quick (proves it works; its times say little): 0.2 s of simulation per variant, 160x90 frames
+at 4 samples, 1 s of idle housekeeping. Needs the cluster extra (Dask) and, for the render, the render extra (Mitsuba).
 """
 
 import argparse
@@ -292,13 +292,13 @@ def main():
         import mitsuba  # noqa: F401
     except ImportError:
         mitsuba = None
-    duration, resolution, spp = (0.5, "160x90", 4) if args.quick else (4.0, "640x360", 16)
+    duration, resolution, spp = (0.2, "160x90", 4) if args.quick else (4.0, "640x360", 16)
     repeats = 1 if args.quick else max(1, args.repeats)
     with tempfile.TemporaryDirectory(prefix="cluster_bench_") as tmp:
         work = Path(tmp)
         # kernels compiled (and cached) before anything is timed
         command("run", *SCENE, "--duration", "0.1", "--mesh", "--out", str(work / "warm"), "--no-progress")
-        idle = housekeeping(args.workers, 3.0 if args.quick else 10.0)
+        idle = housekeeping(args.workers, 1.0 if args.quick else 10.0)
         print(
             f"an idle LocalCluster of {args.workers} takes {idle['cores_taken']:.3f} cores "
             f"({idle['cores_taken_dask_defaults']:.3f} at Dask's own intervals)"
