@@ -4,6 +4,7 @@ one, failures recorded, resumes that run only what is missing, Ctrl-C that stops
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -143,6 +144,8 @@ def test_a_measure_is_a_path_or_a_name_in_the_summary():
         (["martin_moyce", "--vary", "spacing=0.04", "--workers", "0"], "--workers 0"),
         (["martin_moyce", "--vary", "spacing=0.04", "--workers", "2", "--scheduler", "tcp://x:1"], "not allowed"),
         (["martin_moyce", "--vary", "spacing=0.04", "--repeat", "0"], "--repeat 0"),
+        (["martin_moyce", "--vary", "output.duration=0.05,0.1", "--duration", "0.2"], "also given with --duration"),
+        (["martin_moyce", "--vary", "output.fps=10,20", "--fps", "30"], "also given with --fps"),
     ],
 )
 def test_bad_sweep_input_is_one_line_and_touches_nothing(tmp_path, capsys, args, says):
@@ -468,3 +471,36 @@ def test_a_variant_whose_steps_are_too_long_for_the_solve_is_warned_about(tmp_pa
     assert len(warnings["physics.dt=0.01"]) == 1 and warnings["physics.dt=0.002"] == []
     assert main(["sweep", "--resume", str(out), "--no-progress"]) == 0
     assert "variant physics.dt=0.01: mean compression" in capsys.readouterr().err
+
+
+def test_a_sweep_resumed_after_its_scene_changed_is_refused_and_one_sweep_writes_a_folder(tmp_path, capsys):
+    """A resume builds its variants from the scene file again: edited since the sweep began (a
+    variant run before and one run now would be of two scenes) it is refused in one line, nothing
+    run; restored, it resumes. A sweep folder another sweep is writing is refused, naming it."""
+    from warp_iisph.run.lock import FolderLock
+
+    path = tmp_path / "column.toml"
+    text = (
+        'spacing = 0.04\nname = "column"\n[tank]\nlower = [0, 0, 0]\nupper = [0.6, 0.5, 0.2]\n'
+        "[[fluids]]\nlower = [0, 0, 0]\nupper = [0.25, 0.4, 0.2]\n"
+    )
+    path.write_text(text)
+    out = tmp_path / "sweep"
+    args = ["sweep", str(path), "--vary", "physics.viscosity=0.02,0.05", "--duration", "0.05", "--no-progress"]
+    assert main([*args, "--out", str(out)]) == 0
+    first = (out / "physics.viscosity=0.02" / "run.json").read_bytes()
+    shutil.rmtree(out / "physics.viscosity=0.05")  # as if the sweep had stopped before it
+    path.write_text(text.replace("0.25, 0.4", "0.25, 0.3"))  # a lower column
+    capsys.readouterr()
+    resume = ["sweep", "--resume", str(out), "--no-progress"]
+    assert main(resume) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "changed since the sweep began" in err, err
+    assert not (out / "physics.viscosity=0.05" / "run.json").exists()
+    path.write_text(text)
+    with FolderLock(tmp_path / "sweep", "sweep folder"):  # another sweep writing it
+        assert main(resume) == 2
+        assert "in use by PID" in capsys.readouterr().err
+    assert main(resume) == 0 and (out / "physics.viscosity=0.02" / "run.json").read_bytes() == first
+    assert json.loads((out / "physics.viscosity=0.05" / "run.json").read_text())["ended"] == "completed"
+    assert not (out / ".warp-iisph.lock").exists()

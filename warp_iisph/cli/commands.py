@@ -290,8 +290,10 @@ def _sweep(args) -> int:
             from ..engine.devices import checked_device
 
             checked_device("cuda")
-    with open_workers(args.scheduler, args.workers, args.threads, gpu=record["device"] == "cuda") as workers:
-        record = sw.run_sweep(record, out, workers, progress=not args.no_progress)
+    with sw.claim(out, resume=bool(args.resume)) as record_now:  # one sweep writes a sweep folder at a time
+        record = record_now or record
+        with open_workers(args.scheduler, args.workers, args.threads, gpu=record["device"] == "cuda") as workers:
+            record = sw.run_sweep(record, out, workers, progress=not args.no_progress)
     variants = record["variants"]
     ran = record["sessions"][-1]["variants_run"]
     counts = ", ".join(f"{n} {state}" for state, n in record["counts"].items())

@@ -18,6 +18,7 @@ by ``--resume``.
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import hashlib
 import itertools
@@ -28,11 +29,12 @@ import sys
 import time
 from pathlib import Path
 
-from ..scene import load_scene
+from ..scene import load_scene, scene_fingerprint, scene_to_dict
 from ..scene.file import parse_value
 from ..scene.library import bundled_scenes, resolve_scene
 from .atomic import write_json
 from .folder import RECORD, RunError, run_around
+from .lock import LOCK_NAME, FolderLock
 from .progress import frame_bar
 from .run_record import blank_record, run_warnings
 from .runner import Terminated, plan_frames
@@ -147,6 +149,32 @@ def overrides(record: dict, entry: dict) -> list[str]:
     return list(record["set"]) + [f"{k}={v}" for k, v in entry["settings"].items()]
 
 
+def scene_digest(scene: str, sets) -> str:
+    """A hash of the scene the variants are built from (the scene file with the sweep's ``--set``,
+    every key, and its mesh files' contents): a resume whose scene changed would mix variants of
+    two scenes in one sweep."""
+    built = load_scene(scene, list(sets))
+    whole = {"scene": scene_to_dict(built), "meshes": scene_fingerprint(built)["meshes"]}
+    return hashlib.sha256(json.dumps(whole, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def check_scene_unchanged(record: dict, where) -> None:
+    """``RunError`` when the scene of sweep ``record`` is not the one its variants were run from (a
+    sweep of an older version, with no digest, is not checked)."""
+    taken = record.get("scene_digest")
+    if taken is None:
+        return
+    try:
+        now = scene_digest(record["scene"], record["set"])
+    except ValueError as e:
+        raise RunError(f"{where}: its scene no longer builds: {e}") from None
+    if now != taken:
+        raise RunError(
+            f"{where}: its scene {record['scene']} (or a mesh file it reads) changed since the sweep began; "
+            "the variants run now would not be comparable with those run before: restore it, or start a new sweep"
+        )
+
+
 # --- sweep.json ------------------------------------------------------------------------------------
 
 
@@ -168,6 +196,9 @@ def plan_sweep(
     if not 1 <= repeat <= MAX_REPEAT:
         raise ValueError(f"--repeat {repeat}: must be in [1, {MAX_REPEAT}]")
     vary = parse_vary(vary_specs, sets)
+    for key, option, given in (("output.duration", "--duration", duration), ("output.fps", "--fps", fps)):
+        if given is not None and key in vary:
+            raise ValueError(f"--vary {key}: also given with {option}")
     if not vary and repeat == 1:
         raise ValueError("--vary KEY=V1,V2,...: at least one (or --repeat N to time one setting N times)")
     count = math.prod(len(v) for v in vary.values()) * repeat
@@ -186,6 +217,7 @@ def plan_sweep(
         "device": device,
         "graph": graph,
         "measure": measure,
+        "scene_digest": scene_digest(scene, sets),
         "ended": "pending",
         "message": "",
         "sessions": [],
@@ -268,6 +300,24 @@ def load_sweep(path) -> dict:
             raise RunError(f"{file}: variants[{k}].settings: not a variant's settings; the file was edited")
         names.add(name)
     return record
+
+
+@contextlib.contextmanager
+def claim(out, resume: bool):
+    """Hold sweep folder ``out``'s lock while a sweep writes it (``FolderBusy`` naming the sweep
+    that holds it). Under the lock a new sweep's folder is checked to be still empty, and a
+    resumed one's record is read again (yielded) and its scene checked unchanged."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    with FolderLock(out, "sweep folder"):
+        if resume:
+            record = load_sweep(out)
+            check_scene_unchanged(record, out / SWEEP)
+            yield record
+        else:
+            if any(p.name != LOCK_NAME for p in out.iterdir()):  # another sweep began here meanwhile
+                raise RunError(f"--out {out}: folder exists and is not empty")
+            yield None
 
 
 def save(record: dict, out: Path) -> None:
