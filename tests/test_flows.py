@@ -179,3 +179,18 @@ def test_a_thin_sink_catches_a_fast_jet():
         sim.advance(1 / 30)
         assert sim.n_particles == 0 or sim.positions[:, 0].max() < 0.44
     assert sim.flows.removed > 100
+
+
+def test_a_jet_at_the_top_of_its_allowed_speed_is_not_taken_for_a_divergence():
+    """An emitter may shoot at up to 100 m/s (scenes.md); the derived divergence limit is at least
+    3 times the fastest stream where it lands (with a body's start speed), so a 40 m/s jet into a
+    0.5 m tank (limit 31 m/s from the tank alone) runs; a set physics.max_velocity still rules."""
+    scene = jet_scene(duration=0.01)
+    scene.emitters[0].speed = 40.0
+    sim = Simulation(scene, "cpu")
+    fall = np.sqrt(40.0**2 + 2.0 * 9.81 * 0.3)
+    assert sim.loop.velocity_limit == pytest.approx(3.0 * fall, rel=1e-3)  # from the domain's floor
+    sim.advance(0.01)
+    assert sim.n_particles > 0 and np.abs(sim.velocities).max() < 41.0
+    scene.physics.max_velocity = 35.0
+    assert Simulation(scene, "cpu").loop.velocity_limit == 35.0

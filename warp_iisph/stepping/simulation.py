@@ -21,8 +21,9 @@ from .probing import ProbeSampler, ProbeSamples
 from .time_loop import TimeLoop
 
 # The derived velocity limit is at least this many times the fastest point of a body at its start
-# (a body thrown into the liquid: its splash may outrun it).
-BODY_SPEED_MARGIN = 3.0
+# and the fastest emitted stream where it lands (a body or a jet thrown into the liquid: its splash
+# may outrun it).
+START_SPEED_MARGIN = 3.0
 
 
 class DivergenceError(RuntimeError):
@@ -89,17 +90,19 @@ class Simulation:
             top2 = wp.zeros(1, dtype=float, device=self.model.device)
             self.model.rigid.speeds(top2)
             body_top = math.sqrt(float(top2.numpy()[0]))
-        velocity_limit = self.physics.max_velocity or max(
-            10.0, 10.0 * math.sqrt(2.0 * g * height), BODY_SPEED_MARGIN * body_top
-        )
         # Gravity-driven flows reach about sqrt(2 g y_top) (y_top: the liquid's top above the floor). The
         # CFL rule uses at least that speed, so the first steps, taken from rest, are not so long
         # that IISPH's linearised density prediction breaks down near the walls.
         x = self.state.x.numpy()[: self.state.n].astype(np.float64)
         fall = float((x @ up).max()) - floor if len(x) else 0.0
         speed = math.sqrt(2.0 * g * max(fall, 0.0))
-        for e in self.scene.emitters:  # an emitted stream falls from its nozzle
-            speed = max(speed, math.sqrt(e.speed**2 + 2.0 * g * max(float(np.asarray(e.center) @ up) - floor, 0.0)))
+        jet = 0.0  # an emitted stream falls from its nozzle
+        for e in self.scene.emitters:
+            jet = max(jet, math.sqrt(e.speed**2 + 2.0 * g * max(float(np.asarray(e.center) @ up) - floor, 0.0)))
+        speed = max(speed, jet)
+        velocity_limit = self.physics.max_velocity or max(
+            10.0, 10.0 * math.sqrt(2.0 * g * height), START_SPEED_MARGIN * max(body_top, jet)
+        )
         self.flows = Flows(self.scene, self.state, self.device)
         self.flows.emit(self.time)  # the layers due at the start are there from the start
         self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)
