@@ -1,5 +1,8 @@
 """Out-of-range parameters raise a ValueError naming the field and the allowed range."""
 
+import os
+
+import numpy as np
 import pytest
 
 from warp_iisph import Box, Scene, Simulation, scenes
@@ -66,3 +69,42 @@ def test_touching_blocks_and_spheres_are_accepted():
     sim = Simulation(s, "cpu")
     assert sim.n_particles > 0
     assert abs(sim.n_particles * 0.02**3 - (0.2 + 4 / 3 * 3.14159 * 0.2**3)) < 0.01
+
+
+def test_a_misspelt_key_or_keys_beside_a_body_are_refused_not_ignored():
+    """Setting a key a record does not have (``physics.etaa``) would be ignored without a word, as
+    would keys given beside a ready Body: both refused, naming them."""
+    from warp_iisph.scene import Body
+
+    s = scenes.martin_moyce(spacing=0.02)
+    with pytest.raises(AttributeError, match=r"Physics.etaa: no such key; the keys are .*\beta\b"):
+        s.physics.etaa = 0.1
+    with pytest.raises(AttributeError, match=r"Scene.spacng: no such key"):
+        s.spacng = 0.01
+    s.physics.eta = 0.002  # a real key as before
+    body = Body(Box((0.3, 0.1, 0.05), (0.4, 0.2, 0.15)), density=500.0)
+    with pytest.raises(ValueError, match=r"add_body: a Body carries its own keys; mass given beside it"):
+        s.add_body(body, mass=3.0)
+
+
+def test_a_mesh_file_edited_between_simulations_is_read_again(tmp_path):
+    """A Scene whose obstacle mesh file is replaced on disk builds its next Simulation from the new
+    file (it was read once and kept), checked again as a new one would be."""
+    import trimesh
+
+    from warp_iisph import MeshShape
+
+    path = tmp_path / "rock.obj"
+    trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(path)
+    s = Scene(spacing=0.02, tank=Box((0, 0, 0), (0.6, 0.4, 0.3)), name="rock")
+    s.add_fluid_box((0, 0, 0), (0.2, 0.2, 0.3))
+    s.add_obstacle(MeshShape("rock.obj", translate=(0.4, 0.1, 0.15), base_dir=str(tmp_path)))
+    small = Simulation(s, "cpu").model.n_boundary
+    trimesh.creation.box(extents=(0.2, 0.2, 0.2)).export(path)
+    os.utime(path, ns=(1, 1))  # even with the old time stamp: the size and inode say it changed
+    assert Simulation(s, "cpu").model.n_boundary > small
+    open_box = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    open_box.update_faces(np.arange(len(open_box.faces)) > 1)  # one side taken off: not closed
+    open_box.export(path)
+    with pytest.raises(ValueError, match=r"obstacles\[0\].path = 'rock.obj': .*closed"):
+        Simulation(s, "cpu")

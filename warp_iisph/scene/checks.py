@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import unicodedata
 
@@ -29,6 +30,12 @@ class Record:
     (setting a field to the value it has, as validating it again does, is no change)."""
 
     def __setattr__(self, name, value):
+        if not name.startswith("_") and dataclasses.is_dataclass(self):
+            keys = {f.name for f in dataclasses.fields(self)}
+            if name not in keys:  # a misspelt key would be ignored without a word
+                raise AttributeError(
+                    f"{type(self).__name__}.{name}: no such key; the keys are {', '.join(sorted(keys))}"
+                )
         if self.__dict__.get("_frozen") and not name.startswith("_") and not _same(self.__dict__.get(name), value):
             raise AttributeError(
                 f"{type(self).__name__}.{name}: read-only, a Simulation's own validated copy of the scene; "

@@ -67,7 +67,10 @@ class Scene(Record):
 
     def add_body(self, shape, **keys) -> "Scene":
         """A free rigid body of ``shape`` (a Box, Sphere or closed MeshShape) with ``density`` or
-        ``mass`` and the optional keys of :class:`~warp_iisph.scene.bodies.Body`."""
+        ``mass`` and the optional keys of :class:`~warp_iisph.scene.bodies.Body`, or a ``Body``
+        (with no keys: its own are used)."""
+        if isinstance(shape, Body) and keys:
+            raise ValueError(f"add_body: a Body carries its own keys; {', '.join(sorted(keys))} given beside it")
         self.bodies.append(shape if isinstance(shape, Body) else Body(shape, **keys))
         return self
 
@@ -266,7 +269,9 @@ class Scene(Record):
             )
 
     def _fingerprint(self) -> str:
-        return repr(dataclasses.asdict(self))
+        """The scene's values and its mesh files' stamps: an edited mesh file is validated again."""
+        shapes = [self.tank, *self.obstacles, *(getattr(b, "shape", None) for b in self.bodies)]
+        return repr((dataclasses.asdict(self), [s.stamp() for s in shapes if isinstance(s, MeshShape)]))
 
 
 def _check_obstacle_names(obstacles: list) -> None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
@@ -120,13 +122,20 @@ class MeshShape(Record):
         if not np.all(np.isfinite(mesh.bounds)) or float(np.max(np.abs(mesh.bounds))) > MAX_COORDINATE:
             raise ValueError(f"{name}.scale = {self.scale!r}: puts the mesh beyond {MAX_COORDINATE:g} m of the origin")
 
+    def stamp(self) -> tuple | None:
+        """The mesh file's modification time, size and inode (``None`` when it cannot be read): a
+        file edited or replaced since it was read is read again."""
+        try:
+            st = os.stat(Path(self.base_dir) / self.path)
+        except (OSError, ValueError):
+            return None
+        return (st.st_mtime_ns, st.st_size, st.st_ino)
+
     def load(self, name: str = "mesh"):
-        """The transformed ``trimesh.Trimesh``, read once per file and transform."""
-        key = (self.path, self.base_dir, self.translate, self.rotate, self.scale)
+        """The transformed ``trimesh.Trimesh``, read once per file (as it is on disk) and transform."""
+        key = (self.path, self.base_dir, self.translate, self.rotate, self.scale, self.stamp())
         if getattr(self, "_loaded", (None, None))[0] == key:
             return self._loaded[1]
-        from pathlib import Path
-
         import trimesh
 
         path = Path(self.base_dir) / self.path
