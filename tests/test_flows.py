@@ -194,3 +194,34 @@ def test_a_jet_at_the_top_of_its_allowed_speed_is_not_taken_for_a_divergence():
     assert sim.n_particles > 0 and np.abs(sim.velocities).max() < 41.0
     scene.physics.max_velocity = 35.0
     assert Simulation(scene, "cpu").loop.velocity_limit == 35.0
+
+
+def test_a_full_liquid_warns_a_python_caller_once_and_until_is_checked():
+    """Through the Python API an emitter that finds no room says so once (LiquidFullWarning), as a
+    run says so in run.json; ``until`` (the run's length the room is sized for) is a number of
+    seconds in [0, 1e6], and the other arguments are checked alike."""
+    import warnings
+
+    from warp_iisph import LiquidFullWarning
+
+    scene = jet_scene(duration=0.05)
+    scene.emitters[0].end = None
+    sim = Simulation(scene, "cpu")
+    with pytest.warns(LiquidFullWarning, match=r"emitters\[0\]: no room for its layer due at t = 0.06 s") as caught:
+        sim.advance(0.1)
+    assert len(caught) == 1 and sim.flows.refused > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Simulation(scene, "cpu", until=0.2).advance(0.1)  # room for it: no warning
+    for bad, says in [
+        (dict(until=-1.0), r"until = -1.0: must be in \[0, 1e\+06\]"),
+        (dict(until=float("nan")), r"until = nan"),
+        (dict(until="x"), r"until = 'x'"),
+        (dict(history=0), r"history = 0: must be None"),
+        (dict(probe_history="x"), r"probe_history = 'x'"),
+        (dict(device="gpu"), r"device gpu: unknown device; choose one of cpu, cuda"),
+    ]:
+        with pytest.raises(ValueError, match=says):
+            Simulation(scene, **bad)
+    with pytest.raises(TypeError, match=r"scene: a Scene \(or load_scene\(path\) of a scene file\), not str"):
+        Simulation("jet.toml")

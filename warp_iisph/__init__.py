@@ -12,7 +12,7 @@ __version__ = "0.1.0"
 # command line (warp_iisph.cli) takes over Ctrl-C first, and starts (or reports bad input) before
 # NumPy and Warp load.
 _SCENE = ("Body", "Box", "Camera", "MeshShape", "Output", "Physics", "Probe", "Scene", "Sphere", "load_scene")
-_STEPPING = ("Simulation", "DivergenceError")
+_STEPPING = ("Simulation", "DivergenceError", "LiquidFullWarning")
 
 
 def __getattr__(name: str):

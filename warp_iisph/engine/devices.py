@@ -13,19 +13,19 @@ def device_name(name: str) -> str:
     return "cuda:0" if name == "cuda" else name
 
 
-def checked_device(name: str) -> str:
-    """``device_name(name)``, after checking that this machine has it (``ValueError`` naming the
-    choices otherwise)."""
+def checked_device(name: str, option: str = "--device") -> str:
+    """``device_name(name)``, after checking that this machine has it (``ValueError`` naming
+    ``option`` and the choices otherwise)."""
     import warp as wp
 
     device = device_name(name)
     if device.startswith("cuda") and not wp.is_cuda_available():
-        raise ValueError(f"--device {name}: no CUDA device is available on this machine; use --device cpu")
+        raise ValueError(f"{option} {name}: no CUDA device is available on this machine; use cpu")
     try:
         wp.get_device(device)
     except (RuntimeError, ValueError):
         known = ", ".join(["cpu", "cuda"] + [d.alias for d in wp.get_cuda_devices()])
-        raise ValueError(f"--device {name}: unknown device; choose one of {known}") from None
+        raise ValueError(f"{option} {name}: unknown device; choose one of {known}") from None
     return device
 
 

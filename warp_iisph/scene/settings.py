@@ -26,6 +26,7 @@ PARTICLE_FORMATS = ("ply", "vtu")  # output.format: binary PLY (splashsurf reads
 # a step of 1e-300 s would need 1e300 steps to reach a frame, and below about 1e-10 s a step no
 # longer moves a float64 clock at long times.
 MIN_STEP = 1.0e-7
+MAX_DURATION = 1.0e6  # simulated seconds: output.duration and a Simulation's until
 
 
 @dataclass
@@ -89,7 +90,7 @@ class Output(Record):
 
     def validate(self) -> None:
         self.fps = in_range(self.fps, "output.fps", 0.0, 10_000.0, "frames per simulated second", lo_open=True)
-        self.duration = in_range(self.duration, "output.duration", 0.0, 1.0e6, "simulated seconds", lo_open=True)
+        self.duration = in_range(self.duration, "output.duration", 0.0, MAX_DURATION, "simulated seconds", lo_open=True)
         self.particles = flag(self.particles, "output.particles")
         self.mesh = flag(self.mesh, "output.mesh")
         c = self.checkpoint_every

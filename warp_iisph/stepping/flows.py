@@ -14,6 +14,7 @@ of the positions, at each check and at the end of every ``Simulation.advance`` (
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import warp as wp
@@ -74,6 +75,11 @@ def emit_layer(
     ids[i] = first_id + k
 
 
+class LiquidFullWarning(RuntimeWarning):
+    """An emitter's layer was left out: the particles' room (sized for the run's length, or
+    ``max_particles``) is full."""
+
+
 def has_flows(scene) -> bool:
     """Whether ``scene`` has emitters or sinks: what its :class:`Flows` is true for (and a run's
     totals then count what came in and went out)."""
@@ -100,6 +106,7 @@ class Flows:
         self.next_time = [e.start for e in self.emitters]
         self.emitted = 0
         self.refused = 0  # particles an emitter could not add: the state was full
+        self.warn_full = True  # a LiquidFullWarning at the first refusal (a run says so in run.json instead)
         self.blocked = 0  # particles of layers skipped: liquid sat at the nozzle
         self.removed = 0
         self.reach = BLOCKED * h
@@ -136,6 +143,15 @@ class Flows:
                 layer = self.layers[k]
                 m = layer.shape[0]
                 if s.count + m > s.capacity:
+                    if self.refused == 0 and self.warn_full:
+                        warnings.warn(
+                            LiquidFullWarning(
+                                f"emitters[{k}]: no room for its layer due at t = {self.next_time[k]:.4g} s: the liquid holds its most, "
+                                f"{s.capacity} particles (sized by max_particles, or by the emitters' flow until the "
+                                "run's end: Simulation(scene, until=SECONDS)); layers due from now on are left out"
+                            ),
+                            stacklevel=2,
+                        )
                     self.refused += m
                 elif self._blocked(e, layer, self.extents[k]):
                     self.blocked += m

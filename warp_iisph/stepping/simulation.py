@@ -9,10 +9,11 @@ from typing import Callable, Optional
 import numpy as np
 import warp as wp
 
-from ..engine.devices import init_warp
+from ..engine.devices import checked_device, init_warp
 from ..scene import Scene
 from ..scene.bodies import body_names
-from ..scene.settings import MIN_STEP
+from ..scene.checks import in_range
+from ..scene.settings import MAX_DURATION, MIN_STEP
 from ..setup import build_model
 from ..sph.solvers import make_solver
 from .flows import Flows
@@ -24,6 +25,15 @@ from .time_loop import TimeLoop
 # and the fastest emitted stream where it lands (a body or a jet thrown into the liquid: its splash
 # may outrun it).
 START_SPEED_MARGIN = 3.0
+
+
+def _count(value, name: str) -> int | None:
+    """A record count (``history``, ``probe_history``): ``None`` (all) or a whole number >= 1."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} = {value!r}: must be None (keep every record) or a whole number >= 1")
+    return int(value)
 
 
 class DivergenceError(RuntimeError):
@@ -61,7 +71,15 @@ class Simulation:
         writes them to disk keeps the last few, so memory stays flat); ``probe_history`` the same
         for the probes' samples (``probes``). ``until``: how long it will run (s), for the room
         emitters need (default: the scene's ``output.duration``)."""
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene: a Scene (or load_scene(path) of a scene file), not {type(scene).__name__}")
+        history, probe_history = (
+            _count(n, name) for n, name in ((history, "history"), (probe_history, "probe_history"))
+        )
+        if until is not None:
+            until = in_range(until, "until", 0.0, MAX_DURATION, "simulated seconds")
         init_warp()
+        device = checked_device(str(device), "device")
         # its own validated copy, read-only: a change to the scene (or to sim.physics) after this
         # point would otherwise reach the run without validation
         self.scene = scene.frozen_copy()
@@ -75,7 +93,7 @@ class Simulation:
             self.state.carry(name, array)
         self.time = 0.0
         self.step_count = 0
-        self.stats: list[dict] | deque = [] if history is None else deque(maxlen=max(1, int(history)))
+        self.stats: list[dict] | deque = [] if history is None else deque(maxlen=history)
         # heights are taken against gravity, whichever way it points (y up when it has none)
         g_vector = np.asarray(self.physics.gravity, dtype=np.float64)
         g = float(np.linalg.norm(g_vector))
