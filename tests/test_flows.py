@@ -214,12 +214,12 @@ def test_a_full_liquid_warns_a_python_caller_once_and_until_is_checked():
         warnings.simplefilter("error")
         Simulation(scene, "cpu", until=0.2).advance(0.1)  # room for it: no warning
     for bad, says in [
-        (dict(until=-1.0), r"until = -1.0: must be in \[0, 1e\+06\]"),
-        (dict(until=float("nan")), r"until = nan"),
-        (dict(until="x"), r"until = 'x'"),
-        (dict(history=0), r"history = 0: must be None"),
-        (dict(probe_history="x"), r"probe_history = 'x'"),
-        (dict(device="gpu"), r"device gpu: unknown device; choose one of cpu, cuda"),
+        ({"until": -1.0}, r"until = -1.0: must be in \[0, 1e\+06\]"),
+        ({"until": float("nan")}, r"until = nan"),
+        ({"until": "x"}, r"until = 'x'"),
+        ({"history": 0}, r"history = 0: must be None"),
+        ({"probe_history": "x"}, r"probe_history = 'x'"),
+        ({"device": "gpu"}, r"device gpu: unknown device; choose one of cpu, cuda"),
     ]:
         with pytest.raises(ValueError, match=says):
             Simulation(scene, **bad)

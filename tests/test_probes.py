@@ -186,6 +186,9 @@ def test_probes_are_the_same_bits_on_every_path_and_leave_the_run_unchanged(tmp_
     assert load.shape == (len(reference), 12) and np.array_equal(load[:, 3], plain.probes["load.Fv_x"])
     with pytest.raises(KeyError, match="no such probe"):
         plain.probes["loa"]
+    assert "load" in plain.probes and "load.Mp_z" in plain.probes
+    assert "loa" not in plain.probes and 0 not in plain.probes
+    assert list(plain.probes) == plain.probes.keys() == plain.probes.names and len(plain.probes) == len(reference)
 
 
 def test_a_normal_too_long_for_a_float_is_still_a_direction_and_probes_edited_in_a_run_are_not_resumed(

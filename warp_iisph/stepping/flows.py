@@ -144,14 +144,13 @@ class Flows:
                 m = layer.shape[0]
                 if s.count + m > s.capacity:
                     if self.refused == 0 and self.warn_full:
-                        warnings.warn(
-                            LiquidFullWarning(
-                                f"emitters[{k}]: no room for its layer due at t = {self.next_time[k]:.4g} s: the liquid holds its most, "
-                                f"{s.capacity} particles (sized by max_particles, or by the emitters' flow until the "
-                                "run's end: Simulation(scene, until=SECONDS)); layers due from now on are left out"
-                            ),
-                            stacklevel=2,
+                        due, room = self.next_time[k], s.capacity
+                        text = (
+                            f"emitters[{k}]: no room for its layer due at t = {due:.4g} s: the liquid holds its most, "
+                            f"{room} particles (sized by max_particles, or by the emitters' flow until the run's "
+                            "end: Simulation(scene, until=SECONDS)); layers due from now on are left out"
                         )
+                        warnings.warn(LiquidFullWarning(text), stacklevel=2)
                     self.refused += m
                 elif self._blocked(e, layer, self.extents[k]):
                     self.blocked += m

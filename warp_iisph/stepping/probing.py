@@ -277,11 +277,27 @@ class ProbeSamples:
         order ``NAME.Fp_x .. NAME.Mv_z``)."""
         if name in self.names:
             return self.array()[:, 1 + self.names.index(name)]
-        force = {f"{name}.{part}_{axis}" for part in FORCE_PARTS for axis in "xyz"}
-        of_probe = [1 + k for k, n in enumerate(self.names) if n in force]
+        of_probe = self._probe_columns(name) if isinstance(name, str) else []
         if not of_probe:
             raise KeyError(f"{name!r}: no such probe or probe column ({', '.join(self.names)})")
         return self.array()[:, of_probe]
+
+    def _probe_columns(self, name) -> list[int]:
+        """The log's columns of a force probe ``name`` (its twelve), or none."""
+        force = {f"{name}.{part}_{axis}" for part in FORCE_PARTS for axis in "xyz"}
+        return [1 + k for k, n in enumerate(self.names) if n in force]
+
+    def __contains__(self, name) -> bool:
+        """Whether ``name`` is a column or a force probe's name (``sim.probes[name]`` then reads it)."""
+        return isinstance(name, str) and (name in self.names or bool(self._probe_columns(name)))
+
+    def keys(self) -> list[str]:
+        """The columns' names, as probes.csv's header has them (without ``t``)."""
+        return list(self.names)
+
+    def __iter__(self):
+        """The columns' names (as a table's columns; ``len`` counts the samples)."""
+        return iter(self.keys())
 
     def as_dict(self) -> dict[str, np.ndarray]:
         """``{"t": times, name: values, ...}``."""
