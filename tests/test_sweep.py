@@ -504,3 +504,33 @@ def test_a_sweep_resumed_after_its_scene_changed_is_refused_and_one_sweep_writes
     assert main(resume) == 0 and (out / "physics.viscosity=0.02" / "run.json").read_bytes() == first
     assert json.loads((out / "physics.viscosity=0.05" / "run.json").read_text())["ended"] == "completed"
     assert not (out / ".warp-iisph.lock").exists()
+
+
+@pytest.mark.parametrize(
+    "edit, says",
+    [
+        (lambda r: r.update(measure=5), "measure = 5"),
+        (lambda r: r.update(vary=["physics.eta"]), "vary = "),
+        (lambda r: r.update(repeat="2"), "repeat = '2'"),
+        (lambda r: r.update(duration=-1), "duration = -1"),
+        (lambda r: r["variants"][0].update(settings={"physics.max_velocity": "9"}), "variants[0].settings"),
+        (lambda r: r["variants"][0].update(settings={"physics.eta": "0.5"}), "variants[0].settings"),
+        (lambda r: r["variants"][0].update(repeat="x"), "variants[0].settings"),
+    ],
+)
+def test_a_hand_edited_sweep_record_is_refused_in_one_line_before_anything_runs(tmp_path, capsys, edit, says):
+    """sweep.json's fields are checked when it is resumed (a measure that is not a name, settings
+    that are not of the sweep's --vary, ...): exit 2 naming the field, nothing run (they were
+    internal errors, one after the variants had run)."""
+    out = tmp_path / "sweep"
+    out.mkdir()
+    entries = [{"name": "physics.eta=0.01", "settings": {"physics.eta": "0.01"}, "repeat": 1, "ended": "pending"}]
+    record = {"scene": "martin_moyce", "set": [], "vary": {"physics.eta": ["0.01"]}, "repeat": 1, "duration": 0.1}
+    record.update(fps=None, device="cpu", graph=False, measure="totals.mean_compression", variants=entries)
+    edit(record)
+    (out / "sweep.json").write_text(json.dumps(record))
+    capsys.readouterr()
+    assert main(["sweep", "--resume", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and says in err and "the file was edited" in err, err
+    assert [p.name for p in out.iterdir()] == ["sweep.json"]

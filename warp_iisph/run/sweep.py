@@ -287,6 +287,8 @@ def load_sweep(path) -> dict:
     inside = run_around(path)
     if inside is not None:  # its variants' runs would sit inside another run's folder
         raise RunError(f"{path}: inside the run folder {inside}; move the sweep out of it to resume it")
+    _check_record_fields(record, file)
+    record.setdefault("vary", {})
     names = set()
     for k, entry in enumerate(record["variants"]):
         # each variant's folder is overwritten when it runs: its name must be one folder inside the sweep's
@@ -296,10 +298,40 @@ def load_sweep(path) -> dict:
                 f"{file}: variants[{k}].name = {name!r:.80}: not a variant folder's name "
                 "(letters, digits and ._=,+~- in one folder inside the sweep's, each once); the file was edited"
             )
-        if not isinstance(entry.get("settings"), dict):
-            raise RunError(f"{file}: variants[{k}].settings: not a variant's settings; the file was edited")
+        settings = entry.get("settings")
+        if (
+            not isinstance(settings, dict)
+            or list(settings) != list(record["vary"])
+            or any(v not in record["vary"][key] for key, v in settings.items())
+            or type(entry.get("repeat", 1)) is not int
+            or entry.get("repeat", 1) < 1
+        ):
+            raise RunError(
+                f"{file}: variants[{k}].settings: not settings of the sweep's 'vary' (or a repeat); the file was edited"
+            )
         names.add(name)
     return record
+
+
+def _check_record_fields(record: dict, file: Path) -> None:
+    """``RunError`` naming the first field of a sweep record that is not what a sweep writes."""
+    number = lambda v: v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0)  # noqa: E731
+    fields = {
+        "scene": lambda v: isinstance(v, str) and bool(v),
+        "set": lambda v: isinstance(v, list) and all(isinstance(a, str) for a in v),
+        "vary": lambda v: (
+            isinstance(v, dict) and all(isinstance(x, list) and all(isinstance(a, str) for a in x) for x in v.values())
+        ),
+        "repeat": lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_REPEAT,
+        "duration": number,
+        "fps": number,
+        "device": lambda v: isinstance(v, str),
+        "graph": lambda v: isinstance(v, bool),
+        "measure": lambda v: isinstance(v, str),
+    }
+    for key, ok in fields.items():
+        if key in record and not ok(record[key]):
+            raise RunError(f"{file}: {key} = {record[key]!r:.80}: not what a sweep writes there; the file was edited")
 
 
 @contextlib.contextmanager
