@@ -211,11 +211,22 @@ def test_a_normal_too_long_for_a_float_is_still_a_direction_and_probes_edited_in
     # moved a last bit of [0.81, 0.82, 0]'s, and the resume saw other probes than the run's)
     assert main([*args, "--overwrite", "--set", "probes.0.normal=[0.81,0.82,0]"]) == 0
     assert main(["run", "--resume", str(out), "--duration", "0.15", "--no-progress"]) == 0
-    record = json.loads((out / "run.json").read_text())
+    kept = (out / "run.json").read_bytes()
+    record = json.loads(kept)
     record["scene"]["probes"][1]["position"][1] += 0.01
     (out / "run.json").write_text(json.dumps(record))
     assert main(["run", "--resume", str(out), "--duration", "0.2", "--no-progress"]) == 2
     assert "other probes than" in capsys.readouterr().err
+    (out / "run.json").write_bytes(kept)  # nor at another interval: probes.csv's rows keep one
+    assert (
+        main(["run", "--resume", str(out), "--duration", "0.2", "--no-progress", "--set", "output.probe_interval=0.02"])
+        == 2
+    )
+    assert (
+        "probes were read every 0 s (0: every step), this resume would read them every 0.02 s"
+        in capsys.readouterr().err
+    )
+    assert main(["run", "--resume", str(out), "--duration", "0.2", "--no-progress"]) == 0
 
 
 def test_probe_interval_samples_the_first_step_at_or_after_each_multiple(tmp_path):

@@ -204,6 +204,12 @@ def check_checkpoint(state: dict, run: RunFolder, record: dict, scene, fps: floa
             f"{where}: was taken with other probes than {run.record_path} records; "
             "probes.csv's columns would mix two sets of sensors"
         )
+    if "probe_interval" in taken and taken["probe_interval"] != now["probe_interval"]:  # none before 2026-12-05
+        raise RunError(
+            f"{where}: its probes were read every {taken['probe_interval']:g} s (0: every step), this resume "
+            f"would read them every {now['probe_interval']:g} s; probes.csv keeps one interval: resume without "
+            "changing output.probe_interval"
+        )
     try:
         _check_values(state, fps, float(record.get("duration") or 0.0), scene)
     except ValueError as e:

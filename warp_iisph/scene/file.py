@@ -274,7 +274,7 @@ GEOMETRY_KEYS = ("spacing", "tank", "fluids", "obstacles", "emitters", "sinks", 
 def scene_fingerprint(scene: Scene) -> dict:
     """What a checkpoint was taken of: a hash of the scene's geometry (its table, mesh paths
     included), of each mesh file's contents, by key (``tank``, ``obstacles[0]``), and of its probes,
-    so that a resume can say what changed."""
+    with their sampling interval, so that a resume can say what changed."""
     table = scene_to_dict(scene)
     # a scene without bodies hashes as it did before they existed
     parts = {k: table.get(k) for k in GEOMETRY_KEYS if k in table or k != "bodies"}
@@ -295,6 +295,8 @@ def scene_fingerprint(scene: Scene) -> dict:
         "geometry": hashlib.sha256(geometry.encode()).hexdigest(),
         "meshes": meshes,
         "probes": hashlib.sha256(probes.encode()).hexdigest(),
+        # and how often they were read: probes.csv's rows keep one interval
+        "probe_interval": float(scene.output.probe_interval) if scene.probes else None,
     }
 
 
