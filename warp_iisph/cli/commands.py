@@ -291,7 +291,8 @@ def _sweep(args) -> int:
 
             checked_device("cuda")
     with sw.claim(out, resume=bool(args.resume)) as record_now:  # one sweep writes a sweep folder at a time
-        record = record_now or record
+        if record_now is not None:  # read again under the lock, with the measure checked above
+            record = {**record_now, "measure": record["measure"]}
         with open_workers(args.scheduler, args.workers, args.threads, gpu=record["device"] == "cuda") as workers:
             record = sw.run_sweep(record, out, workers, progress=not args.no_progress)
     variants = record["variants"]
