@@ -18,9 +18,8 @@ Each particle's ``depth`` below the surface is kept: the contacts' samples (``sp
 from __future__ import annotations
 
 import numpy as np
-import warp as wp
 
-from .rasterize import sample_mesh
+from .rasterize import surface_layers
 from .sampling import _box_shell
 
 
@@ -138,74 +137,6 @@ def _sphere_layers(center: np.ndarray, radius: float, h: float) -> tuple[np.ndar
     )
 
 
-@wp.kernel
-def project_inwards(
-    mesh: wp.uint64,
-    points: wp.array(dtype=wp.vec3),
-    depth: float,
-    out: wp.array(dtype=wp.vec3),
-    kept_depth: wp.array(dtype=float),
-):
-    """Point i moved to the closest surface point and inwards by ``depth``, or to the middle of a
-    part thinner than twice that (its depth there kept)."""
-    i = wp.tid()
-    p = points[i]
-    q = wp.mesh_query_point_sign_normal(mesh, p, 1.0e6)
-    c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
-    n = wp.mesh_eval_face_normal(mesh, q.face)  # outwards (the faces are wound so)
-    d = depth
-    ray = wp.mesh_query_ray(mesh, c - 1.0e-6 * n, -n, 1.0e6)
-    if ray.result:
-        d = wp.min(depth, 0.5 * ray.t)
-    out[i] = c - d * n
-    kept_depth[i] = d
-
-
 def _mesh_layers(mesh, h: float, device) -> tuple[np.ndarray, np.ndarray]:
     mesh = _oriented(mesh)
-    cells = sample_mesh(mesh.vertices, mesh.faces, h, device)
-    m = wp.Mesh(
-        points=wp.array(np.asarray(mesh.vertices, np.float32), dtype=wp.vec3, device=device),
-        indices=wp.array(np.asarray(mesh.faces, np.int32).reshape(-1), dtype=wp.int32, device=device),
-    )
-    src = wp.array(cells.astype(np.float32), dtype=wp.vec3, device=device)
-    layers, depths = [], []
-    for depth in (0.5 * h, h):
-        out = wp.zeros(len(cells), dtype=wp.vec3, device=device)
-        kept = wp.zeros(len(cells), dtype=float, device=device)
-        wp.launch(project_inwards, dim=len(cells), inputs=[m.id, src, float(depth), out, kept], device=device)
-        p, d = out.numpy().astype(np.float64), kept.numpy().astype(np.float64)
-        if depth > 0.5 * h:  # the second layer only where the body is thick enough for it
-            p, d = p[d >= depth * (1 - 1e-6)], d[d >= depth * (1 - 1e-6)]
-        layers.append(p)
-        depths.append(d)
-    points, depth = np.concatenate(layers), np.concatenate(depths)
-    keep = _thinned(points, 0.5 * h)
-    return points[keep], depth[keep]
-
-
-def _thinned(points: np.ndarray, least: float) -> np.ndarray:
-    """Indices of points, in order, each at least ``least`` from every one kept before it."""
-    cell = np.floor(points / least).astype(np.int64)
-    kept: dict = {}
-    out = []
-    for i, key in enumerate(map(tuple, cell)):
-        p = points[i]
-        near = False
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                for dz in (-1, 0, 1):
-                    for j in kept.get((key[0] + dx, key[1] + dy, key[2] + dz), ()):
-                        if np.dot(points[j] - p, points[j] - p) < least * least:
-                            near = True
-                            break
-                    if near:
-                        break
-                if near:
-                    break
-            if near:
-                break
-        if not near:
-            kept.setdefault(key, []).append(i)
-            out.append(i)
-    return np.asarray(out, dtype=np.int64)
+    return surface_layers(mesh.vertices, mesh.faces, h, device, sign=1.0)

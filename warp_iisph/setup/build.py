@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..engine.memory import host_memory_room
-from ..scene import Box, Scene, shape_mesh
+from ..scene import Box, MeshShape, Scene, shape_mesh
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
 from ..sph.neighbors import FIRST_STRIDE, LIST_ENTRIES_LIMIT, cell_order, make_grid
@@ -16,7 +16,7 @@ from ..sph.rigid import RigidBodies
 from .bodies import sample_body
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
-from .rasterize import clear_fluid, sample_mesh
+from .rasterize import clear_fluid, sample_mesh, surface_layers
 from .sampling import sample_box_faces, sample_fluid, sample_tank_walls
 
 # Largest initial compression (fraction of rho0) a fluid particle beside a mesh may start with.
@@ -118,9 +118,9 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, devic
     obstacle (open ``shell`` meshes have no inside to keep fluid out of) and every free body (its
     mesh from its centre of mass, in its pose)."""
     solids = []
-    if not isinstance(scene.tank, Box):
+    if not isinstance(scene.tank, Box):  # its wall, the inner boundary layer, h/2 outside its surface
         m = meshes[id(scene.tank)]
-        solids.append((m.vertices, m.faces, -1, True))
+        solids.append((m.vertices, m.faces, -1, True, 0.5 * h))
     body = 0
     for o in scene.obstacles:
         m = meshes.get(id(o)) or shape_mesh(o)
@@ -128,9 +128,10 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, devic
         if o.motion is not None:
             k, body = body, body + 1
         if m.is_watertight and not getattr(o, "shell", False):
-            # a box sampled by faces has its wall, the inner boundary layer, h/2 inside its faces
-            depth = 0.5 * h if getattr(o, "sampling", "cells") == "faces" else 0.0
-            solids.append((m.vertices, m.faces, k, False, depth))
+            # its wall is its inner boundary layer, h/2 inside its surface, where it has layers (a
+            # box sampled by faces, a closed mesh: :func:`_sample_surface`), else its surface
+            layered = getattr(o, "sampling", "cells") == "faces" or isinstance(o, MeshShape)
+            solids.append((m.vertices, m.faces, k, False, 0.5 * h if layered else 0.0))
     for f in free:
         solids.append((f["vertices"], f["faces"], body, False))
         body += 1
@@ -152,6 +153,22 @@ def _shape_meshes(scene: Scene) -> dict:
     """The triangle mesh of every mesh tank and obstacle, built or read once, by ``id`` of the shape."""
     shapes = ([] if isinstance(scene.tank, Box) else [scene.tank]) + list(scene.obstacles)
     return {id(s): shape_mesh(s) for s in shapes}
+
+
+def _sample_surface(shape, mesh, scene: Scene, h: float, device) -> np.ndarray:
+    """A mesh obstacle's or container's boundary particles: a closed mesh's two layers behind its
+    surface, on the solid's side (inside an obstacle, outside the container;
+    :func:`~warp_iisph.setup.rasterize.surface_layers`); an open shell's, and a box's or a
+    sphere's sampled by ``cells``, one per grid cell its faces cross (a box obstacle's layers
+    behind its faces are ``sampling = "faces"``)."""
+    if not isinstance(shape, MeshShape) or shape.shell or not mesh.is_watertight:
+        return sample_mesh(mesh.vertices, mesh.faces, h, device)
+    import trimesh
+
+    oriented = mesh.copy()
+    trimesh.repair.fix_normals(oriented)  # wound outwards, whatever the file's winding
+    sign = -1.0 if shape is scene.tank else 1.0
+    return surface_layers(oriented.vertices, oriented.faces, h, device, sign)[0]
 
 
 def _placed(motion, points: np.ndarray, time: float) -> np.ndarray:
@@ -181,7 +198,7 @@ def sample_scene(
     sampled = [
         sample_box_faces(s, h)
         if getattr(s, "sampling", "cells") == "faces"
-        else sample_mesh(m.vertices, m.faces, h, device)
+        else _sample_surface(s, m, scene, h, device)
         for s, m in zip(shapes, trimeshes)
     ]
     labels = ([] if box_tank else [-1]) + list(range(len(scene.obstacles)))

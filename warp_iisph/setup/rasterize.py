@@ -1,11 +1,19 @@
-"""Triangle meshes as boundary particles, as the report samples obstacles.
+"""Triangle meshes as boundary particles.
 
 Each triangle is rasterised into a grid of cell size ``h``: only the cells of its bounding box
 are visited and each is kept when the triangle overlaps it (the separating-axis triangle/box test
-of Akenine-Moller 2001). Every occupied cell gives one boundary particle at its centre, so a
-surface is covered without gaps wider than ``h`` however thin or stretched its triangles are.
-Two kernel passes (count, then fill after a scan) write the cell keys; duplicates, where
-triangles share a cell, are removed on the host.
+of Akenine-Moller 2001). Every occupied cell gives one point at its centre, so a surface is
+covered without gaps wider than ``h`` however thin or stretched its triangles are. Two kernel
+passes (count, then fill after a scan) write the cell keys; duplicates, where triangles share a
+cell, are removed on the host. An open shell keeps those points as its particles.
+
+A closed surface is sampled behind itself instead (:func:`surface_layers`): each point moved to
+the closest surface point and from there by ``h/2`` and by ``h`` to the solid's side (inwards for
+an obstacle or a body, outwards for a container), as a box tank's two layers lie ``h/2`` and
+``h`` outside its faces, so the weights ``psi`` calibrated on those walls hold (one layer of cell
+centres outweighed the liquid it replaces by 8 % of rho0 at one spacing), and where the cell
+centres fall (up to ``h/2`` either side of a surface, with how its faces meet the grid) no longer
+moves where the liquid rests.
 
 Fluid particles that would overlap an obstacle are removed by :func:`clear_fluid`: those inside a
 closed mesh (winding number) and those closer than one spacing to a boundary particle.
@@ -105,13 +113,14 @@ def rasterize_triangles(
         count[t] = n
 
 
-def sample_mesh(vertices: np.ndarray, faces: np.ndarray, h: float, device="cpu") -> np.ndarray:
+def sample_mesh(vertices: np.ndarray, faces: np.ndarray, h: float, device="cpu", pairs: bool = False):
     """Boundary particles of a triangle mesh: the centres of the grid cells (size ``h``, aligned
-    to the origin) that its triangles overlap, each cell once. Returns an (N, 3) float64 array."""
+    to the origin) that its triangles overlap, each cell once. Returns an (N, 3) float64 array;
+    with ``pairs``, every (cell centre, triangle index) a triangle claims, cells repeated."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int32).reshape(-1, 3)
     if len(faces) == 0:
-        return np.zeros((0, 3))
+        return (np.zeros((0, 3)), np.zeros(0, dtype=np.int64)) if pairs else np.zeros((0, 3))
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ValueError(f"mesh face indices must lie in [0, {len(vertices) - 1}] (the vertex count)")
     if not np.all(np.isfinite(vertices)):
@@ -135,9 +144,13 @@ def sample_mesh(vertices: np.ndarray, faces: np.ndarray, h: float, device="cpu")
     total = int(start.numpy()[-1] + count.numpy()[-1])
     keys = wp.zeros(max(total, 1), dtype=wp.int64, device=device)
     wp.launch(rasterize_triangles, dim=len(faces), inputs=[*args, 1, count, keys], device=device)
-    k = np.unique(keys.numpy()[:total])
+    k = keys.numpy()[:total]
+    if pairs:  # every cell with the triangle that claimed it
+        triangles = np.repeat(np.arange(len(faces)), count.numpy())
+    else:
+        k = np.unique(k)
     ijk = np.stack([k % dims[0], (k // dims[0]) % dims[1], k // (dims[0] * dims[1])], axis=1) + lo
-    return (ijk + 0.5) * h
+    return ((ijk + 0.5) * h, triangles) if pairs else (ijk + 0.5) * h
 
 
 @wp.kernel
@@ -191,3 +204,143 @@ def clear_fluid(
     # Slightly under h: a fluid lattice point exactly one spacing from a wall particle stays.
     wp.launch(fluid_clearance, dim=len(x), inputs=[xd, grid.id, xbd, 0.999 * h, ids, solid, keep], device=device)
     return x[keep.numpy().astype(bool)]
+
+
+@wp.func
+def _room_behind(mesh: wp.uint64, c: wp.vec3, n: wp.vec3, depth: float) -> float:
+    """``depth``, or half the solid's thickness behind surface point ``c`` along ``-n`` where that
+    is less (a ray that only grazes a face meeting ``c``'s at an edge is no wall behind it)."""
+    eps = 1.0e-4 * depth
+    d = depth
+    ray = wp.mesh_query_ray(mesh, c - eps * n, -n, 1.0e6)
+    if ray.result and ray.t > eps:
+        d = wp.min(depth, 0.5 * (ray.t + eps))
+    return d
+
+
+@wp.func
+def _checked_depth(mesh: wp.uint64, x: wp.vec3, d: float, sign: float) -> float:
+    """``d`` when point ``x`` lies on the solid's side at least that far from the surface, -1 when
+    not (a cell that only touches a triangle at an edge, carried along its normal onto the face
+    beside it)."""
+    q = wp.mesh_query_point_sign_normal(mesh, x, 1.0e6)
+    gap = wp.length(x - wp.mesh_eval_position(mesh, q.face, q.u, q.v))
+    if q.sign * sign > 0.0 or gap < d * (1.0 - 1.0e-3):
+        return -1.0
+    return d
+
+
+@wp.kernel
+def depth_behind(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), sign: float, out: wp.array(dtype=float)):
+    """Point i's distance from the surface where it lies on the solid's side (``sign`` +1: inside)
+    behind an edge or a corner (its way from the closest surface point not along that face's
+    normal: behind a face the faces' own layers lie), -1 elsewhere."""
+    i = wp.tid()
+    q = wp.mesh_query_point_sign_normal(mesh, points[i], 1.0e6)
+    away = points[i] - wp.mesh_eval_position(mesh, q.face, q.u, q.v)
+    out[i] = -1.0
+    if q.sign * sign < 0.0:
+        if wp.length(wp.cross(away, wp.mesh_eval_face_normal(mesh, q.face))) > 1.0e-3 * wp.length(away):
+            out[i] = wp.length(away)
+
+
+@wp.kernel
+def layer_behind(
+    mesh: wp.uint64,
+    surface: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    depth: float,
+    sign: float,
+    out: wp.array(dtype=wp.vec3),
+    kept_depth: wp.array(dtype=float),
+):
+    """Surface point i moved ``depth`` against ``normal`` (from the solid towards the liquid), or
+    to the middle of a part thinner than twice that (its depth there kept)."""
+    i = wp.tid()
+    c = surface[i]
+    n = normal[i]
+    d = _room_behind(mesh, c, n, depth)
+    out[i] = c - d * n
+    kept_depth[i] = _checked_depth(mesh, c - d * n, d, sign)
+
+
+def surface_layers(vertices, faces, h: float, device, sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary particles ``h/2`` and ``h`` behind a closed surface wound outwards (``sign`` +1:
+    inside it, -1: outside it), the second layer only where there is room for it, particles
+    closer than ``h/2`` to one kept left out (the second layer behind a face is kept: it lies
+    ``h/2`` behind the first); and each one's depth behind the surface."""
+    import trimesh
+
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64).reshape(-1, 3)
+    cells, of = sample_mesh(vertices, faces, h, device, pairs=True)
+    triangles = vertices[faces]
+    # each cell onto each triangle whose plane it projects into (every face gets the points of its
+    # own cells, also beside an edge where a cell is nearer the other face), behind it along its
+    # normal
+    on_face = trimesh.triangles.closest_point(triangles[of], cells)
+    unit = trimesh.triangles.normals(triangles)[0][of]
+    in_plane = cells - np.einsum("ij,ij->i", cells - triangles[of][:, 0], unit)[:, None] * unit
+    within = np.linalg.norm(on_face - in_plane, axis=1) <= 1.0e-6 * h
+    on_face, normals = on_face[within], unit[within] * sign
+    m = wp.Mesh(
+        points=wp.array(vertices.astype(np.float32), dtype=wp.vec3, device=device),
+        indices=wp.array(faces.astype(np.int32).reshape(-1), dtype=wp.int32, device=device),
+    )
+    c = wp.array(on_face.astype(np.float32), dtype=wp.vec3, device=device)
+    n = wp.array(normals.astype(np.float32), dtype=wp.vec3, device=device)
+    layers, depths = [], []
+    for depth in (0.5 * h, h):
+        out = wp.zeros(len(on_face), dtype=wp.vec3, device=device)
+        kept = wp.zeros(len(on_face), dtype=float, device=device)
+        args = [m.id, c, n, float(depth), float(sign), out, kept]
+        wp.launch(layer_behind, dim=len(on_face), inputs=args, device=device)
+        p, d = out.numpy().astype(np.float64), kept.numpy().astype(np.float64)
+        ok = d >= (depth * (1 - 1e-6) if depth > 0.5 * h else 0.0)  # the second layer where there is room
+        layers.append(p[ok])
+        depths.append(d[ok])
+    # where the layers behind the faces leave a gap (behind an edge: a container's outside corner,
+    # which no face's layer reaches), points of the grid on the solid's side behind an edge, as a
+    # box tank's two staggered layers fill its corners: cell centres h/2 to h from the edge, cell
+    # corners h to h sqrt(2) from it (the outer layer's corner)
+    steps = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    index = np.unique(np.round(np.unique(cells, axis=0) / h - 0.5).astype(np.int64), axis=0)
+    near = np.unique((index[:, None, :] + steps).reshape(-1, 3), axis=0)
+    for offset, lo, hi in ((0.5, 0.5 * h, h), (0.0, h * (1 + 2e-3), np.sqrt(2.0) * h)):
+        grid_points = (near + offset) * h
+        gap = wp.zeros(len(grid_points), dtype=float, device=device)
+        points_in = wp.array(grid_points.astype(np.float32), dtype=wp.vec3, device=device)
+        wp.launch(depth_behind, dim=len(grid_points), inputs=[m.id, points_in, float(sign), gap], device=device)
+        gap = gap.numpy().astype(np.float64)
+        fill = (gap >= lo * (1 - 1e-3)) & (gap <= hi * (1 + 1e-3))
+        layers.append(grid_points[fill])
+        depths.append(gap[fill])
+    points, depth = np.concatenate(layers), np.concatenate(depths)
+    keep = thinned(points, 0.5 * h * (1.0 - 1.0e-3))  # a second layer h/2 behind the first stays
+    return points[keep], depth[keep]
+
+
+def thinned(points: np.ndarray, least: float) -> np.ndarray:
+    """Indices of points, in order, each at least ``least`` from every one kept before it."""
+    cell = np.floor(points / least).astype(np.int64)
+    kept: dict = {}
+    out = []
+    for i, key in enumerate(map(tuple, cell)):
+        p = points[i]
+        near = False
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    for j in kept.get((key[0] + dx, key[1] + dy, key[2] + dz), ()):
+                        if np.dot(points[j] - p, points[j] - p) < least * least:
+                            near = True
+                            break
+                    if near:
+                        break
+                if near:
+                    break
+            if near:
+                break
+        if not near:
+            kept.setdefault(key, []).append(i)
+            out.append(i)
+    return np.asarray(out, dtype=np.int64)
