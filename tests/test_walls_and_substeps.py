@@ -196,12 +196,13 @@ upper = [0.25, 0.4, 0.2]
 def test_the_compression_warning_names_the_setting_that_sets_the_steps():
     from warp_iisph.run.run_record import COMPRESSION_WARNING, run_warnings
 
-    def warnings(compression, unconverged=0, **physics):
+    def warnings(compression, unconverged=0, probes=(), **physics):
         import dataclasses
 
         totals = {"steps": 100, "mean_compression": compression, "unconverged_steps": unconverged}
         totals["worst_unconverged_error"] = 0.01
-        return run_warnings({"totals": totals, "scene": {"physics": dataclasses.asdict(Physics(**physics))}})
+        scene = {"physics": dataclasses.asdict(Physics(**physics)), "probes": [{"kind": k} for k in probes]}
+        return run_warnings({"totals": totals, "scene": scene})
 
     eta = Physics().eta
     assert warnings(0.99 * COMPRESSION_WARNING * eta) == []
@@ -209,6 +210,11 @@ def test_the_compression_warning_names_the_setting_that_sets_the_steps():
     assert "shorten physics.dt (now 0.003 s)" in warnings(0.01, dt=0.003)[0]
     assert "raise physics.max_iterations" in warnings(0.01, 3, dt=0.003, substeps=False)[1]
     assert warnings(0.01, method="wcsph") == []  # WCSPH's compression is set by its stiffness
+    # pressure sensors beside Akinci's walls (a hostile pass: 30-36 % high at rest) are warned of
+    assert warnings(0.0, probes=["pressure", "level"]) == []
+    assert "1 pressure probe read the liquid's layer" in warnings(0.0, probes=["pressure"], method="dfsph")[0]
+    assert 'physics.wall_pressure = "fluid"' in warnings(0.0, probes=["pressure"] * 2, wall_pressure="fluid")[0]
+    assert warnings(0.0, probes=["level"], method="dfsph") == []
 
 
 def test_step_rules_take_heights_along_gravity_whichever_way_it_points():

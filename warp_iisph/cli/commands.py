@@ -211,8 +211,9 @@ def _run(args) -> int:
         + f", mean {t['mean_iterations']:.1f} iterations, "
         f"mean compression {100 * t['mean_compression']:.3f} %"
         + (
-            f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back "
-            f"within the walls in {t['corrected_steps']} steps"
+            f", {t['wall_corrections'] + t['obstacle_corrections']} particles put back by the last line "
+            f"({t['wall_corrections']} at the tank's walls, {t['obstacle_corrections']} at obstacles and bodies) "
+            f"in {t['corrected_steps']} steps"
             if t.get("corrected_steps")
             else ""
         )
