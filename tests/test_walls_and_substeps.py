@@ -5,7 +5,7 @@ resumed paths agreeing bitwise."""
 import numpy as np
 import pytest
 
-from warp_iisph import Box, Physics, Scene, Simulation, scenes
+from warp_iisph import Box, Physics, Scene, Simulation, load_scene, scenes
 from warp_iisph.analysis.dam_break import surge_front
 from warp_iisph.sph.solvers.forces import viscous_dt_limit
 
@@ -249,3 +249,29 @@ def test_a_level_gauge_needs_gravity_along_minus_y():
     scene.physics = Physics(gravity=(-9.81, 0.0, 0.0))
     with pytest.raises(ValueError, match=r"probes\[0\]: a level gauge reads the water's height along y"):
         scene.validate()
+
+
+def test_a_liquid_too_small_for_the_default_viscosity_is_warned_about():
+    """The default viscosity (a kinematic 0.01 m^2/s, validated in tanks of 0.1-1 m) makes a few
+    centimetres of water flow like honey (a hostile pass: a 4 cm column's front crossed 3 cm in
+    0.15 s, not 0.04 s): sqrt(g H) H / nu below 5 is warned of, naming the key; Martin & Moyce's
+    11.4 cm column (12) and every bundled scene are not."""
+    import dataclasses
+
+    from warp_iisph.run.run_record import liquid_reynolds, run_warnings
+    from warp_iisph.scene import scene_to_dict
+    from warp_iisph.scene.library import bundled_scenes
+
+    def record(height, **physics):
+        scene = {"physics": dataclasses.asdict(Physics(**physics))}
+        scene["fluids"] = [{"shape": "box", "lower": [0, 0, 0], "upper": [0.02, height, 0.02]}]
+        totals = {"steps": 10, "mean_compression": 0.0, "unconverged_steps": 0}
+        return {"totals": totals, "scene": scene}
+
+    (warning,) = run_warnings(record(0.04))
+    assert "physics.viscosity = 0.05 (a kinematic 0.01 m^2/s)" in warning and "= 2.5," in warning
+    assert run_warnings(record(0.04, viscosity=0.002)) == [] and run_warnings(record(0.114)) == []
+    assert liquid_reynolds(record(0.114)["scene"]) == pytest.approx(12.05, abs=0.01)
+    for name in bundled_scenes():
+        reynolds = liquid_reynolds(scene_to_dict(load_scene(name)))
+        assert reynolds is None or reynolds > 25.0, name

@@ -3,6 +3,7 @@ totals over the step records, rewritten at every frame and however the run ends.
 
 from __future__ import annotations
 
+import math
 import platform
 import sys
 import time
@@ -188,6 +189,31 @@ class StepTotals:
         }
 
 
+# physics.viscosity is the coefficient of the report's form; the kinematic viscosity it gives
+KINEMATIC = 0.2
+# below this sqrt(g H) H / nu the liquid's own fall is slower than the viscosity spreads it
+# (Martin & Moyce's 11.4 cm column, validated at the default: 12; a 4 cm one: 2.5, honey-like)
+VISCOUS_REYNOLDS = 5.0
+
+
+def liquid_reynolds(scene: dict) -> float | None:
+    """``sqrt(g H) H / nu`` of a scene table's tallest block of liquid (``H`` its height along
+    gravity, ``nu`` the kinematic viscosity); ``None`` without liquid blocks, gravity or viscosity."""
+    ph = scene["physics"]
+    g = math.sqrt(sum(c * c for c in ph["gravity"]))
+    nu = KINEMATIC * ph["viscosity"]
+    heights = []
+    for f in scene.get("fluids") or ():
+        if "radius" in f:
+            heights.append(2.0 * f["radius"])
+        elif "lower" in f and "upper" in f and g > 0.0:
+            heights.append(sum(abs(c) / g * (b - a) for c, a, b in zip(ph["gravity"], f["lower"], f["upper"])))
+    if not heights or g <= 0.0 or nu <= 0.0:
+        return None
+    height = max(heights)
+    return math.sqrt(g * height) * height / nu
+
+
 def run_warnings(record: dict) -> list[str]:
     """What a finished run's record (``run.json``: its totals and its scene's physics) says its
     user should know, one sentence each: particles the emitters could not add, steps that stopped
@@ -219,6 +245,14 @@ def run_warnings(record: dict) -> list[str]:
         warnings.append(
             f"mean compression {100 * compression:.3f} %, {compression / eta:.1f} times eta = {100 * eta:g} %: "
             f"the steps are too long for the pressure solve to hold the density; {cure}"
+        )
+    reynolds = liquid_reynolds(record["scene"])
+    if reynolds is not None and reynolds < VISCOUS_REYNOLDS:
+        warnings.append(
+            f"the viscosity dominates a liquid this small: physics.viscosity = {ph['viscosity']:g} (a kinematic "
+            f"{KINEMATIC * ph['viscosity']:g} m^2/s) against its height gives sqrt(g H) H / nu = {reynolds:.1f}, "
+            "so it flows like honey; the default suits tanks of 0.1-1 m: lower physics.viscosity for a "
+            "smaller one (docs/scenes.md)"
         )
     sensors = sum(1 for pr in record["scene"].get("probes") or () if pr.get("kind") == "pressure")
     akinci = ph["method"] == "dfsph" or (ph["method"] == "iisph" and ph.get("wall_pressure") == "fluid")
