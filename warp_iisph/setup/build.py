@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..engine.memory import host_memory_room
-from ..scene import Box, MeshShape, Scene, shape_mesh
+from ..scene import Box, Scene, shape_mesh
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
 from ..sph.neighbors import FIRST_STRIDE, LIST_ENTRIES_LIMIT, cell_order, make_grid
@@ -130,7 +130,7 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, devic
         if m.is_watertight and not getattr(o, "shell", False):
             # its wall is its inner boundary layer, h/2 inside its surface, where it has layers (a
             # box sampled by faces, a closed mesh: :func:`_sample_surface`), else its surface
-            layered = getattr(o, "sampling", "cells") == "faces" or isinstance(o, MeshShape)
+            layered = getattr(o, "sampling", "cells") == "faces"
             solids.append((m.vertices, m.faces, k, False, 0.5 * h if layered else 0.0))
     for f in free:
         solids.append((f["vertices"], f["faces"], body, False))
@@ -156,19 +156,20 @@ def _shape_meshes(scene: Scene) -> dict:
 
 
 def _sample_surface(shape, mesh, scene: Scene, h: float, device) -> np.ndarray:
-    """A mesh obstacle's or container's boundary particles: a closed mesh's two layers behind its
-    surface, on the solid's side (inside an obstacle, outside the container;
-    :func:`~warp_iisph.setup.rasterize.surface_layers`); an open shell's, and a box's or a
-    sphere's sampled by ``cells``, one per grid cell its faces cross (a box obstacle's layers
-    behind its faces are ``sampling = "faces"``)."""
-    if not isinstance(shape, MeshShape) or shape.shell or not mesh.is_watertight:
+    """A mesh container's boundary particles: two layers outside its surface
+    (:func:`~warp_iisph.setup.rasterize.surface_layers`), as a box tank's walls lie outside its
+    faces; an obstacle's (a mesh, or a box or sphere sampled by ``cells``), one per grid cell its
+    faces cross (a box obstacle's layers inside its faces are ``sampling = "faces"``). Obstacles
+    keep the cells: sampled in layers, the bundled dam break's submarine let the liquid 1 h nearer
+    under impact (39 particles put back past its inner layer in 1 s, the fastest particle 4.9 m/s
+    against 3.5) than the cells do (none); not measured further yet."""
+    if shape is not scene.tank or not mesh.is_watertight:
         return sample_mesh(mesh.vertices, mesh.faces, h, device)
     import trimesh
 
     oriented = mesh.copy()
     trimesh.repair.fix_normals(oriented)  # wound outwards, whatever the file's winding
-    sign = -1.0 if shape is scene.tank else 1.0
-    return surface_layers(oriented.vertices, oriented.faces, h, device, sign)[0]
+    return surface_layers(oriented.vertices, oriented.faces, h, device, -1.0)[0]
 
 
 def _placed(motion, points: np.ndarray, time: float) -> np.ndarray:

@@ -5,15 +5,15 @@ are visited and each is kept when the triangle overlaps it (the separating-axis 
 of Akenine-Moller 2001). Every occupied cell gives one point at its centre, so a surface is
 covered without gaps wider than ``h`` however thin or stretched its triangles are. Two kernel
 passes (count, then fill after a scan) write the cell keys; duplicates, where triangles share a
-cell, are removed on the host. An open shell keeps those points as its particles.
+cell, are removed on the host. An obstacle keeps those points as its particles.
 
-A closed surface is sampled behind itself instead (:func:`surface_layers`): each point moved to
-the closest surface point and from there by ``h/2`` and by ``h`` to the solid's side (inwards for
-an obstacle or a body, outwards for a container), as a box tank's two layers lie ``h/2`` and
-``h`` outside its faces, so the weights ``psi`` calibrated on those walls hold (one layer of cell
-centres outweighed the liquid it replaces by 8 % of rho0 at one spacing), and where the cell
-centres fall (up to ``h/2`` either side of a surface, with how its faces meet the grid) no longer
-moves where the liquid rests.
+A mesh tank and a free mesh body are sampled behind their surface instead (:func:`surface_layers`):
+each point moved onto the triangles whose plane it projects into and from there by ``h/2`` and by
+``h`` to the solid's side (outwards for a container, inwards for a body), as a box tank's two
+layers lie ``h/2`` and ``h`` outside its faces, so the weights ``psi`` calibrated on those walls
+hold (one layer of cell centres outweighs the liquid it replaces by 8 % of rho0 at one spacing)
+and where the cell centres fall (up to ``h/2`` either side of a surface, with how its faces meet
+the grid) no longer moves where the liquid rests.
 
 Fluid particles that would overlap an obstacle are removed by :func:`clear_fluid`: those inside a
 closed mesh (winding number) and those closer than one spacing to a boundary particle.
