@@ -209,7 +209,7 @@ def test_a_full_liquid_warns_a_python_caller_once_and_until_is_checked():
     sim = Simulation(scene, "cpu")
     with pytest.warns(LiquidFullWarning, match=r"emitters\[0\]: no room for its layer due at t = 0.06 s") as caught:
         sim.advance(0.1)
-    assert len(caught) == 1 and sim.flows.refused > 0
+    assert len(caught) == 1 and sim.flows.refused > 0 and caught[0].filename == __file__  # the caller's line
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         Simulation(scene, "cpu", until=0.2).advance(0.1)  # room for it: no warning

@@ -14,6 +14,8 @@ of the positions, at each check and at the end of every ``Simulation.advance`` (
 from __future__ import annotations
 
 import math
+import os
+import sys
 import warnings
 
 import numpy as np
@@ -78,6 +80,16 @@ def emit_layer(
 class LiquidFullWarning(RuntimeWarning):
     """An emitter's layer was left out: the particles' room (sized for the run's length, or
     ``max_particles``) is full."""
+
+
+def _caller_level() -> int:
+    """The ``stacklevel`` of a warning raised here that names the first line outside the package
+    (the user's ``sim.advance``), whatever path of the package's own calls led here."""
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    frame, level = sys._getframe(1), 1
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package + os.sep):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def has_flows(scene) -> bool:
@@ -150,7 +162,7 @@ class Flows:
                             f"{room} particles (sized by max_particles, or by the emitters' flow until the run's "
                             "end: Simulation(scene, until=SECONDS)); layers due from now on are left out"
                         )
-                        warnings.warn(LiquidFullWarning(text), stacklevel=2)
+                        warnings.warn(LiquidFullWarning(text), stacklevel=_caller_level())
                     self.refused += m
                 elif self._blocked(e, layer, self.extents[k]):
                     self.blocked += m
