@@ -149,11 +149,10 @@ def overrides(record: dict, entry: dict) -> list[str]:
     return list(record["set"]) + [f"{k}={v}" for k, v in entry["settings"].items()]
 
 
-def scene_digest(scene: str, sets) -> str:
-    """A hash of the scene the variants are built from (the scene file with the sweep's ``--set``,
-    every key, and its mesh files' contents): a resume whose scene changed would mix variants of
-    two scenes in one sweep."""
-    built = load_scene(scene, list(sets))
+def scene_digest(built) -> str:
+    """A hash of the scene the variants are built from (the scene file built with the sweep's
+    ``--set``: every key, and its mesh files' contents): a resume whose scene changed would mix
+    variants of two scenes in one sweep."""
     whole = {"scene": scene_to_dict(built), "meshes": scene_fingerprint(built)["meshes"]}
     return hashlib.sha256(json.dumps(whole, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -165,7 +164,7 @@ def check_scene_unchanged(record: dict, where) -> None:
     if taken is None:
         return
     try:
-        now = scene_digest(record["scene"], record["set"])
+        now = scene_digest(load_scene(record["scene"], list(record["set"])))
     except ValueError as e:
         raise RunError(f"{where}: its scene no longer builds: {e}") from None
     if now != taken:
@@ -207,6 +206,7 @@ def plan_sweep(
     source = resolve_scene(scene)
     # a bundled scene is kept by name (found on every worker), a file by its absolute path
     scene = scene if bundled_scenes().get(scene) == source else str(source.resolve())
+    base = load_scene(scene, list(sets))
     record = {
         "scene": scene,
         "set": list(sets),
@@ -217,7 +217,7 @@ def plan_sweep(
         "device": device,
         "graph": graph,
         "measure": measure,
-        "scene_digest": scene_digest(scene, sets),
+        "scene_digest": scene_digest(base),
         "ended": "pending",
         "message": "",
         "sessions": [],
@@ -227,7 +227,7 @@ def plan_sweep(
     names = [e["name"] for e in record["variants"]]
     if len(set(names)) != len(names):  # only a hash collision could do it
         raise ValueError("--vary: two variants would share a folder name")
-    out = Path(out) if out is not None else Path("sweeps") / load_scene(scene, list(sets)).name
+    out = Path(out) if out is not None else Path("sweeps") / base.name
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: is a file, not a folder")
     inside = run_around(out)

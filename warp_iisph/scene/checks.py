@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import unicodedata
 
@@ -31,7 +32,7 @@ class Record:
 
     def __setattr__(self, name, value):
         if not name.startswith("_") and dataclasses.is_dataclass(self):
-            keys = {f.name for f in dataclasses.fields(self)}
+            keys = _keys(type(self))
             if name not in keys:  # a misspelt key would be ignored without a word
                 raise AttributeError(
                     f"{type(self).__name__}.{name}: no such key; the keys are {', '.join(sorted(keys))}"
@@ -42,6 +43,12 @@ class Record:
                 "change the Scene and build a new Simulation"
             )
         object.__setattr__(self, name, value)
+
+
+@functools.lru_cache(maxsize=None)
+def _keys(cls) -> frozenset:
+    """A record class's keys (its dataclass fields), read once per class."""
+    return frozenset(f.name for f in dataclasses.fields(cls))
 
 
 def _same(a, b) -> bool:

@@ -128,8 +128,8 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, devic
         if o.motion is not None:
             k, body = body, body + 1
         if m.is_watertight and not getattr(o, "shell", False):
-            # its wall is its inner boundary layer, h/2 inside its surface, where it has layers (a
-            # box sampled by faces, a closed mesh: :func:`_sample_surface`), else its surface
+            # a box sampled by faces has its wall, the inner boundary layer, h/2 inside its faces;
+            # an obstacle sampled on its cells, its surface
             layered = getattr(o, "sampling", "cells") == "faces"
             solids.append((m.vertices, m.faces, k, False, 0.5 * h if layered else 0.0))
     for f in free:
@@ -155,16 +155,9 @@ def _shape_meshes(scene: Scene) -> dict:
     return {id(s): shape_mesh(s) for s in shapes}
 
 
-def _sample_surface(shape, mesh, scene: Scene, h: float, device) -> np.ndarray:
-    """A mesh container's boundary particles: two layers outside its surface
-    (:func:`~warp_iisph.setup.rasterize.surface_layers`), as a box tank's walls lie outside its
-    faces; an obstacle's (a mesh, or a box or sphere sampled by ``cells``), one per grid cell its
-    faces cross (a box obstacle's layers inside its faces are ``sampling = "faces"``). Obstacles
-    keep the cells: sampled in layers, the bundled dam break's submarine let the liquid 1 h nearer
-    under impact (39 particles put back past its inner layer in 1 s, the fastest particle 4.9 m/s
-    against 3.5) than the cells do (none); not measured further yet."""
-    if shape is not scene.tank or not mesh.is_watertight:
-        return sample_mesh(mesh.vertices, mesh.faces, h, device)
+def _mesh_tank_layers(mesh, h: float, device) -> np.ndarray:
+    """A mesh container's boundary particles: two layers outside its surface, as a box tank's
+    walls lie outside its faces (:func:`~warp_iisph.setup.rasterize.surface_layers`)."""
     import trimesh
 
     oriented = mesh.copy()
@@ -196,10 +189,14 @@ def sample_scene(
     if not shapes and not free:
         return xf, walls[0], [], np.full(len(walls[0]), -1, dtype=np.int32)
     trimeshes = [meshes[id(s)] for s in shapes]
+    # the tank's mesh in layers outside it; an obstacle (a mesh, a box or a sphere) on the cells its
+    # faces cross, or a box in layers inside its faces (docs/method.md: why obstacles keep the cells)
     sampled = [
-        sample_box_faces(s, h)
+        _mesh_tank_layers(m, h, device)
+        if s is scene.tank
+        else sample_box_faces(s, h)
         if getattr(s, "sampling", "cells") == "faces"
-        else _sample_surface(s, m, scene, h, device)
+        else sample_mesh(m.vertices, m.faces, h, device)
         for s, m in zip(shapes, trimeshes)
     ]
     labels = ([] if box_tank else [-1]) + list(range(len(scene.obstacles)))

@@ -303,7 +303,7 @@ def surface_layers(vertices, faces, h: float, device, sign: float = 1.0) -> tupl
     # box tank's two staggered layers fill its corners: cell centres h/2 to h from the edge, cell
     # corners h to h sqrt(2) from it (the outer layer's corner)
     steps = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-    index = np.unique(np.round(np.unique(cells, axis=0) / h - 0.5).astype(np.int64), axis=0)
+    index = np.unique(np.round(cells / h - 0.5).astype(np.int64), axis=0)
     near = np.unique((index[:, None, :] + steps).reshape(-1, 3), axis=0)
     for offset, lo, hi in ((0.5, 0.5 * h, h), (0.0, h * (1 + 2e-3), np.sqrt(2.0) * h)):
         grid_points = (near + offset) * h
