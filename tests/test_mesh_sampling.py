@@ -160,3 +160,24 @@ def test_a_closed_surface_is_sampled_in_two_layers_behind_it_wherever_it_meets_t
     sim.advance(0.6)
     area = 0.5 * 32 * 0.1**2 * np.sin(2 * np.pi / 32)
     assert sim.probes["level"][-20:].mean() == pytest.approx(sim.n_particles * 1e-6 / area, rel=0.05)
+
+
+def test_a_sliver_face_is_sampled_as_its_neighbours_cover_it():
+    """A closed mesh with a face of next to no area (a CAD tessellation's sliver: here the box's
+    top as a fan round a vertex on one of its edges) samples as the plain box does; trimesh's
+    normals leave such a face out, which once shifted every later face's normal (an internal
+    error building a mesh tank)."""
+    from warp_iisph.setup.rasterize import surface_layers
+
+    L, h = 0.3, 0.03
+    v = np.array([[0, 0, 0], [L, 0, 0], [L, 0, L], [0, 0, L], [0, L, 0], [L, L, 0], [L, L, L], [0, L, L]], float)
+    sides = [[0, 4, 5], [0, 5, 1], [1, 5, 6], [1, 6, 2], [2, 6, 7], [2, 7, 3], [3, 7, 4], [3, 4, 0]]
+    plain = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7], *sides], process=False)
+    fan = [[4, 8, 5], [5, 8, 6], [6, 8, 7], [7, 8, 4]]
+    sliver = trimesh.Trimesh(np.vstack([v, [L / 2, L, 0.0]]), [[0, 1, 2], [0, 2, 3], *fan, *sides], process=False)
+    assert sliver.is_watertight and not trimesh.triangles.normals(sliver.triangles)[1].all()
+    for sign in (1.0, -1.0):
+        for m in (plain, sliver):
+            trimesh.repair.fix_normals(m)
+        a, b = (surface_layers(m.vertices, m.faces, h, "cpu", sign)[0] for m in (plain, sliver))
+        assert len(a) == len(b) and np.allclose(np.sort(a, axis=0), np.sort(b, axis=0), atol=1e-6)

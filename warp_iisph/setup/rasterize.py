@@ -264,6 +264,14 @@ def layer_behind(
     kept_depth[i] = _checked_depth(mesh, c - d * n, d, sign)
 
 
+def unit_normals(triangles: np.ndarray) -> np.ndarray:
+    """Each triangle's unit normal, zero for one without area (trimesh's ``normals`` leaves out a
+    sliver's, shifting every index after it); a sliver's cells are also another face's."""
+    n = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
 def surface_layers(vertices, faces, h: float, device, sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Boundary particles ``h/2`` and ``h`` behind a closed surface wound outwards (``sign`` +1:
     inside it, -1: outside it), the second layer only where there is room for it, particles
@@ -278,7 +286,7 @@ def surface_layers(vertices, faces, h: float, device, sign: float = 1.0) -> tupl
     # own cells, also beside an edge where a cell is nearer the other face), behind it along its
     # normal
     on_face = trimesh.triangles.closest_point(triangles[of], cells)
-    unit = trimesh.triangles.normals(triangles)[0][of]
+    unit = unit_normals(triangles)[of]
     in_plane = cells - np.einsum("ij,ij->i", cells - triangles[of][:, 0], unit)[:, None] * unit
     within = np.linalg.norm(on_face - in_plane, axis=1) <= 1.0e-6 * h
     on_face, normals = on_face[within], unit[within] * sign
