@@ -152,6 +152,8 @@ class MeshShape(Record):
         t = trimesh.transformations.translation_matrix(self.translate)
         with np.errstate(all="ignore"):  # an absurd scale overflows: validate() refuses the bounds
             mesh.apply_transform(t @ r @ m)
+        if not self.shell:
+            mesh = solid_union(mesh)
         self._loaded = (key, mesh)
         return mesh
 
@@ -159,6 +161,27 @@ class MeshShape(Record):
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         b = self.load().bounds
         return np.asarray(b[0], dtype=np.float64), np.asarray(b[1], dtype=np.float64)
+
+
+def solid_union(mesh):
+    """A closed mesh made of closed parts that overlap (primitives put together, as modellers and
+    CAD exports often leave them) as the one surface of the solid they fill (manifold3d's union):
+    inside the overlaps the parts' own faces are no surface, and counted twice the overlap made a
+    body's volume, so its mass, too large and misled every nearest-face test near them. Anything
+    else (one part, parts apart, an inner part wound inwards: a cavity) is returned as it is."""
+    if not mesh.is_watertight or mesh.body_count < 2:
+        return mesh
+    import trimesh
+
+    parts = mesh.split(only_watertight=True)
+    if len(parts) < 2 or any(part.volume <= 0.0 for part in parts):
+        return mesh
+    lo, hi = np.array([part.bounds[0] for part in parts]), np.array([part.bounds[1] for part in parts])
+    meet = np.all((lo[:, None] < hi[None]) & (lo[None] < hi[:, None]), axis=2)
+    if not np.any(np.triu(meet, 1)):
+        return mesh
+    union = trimesh.boolean.union(parts, engine="manifold")
+    return union if union.is_watertight and union.volume > 0.0 else mesh
 
 
 def shape_mesh(shape) -> "object":
