@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from warp_iisph import Body, Box, Scene, Simulation, Sphere
 from warp_iisph.scene import SceneFileError, scene_from_dict, scene_to_dict
@@ -256,10 +257,20 @@ def test_a_mesh_of_overlapping_parts_is_the_solid_they_fill(tmp_path):
     scene.add_obstacle(MeshShape("cross.obj", translate=(0.5, 0.3, 0.5), base_dir=str(tmp_path)))
     model, _ = build_model(scene, "cpu")
     xb = model.boundary_x.numpy()[model.boundary_owner.numpy() == 0] - (0.5, 0.3, 0.5)
-    # in the overlap (|z| < 0.1 of the long bar along x), clear of the solid's faces: where cells
-    # about the parts' inner faces (z = +-0.1 across the overlap) lay
-    in_both = np.all(np.abs(xb) < (0.1 - 0.6 * h, 0.1 - 0.6 * h, 0.1), axis=1)
-    assert len(xb) and np.abs(xb).max() < 0.3 + h and not np.any(in_both)
+    # the cross's outer surface: each bar's faces where they are not inside the other bar
+    halves = [np.array([0.3, 0.1, 0.1]), np.array([0.1, 0.1, 0.3])]
+    surface = []
+    for e, other in (halves, halves[::-1]):
+        grids = [np.arange(-e[k], e[k] + 1e-9, 0.0025) for k in range(3)]
+        for axis in range(3):
+            for side in (-1.0, 1.0):
+                axes = [g if k != axis else np.array([side * e[axis]]) for k, g in enumerate(grids)]
+                points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+                surface.append(points[~np.all(np.abs(points) < other - 1e-9, axis=1)])
+    deep = cKDTree(np.concatenate(surface)).query(xb)[0]
+    # every particle within its two layers of the outer surface (h sqrt(2) behind an edge): none
+    # about the faces the parts keep inside the overlap
+    assert len(xb) and deep.max() < np.sqrt(2.0) * h + 0.002, deep.max()
 
 
 def test_box_particles_lie_half_a_spacing_inside_the_surface():

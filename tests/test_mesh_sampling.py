@@ -181,3 +181,31 @@ def test_a_sliver_face_is_sampled_as_its_neighbours_cover_it():
             trimesh.repair.fix_normals(m)
         a, b = (surface_layers(m.vertices, m.faces, h, "cpu", sign)[0] for m in (plain, sliver))
         assert len(a) == len(b) and np.allclose(np.sort(a, axis=0), np.sort(b, axis=0), atol=1e-6)
+
+
+def test_a_box_thinner_than_three_spacings_is_sampled_as_a_closed_mesh_and_kept_out_of():
+    """A plate half a spacing thick (a box obstacle's default sampling, by faces, needs 3 spacings):
+    one layer at its middle, and a particle a tenth of a spacing into it put back onto its surface
+    (where a solid is thinner than a spacing its layers meet at its middle, and a last line h/2
+    inside it, as for a thick box, would lie past that middle: nothing would stop a particle
+    crossing)."""
+    import warp as wp
+
+    from warp_iisph.sph.neighbors import NeighborListBuffer
+
+    h = 0.02
+    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (0.6, 0.3, 0.3)), name="plate")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (0.1, 0.1, 0.3))
+    scene.add_obstacle(Box((0.2, 0.1, 0.05), (0.4, 0.11, 0.25)))
+    sim = Simulation(scene, "cpu")
+    model = sim.model
+    xb = model.boundary_x.numpy()[model.boundary_owner.numpy() == 0]
+    assert len(xb) > 0.8 * (0.2 / h) ** 2 and np.allclose(xb[:, 1], 0.105, atol=1e-6)
+    walls = model.containment
+    near = NeighborListBuffer(1, "cpu", capacity=1)
+    near.lists.count.fill_(1)
+    x = wp.array([[0.3, 0.11 - 0.1 * h, 0.15]], dtype=wp.vec3, device="cpu")
+    v = wp.array([[0.0, -1.0, 0.0]], dtype=wp.vec3, device="cpu")
+    walls.apply(x, v, near.lists, 1, wp.array([1e-3], dtype=wp.float64, device="cpu"))
+    assert walls.corrections.numpy()[1] == 1 and 0.11 < x.numpy()[0, 1] < 0.11 + 0.01 * h
+    assert abs(v.numpy()[0, 1]) < 1e-6

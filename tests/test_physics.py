@@ -249,6 +249,6 @@ def test_a_box_sampled_by_faces_has_its_wall_at_its_inner_boundary_layer():
     scene = Scene(spacing=h, tank=Box((0, 0, 0), (0.4, 0.3, 0.2)), name="walls")
     scene.add_fluid_box((0, 0, 0), (0.1, 0.1, 0.2))
     scene.add_obstacle(Box((0.2, 0.0, 0.06), (0.28, 0.08, 0.14), sampling="faces"))
-    scene.add_obstacle(Box((0.3, 0.0, 0.06), (0.38, 0.08, 0.14)))
+    scene.add_obstacle(Box((0.3, 0.0, 0.06), (0.38, 0.08, 0.14), sampling="cells"))
     depth = Simulation(scene, "cpu").model.containment.solids.depth.numpy()
     np.testing.assert_allclose(depth, [0.5 * h, 0.0])

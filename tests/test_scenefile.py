@@ -82,11 +82,6 @@ BAD = {
         GOOD + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.7, 0.7]\n',
         "obstacles[0].radius: required",
     ),
-    "faces on a thin box": (
-        GOOD + '[[obstacles]]\nlower = [0.6, 0, 0.3]\nupper = [0.7, 0.3, 0.6]\nsampling = "faces"\n',
-        "obstacles[0].sampling = 'faces': every side of the box must be at least 3 spacings (0.15 m) long; "
-        "it is (0.1, 0.3, 0.3)",
-    ),
     "a key of another shape": (
         GOOD + '[[obstacles]]\nshape = "sphere"\ncenter = [0.7, 0.7, 0.7]\nradius = 0.1\nupper = [1, 1, 1]\n',
         "obstacles[0].upper: a key of shape = 'box', not of 'sphere'",

@@ -29,7 +29,8 @@ from ..setup.model import PARTICLE_FIELDS
 from .atomic import staged_write
 from .folder import RunError, RunFolder
 
-FORMAT = 2  # what a checkpoint holds (1: before it said whose it is)
+FORMAT = 3  # what a checkpoint holds (1: before it said whose it is; 2: before obstacles were
+# sampled in layers, whose boundary a resume would rebuild otherwise)
 OWNER_KEYS = ("run_id", "fingerprint", "format", "warp_iisph")
 STATE_KEYS = (*PARTICLE_FIELDS, "max_speed2", "sub_left", "sub_done", "time", "step_count", "method")
 KEYS = (*STATE_KEYS, "next_id", "frame", *OWNER_KEYS)

@@ -136,12 +136,6 @@ class Scene(Record):
                 o.motion.pivot = tuple(float(c) for c in 0.5 * (lo + hi))  # about its own centre
             if np.any(hi <= tlo) or np.any(lo >= thi):
                 raise ValueError(f"{name}: lies entirely outside the tank {floats(tlo)}..{floats(thi)}")
-            if getattr(o, "sampling", "cells") == "faces" and o.too_thin_for_faces(self.spacing):
-                raise ValueError(
-                    f"{name}.sampling = 'faces': every side of the box must be at least 3 spacings "
-                    f"({3 * self.spacing:g} m) long; it is {floats(np.round(hi - lo, 9))} "
-                    "(use 'cells', or a finer spacing)"
-                )
             if isinstance(o, MeshShape) and not o.shell and not o.load().is_watertight:
                 raise ValueError(
                     f"{name}.path = {o.path!r}: the mesh is not closed "

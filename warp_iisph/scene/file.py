@@ -221,7 +221,7 @@ def _shape_table(shape) -> dict:
             table["shell"] = True
     if getattr(shape, "name", None) is not None:
         table["name"] = shape.name
-    if getattr(shape, "sampling", "cells") != "cells":
+    if getattr(shape, "sampling", "faces") != "faces":
         table["sampling"] = shape.sampling
     if shape.motion is not None:
         table["motion"] = _settings_table(shape.motion)

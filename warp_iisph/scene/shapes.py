@@ -31,23 +31,25 @@ def _check_motion(shape, name: str) -> None:
 
 
 # obstacles[k].sampling of a box: boundary particles in the cells its faces cross, or in layers
-# inside its faces (see Box)
+# inside its faces (the default; see Box)
 BOX_SAMPLING = ("cells", "faces")
 
 
 @dataclass
 class Box(Record):
     """Axis-aligned box from ``lower`` to ``upper`` (metres); an obstacle may move (``motion``),
-    have a ``name`` (probes refer to it) and be sampled (``sampling``) as a mesh is, one boundary
-    particle per grid cell its faces cross (``"cells"``, the liquid then rests about h/2 beyond
-    the faces), or as the tank's walls are, inside out (``"faces"``: two staggered layers h/2
-    and h inside its faces, so that the liquid rests against the faces themselves)."""
+    have a ``name`` (probes refer to it) and be sampled (``sampling``) as the tank's walls are,
+    inside out (``"faces"``, the default: two staggered layers h/2 and h inside its faces, so that
+    the liquid rests against the faces themselves; a box thinner than 3 spacings as a closed mesh
+    is, its layers meeting at its middle where it is thinner than one), or as an open mesh shell
+    is, one boundary particle per grid cell its faces cross (``"cells"``: the liquid then rests
+    about h/2 beyond the faces, and a force probe on it reads a buoyancy 25 % high)."""
 
     lower: tuple
     upper: tuple
     motion: Optional[Motion] = None
     name: Optional[str] = None
-    sampling: str = "cells"
+    sampling: str = "faces"
 
     def validate(self, name: str) -> None:
         self.lower, self.upper = box_corners(self.lower, self.upper, name)
@@ -152,7 +154,7 @@ class MeshShape(Record):
         t = trimesh.transformations.translation_matrix(self.translate)
         with np.errstate(all="ignore"):  # an absurd scale overflows: validate() refuses the bounds
             mesh.apply_transform(t @ r @ m)
-        if not self.shell:
+        if not self.shell and np.all(np.abs(mesh.vertices) <= MAX_COORDINATE):  # else validate() refuses it
             mesh = solid_union(mesh)
         self._loaded = (key, mesh)
         return mesh

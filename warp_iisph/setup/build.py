@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from ..engine.memory import host_memory_room
-from ..scene import Box, Scene, shape_mesh
+from ..scene import Box, MeshShape, Scene, shape_mesh
 from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
 from ..sph.neighbors import FIRST_STRIDE, LIST_ENTRIES_LIMIT, cell_order, make_grid
@@ -128,10 +128,10 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, devic
         if o.motion is not None:
             k, body = body, body + 1
         if m.is_watertight and not getattr(o, "shell", False):
-            # a box sampled by faces has its wall, the inner boundary layer, h/2 inside its faces;
-            # an obstacle sampled on its cells, its surface
-            layered = getattr(o, "sampling", "cells") == "faces"
-            solids.append((m.vertices, m.faces, k, False, 0.5 * h if layered else 0.0))
+            # an obstacle sampled in layers has its wall, the inner boundary layer, h/2 inside its
+            # faces (the surface where it is thinner: Containment); one sampled on its cells, its
+            # surface
+            solids.append((m.vertices, m.faces, k, False, 0.5 * h if _layered(o, m) else 0.0))
     for f in free:
         solids.append((f["vertices"], f["faces"], body, False))
         body += 1
@@ -150,19 +150,29 @@ def _tank_faces(scene: Scene):
 
 
 def _shape_meshes(scene: Scene) -> dict:
-    """The triangle mesh of every mesh tank and obstacle, built or read once, by ``id`` of the shape."""
-    shapes = ([] if isinstance(scene.tank, Box) else [scene.tank]) + list(scene.obstacles)
-    return {id(s): shape_mesh(s) for s in shapes}
-
-
-def _mesh_tank_layers(mesh, h: float, device) -> np.ndarray:
-    """A mesh container's boundary particles: two layers outside its surface, as a box tank's
-    walls lie outside its faces (:func:`~warp_iisph.setup.rasterize.surface_layers`)."""
+    """The triangle mesh of every mesh tank and obstacle, built or read once, by ``id`` of the
+    shape; a closed one wound outwards, whatever the file's winding (its layers and the
+    containment's nearest-face tests read the winding)."""
     import trimesh
 
-    oriented = mesh.copy()
-    trimesh.repair.fix_normals(oriented)  # wound outwards, whatever the file's winding
-    return surface_layers(oriented.vertices, oriented.faces, h, device, -1.0)[0]
+    shapes = ([] if isinstance(scene.tank, Box) else [scene.tank]) + list(scene.obstacles)
+    meshes = {}
+    for s in shapes:
+        m = shape_mesh(s)
+        if m.is_watertight:
+            m = m.copy()
+            trimesh.repair.fix_normals(m)
+        meshes[id(s)] = m
+    return meshes
+
+
+def _layered(shape, mesh) -> bool:
+    """Whether an obstacle is sampled in two layers inside its surface: a closed mesh (not an open
+    shell), a sphere, a box sampled by ``faces`` (the default); else (an open shell, a box sampled
+    by ``cells``) one particle per cell its faces cross."""
+    if isinstance(shape, MeshShape):
+        return mesh.is_watertight and not shape.shell
+    return getattr(shape, "sampling", "faces") == "faces"
 
 
 def _placed(motion, points: np.ndarray, time: float) -> np.ndarray:
@@ -189,13 +199,17 @@ def sample_scene(
     if not shapes and not free:
         return xf, walls[0], [], np.full(len(walls[0]), -1, dtype=np.int32)
     trimeshes = [meshes[id(s)] for s in shapes]
-    # the tank's mesh in layers outside it; an obstacle (a mesh, a box or a sphere) on the cells its
-    # faces cross, or a box in layers inside its faces (docs/method.md: why obstacles keep the cells)
+    # the tank's mesh in layers outside it; a box sampled by faces in layers inside its faces, as
+    # the tank's walls are; other closed obstacles (meshes, spheres, boxes thinner than those
+    # layers need) in layers inside their surface; open shells and boxes sampled by cells on the
+    # cells their faces cross
     sampled = [
-        _mesh_tank_layers(m, h, device)
+        surface_layers(m.vertices, m.faces, h, device, -1.0)[0]
         if s is scene.tank
         else sample_box_faces(s, h)
-        if getattr(s, "sampling", "cells") == "faces"
+        if isinstance(s, Box) and s.sampling == "faces" and not s.too_thin_for_faces(h)
+        else surface_layers(m.vertices, m.faces, h, device, 1.0)[0]
+        if _layered(s, m)
         else sample_mesh(m.vertices, m.faces, h, device)
         for s, m in zip(shapes, trimeshes)
     ]

@@ -5,15 +5,17 @@ are visited and each is kept when the triangle overlaps it (the separating-axis 
 of Akenine-Moller 2001). Every occupied cell gives one point at its centre, so a surface is
 covered without gaps wider than ``h`` however thin or stretched its triangles are. Two kernel
 passes (count, then fill after a scan) write the cell keys; duplicates, where triangles share a
-cell, are removed on the host. An obstacle keeps those points as its particles.
+cell, are removed on the host. An open shell, and a box obstacle sampled by cells, keeps those
+points as its particles.
 
-A mesh tank and a free mesh body are sampled behind their surface instead (:func:`surface_layers`):
-each point moved onto the triangles whose plane it projects into and from there by ``h/2`` and by
-``h`` to the solid's side (outwards for a container, inwards for a body), as a box tank's two
-layers lie ``h/2`` and ``h`` outside its faces, so the weights ``psi`` calibrated on those walls
-hold (one layer of cell centres outweighs the liquid it replaces by 8 % of rho0 at one spacing)
-and where the cell centres fall (up to ``h/2`` either side of a surface, with how its faces meet
-the grid) no longer moves where the liquid rests.
+A closed mesh is sampled behind its surface instead (:func:`surface_layers`; a mesh tank outside
+it, an obstacle, a sphere, a thin box or a free body inside): each point moved onto the triangles whose plane it
+projects into and from there by ``h/2`` to the solid's side, and the points of the grid shifted by
+``h/2`` likewise by ``h``, as a box tank's two staggered layers lie ``h/2`` and ``h`` outside its
+faces, so the weights ``psi`` calibrated on those walls hold (one layer of cell centres outweighs
+the liquid it replaces by 8 % of rho0 at one spacing) and where the cell centres fall (up to
+``h/2`` either side of a surface, with how its faces meet the grid) no longer moves where the
+liquid rests.
 
 Fluid particles that would overlap an obstacle are removed by :func:`clear_fluid`: those inside a
 closed mesh (winding number) and those closer than one spacing to a boundary particle.
@@ -272,32 +274,43 @@ def unit_normals(triangles: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
-def surface_layers(vertices, faces, h: float, device, sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Boundary particles ``h/2`` and ``h`` behind a closed surface wound outwards (``sign`` +1:
-    inside it, -1: outside it), the second layer only where there is room for it, particles
-    closer than ``h/2`` to one kept left out (the second layer behind a face is kept: it lies
-    ``h/2`` behind the first); and each one's depth behind the surface."""
+def _onto_faces(vertices: np.ndarray, faces: np.ndarray, h: float, device, shift: float):
+    """The centres of the cells (of the grid shifted by ``shift`` along every axis) the faces
+    cross, each moved onto every triangle whose plane it projects into (every face gets the points
+    of its own cells, also beside an edge where a cell is nearer the other face), with that
+    triangle's unit normal; and the cells' centres."""
     import trimesh
 
-    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64).reshape(-1, 3)
-    cells, of = sample_mesh(vertices, faces, h, device, pairs=True)
+    cells, of = sample_mesh(vertices - shift, faces, h, device, pairs=True)
+    cells = cells + shift
     triangles = vertices[faces]
-    # each cell onto each triangle whose plane it projects into (every face gets the points of its
-    # own cells, also beside an edge where a cell is nearer the other face), behind it along its
-    # normal
     on_face = trimesh.triangles.closest_point(triangles[of], cells)
     unit = unit_normals(triangles)[of]
     in_plane = cells - np.einsum("ij,ij->i", cells - triangles[of][:, 0], unit)[:, None] * unit
     within = np.linalg.norm(on_face - in_plane, axis=1) <= 1.0e-6 * h
-    on_face, normals = on_face[within], unit[within] * sign
+    return on_face[within], unit[within], cells
+
+
+def surface_layers(vertices, faces, h: float, device, sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary particles ``h/2`` and ``h`` behind a closed surface wound outwards (``sign`` +1:
+    inside it, -1: outside it), the second layer only where there is room for it, particles
+    closer than ``h/2`` to one kept left out (the second layer behind a face is kept: it lies
+    ``h/2`` behind the first, staggered); and each one's depth behind the surface."""
+    vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64).reshape(-1, 3)
     m = wp.Mesh(
         points=wp.array(vertices.astype(np.float32), dtype=wp.vec3, device=device),
         indices=wp.array(faces.astype(np.int32).reshape(-1), dtype=wp.int32, device=device),
     )
-    c = wp.array(on_face.astype(np.float32), dtype=wp.vec3, device=device)
-    n = wp.array(normals.astype(np.float32), dtype=wp.vec3, device=device)
     layers, depths = [], []
-    for depth in (0.5 * h, h):
+    # the inner layer from the cells' centres, the outer one from the cells of the grid shifted by
+    # h/2 (their centres on the grid's corners): staggered, as a box tank's two layers are, so
+    # that no column of particles lines up behind another and leaves a channel between them
+    for depth, shift in ((0.5 * h, 0.0), (h, 0.5 * h)):
+        on_face, normals, cells_here = _onto_faces(vertices, faces, h, device, shift)
+        if shift == 0.0:
+            cells = cells_here
+        c = wp.array(on_face.astype(np.float32), dtype=wp.vec3, device=device)
+        n = wp.array((normals * sign).astype(np.float32), dtype=wp.vec3, device=device)
         out = wp.zeros(len(on_face), dtype=wp.vec3, device=device)
         kept = wp.zeros(len(on_face), dtype=float, device=device)
         args = [m.id, c, n, float(depth), float(sign), out, kept]

@@ -3,10 +3,11 @@ tank's wall (its inner layer of boundary particles, h/2 beyond the faces), insid
 (still or moving) or outside a mesh container is put back on the surface it crossed and loses the
 velocity that carried it through (relative to the wall); every such correction is counted in the
 step's statistics. As for the tank, a wall is where its inner layer of boundary particles lies:
-for an obstacle sampled on the cells its surface crosses, the surface; for a box obstacle sampled
-by faces (layers h/2 and h inside them), h/2 inside its faces (``Solids.depth``), so that a
-particle that touches such a box, its centre a little past the face but short of the layer, is
-the pressure's to push back, as it is at the tank's walls. A free body's wall stays its surface:
+for an obstacle sampled on the cells its surface crosses, the surface; for one sampled in layers
+h/2 and h inside its surface (a closed mesh, a box sampled by faces), h/2 inside it
+(``Solids.depth``), so that a particle that touches it, its centre a little past the face but
+short of the layer, is the pressure's to push back, as it is at the tank's walls; where such a
+solid is thinner than a spacing (its layers meet at its middle), the surface. A free body's wall stays its surface:
 no particle's centre may be inside a body. The pressure solver is meant to do
 nearly all of this work: the count says how much it left.
 
@@ -46,6 +47,24 @@ class Solids:
     box_lower: wp.vec3
     box_upper: wp.vec3
     has_box: int
+
+
+@wp.func
+def wall_depth(mesh: wp.uint64, face: int, c: wp.vec3, depth: float, container: int) -> float:
+    """How far behind surface point ``c`` (on ``face``) the wall lies: ``depth``, or 0 where the
+    solid is thinner than twice that (its layers meet at its middle there, and a last line behind
+    the surface would lie past it: a particle there is put back onto the surface)."""
+    if depth <= 0.0:
+        return depth
+    into = -wp.mesh_eval_face_normal(mesh, face)  # the solid's side of an obstacle's surface
+    if container != 0:
+        into = -into
+    eps = 1.0e-4 * depth
+    ray = wp.mesh_query_ray(mesh, c + eps * into, into, 2.0 * depth)
+    if ray.result:
+        if ray.t < 2.0 * depth - eps:
+            return 0.0
+    return depth
 
 
 @wp.func
@@ -123,10 +142,11 @@ def contain(
                 if inside:
                     c = wp.mesh_eval_position(solids.meshes[k], q.face, q.u, q.v)
                     past = wp.length(c - p)
-                    if past > solids.depth[k]:
+                    wall = wall_depth(solids.meshes[k], q.face, c, solids.depth[k], solids.container[k])
+                    if past > wall:
                         escaped = 1
                         n = wp.normalize(c - p)  # towards the fluid's side
-                        c = c - solids.depth[k] * n  # on the wall
+                        c = c - wall * n  # on the wall
             if escaped == 0 and b >= 0:
                 if poses.free[b] != 0:  # through a free body within the step
                     a = wp.transform_point(wp.transform_inverse(poses.start[b]), x_i - h * v_i)
