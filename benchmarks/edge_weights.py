@@ -25,7 +25,7 @@ Writes benchmarks/results/edge_weights.json and edge_weights.png.
 
     python benchmarks/edge_weights.py [--spacings 8,12,16] [--quick]
 
---quick (the test suite's): 8 spacings for 1 s, the package's and the calibrated weights.
+--quick (the test suite's): 8 spacings for 0.6 s, the package's and the calibrated weights.
 """
 
 import argparse
@@ -151,7 +151,7 @@ def main():
     wp.config.log_level = wp.LOG_WARNING
     spacings = [8] if args.quick else [int(s) for s in args.spacings.split(",")]
     kinds = ("akinci", "calibrated") if args.quick else WEIGHTS
-    duration, window = (1.0, 0.3) if args.quick else (3.0, 0.5)
+    duration, window = (0.6, 0.2) if args.quick else (3.0, 0.5)
     record = header("edge_weights", duration=duration, window=window, rho0=RHO0)
     c = calibrated_factor()
     record["calibration"] = {

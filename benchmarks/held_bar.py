@@ -29,7 +29,7 @@ the day each part was measured) and held_bar.png.
 
     python benchmarks/held_bar.py [--spacings 8,12,16] [--crossed 12,16] [--parts plain,crossed] [--quick]
 
---quick (the test suite's): 8 spacings for 1 s, the last 0.3 s measured; crossed at 0.5 s.
+--quick (the test suite's): 8 spacings for 0.6 s, the last 0.2 s measured; crossed at 0.3 s.
 """
 
 import argparse
@@ -243,7 +243,7 @@ def main():
         raise SystemExit(f"--parts {args.parts!r}: plain and/or crossed")
     spacings = [8] if args.quick else [int(s) for s in args.spacings.split(",")]
     crossed = [8] if args.quick else [int(s) for s in args.crossed.split(",")]
-    duration, window, switch = (1.0, 0.3, 0.5) if args.quick else (3.0, 0.5, SWITCH)
+    duration, window, switch = (0.6, 0.2, 0.3) if args.quick else (3.0, 0.5, SWITCH)
     record = header("held_bar", duration=duration, window=window, switch=switch)
     keep_parts(record, args.out, "held_bar", {"plain": ("results",), "crossed": ("crossed",)}, parts, args.quick)
     record.setdefault("results", [])
