@@ -444,6 +444,13 @@ def test_scene_checks_catch_silent_surprises(tmp_path):
         scene.validate()
     scene.obstacles[0].shell = True
     scene.validate()  # a thin wall on purpose
+    # two cubes that touch along a face: no open edge, but edges of four faces; said so
+    cubes = [trimesh.creation.box(extents=(0.2, 0.2, 0.2)) for _ in range(2)]
+    cubes[1].apply_translation((0.2, 0.0, 0.0))
+    trimesh.util.concatenate(cubes).export(tmp_path / "touching.obj")
+    scene.obstacles[0] = MeshShape("touching.obj", translate=(0.4, 0.2, 0.5), base_dir=str(tmp_path))
+    with pytest.raises(ValueError, match=r"not closed \(0 open edges, \d+ edges shared by more than two faces"):
+        scene.validate()
     scene.obstacles[0] = Box((2, 2, 2), (3, 3, 3))
     with pytest.raises(ValueError, match=r"obstacles\[0\]: lies entirely outside the tank"):
         scene.validate()

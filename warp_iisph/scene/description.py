@@ -138,9 +138,8 @@ class Scene(Record):
                 raise ValueError(f"{name}: lies entirely outside the tank {floats(tlo)}..{floats(thi)}")
             if isinstance(o, MeshShape) and not o.shell and not o.load().is_watertight:
                 raise ValueError(
-                    f"{name}.path = {o.path!r}: the mesh is not closed "
-                    f"({_open_edges(o.load())} open edges), so its inside is "
-                    f"undefined; close it, or set {name}.shell = true to use it as a thin wall"
+                    f"{name}.path = {o.path!r}: the mesh is not closed ({_unclosed(o.load())}), so "
+                    f"its inside is undefined; close it, or set {name}.shell = true to use it as a thin wall"
                 )
         _check_obstacle_names(self.obstacles)
         check_bodies(self.bodies, self.obstacles, self.tank, self.spacing)  # before the probes name them
@@ -282,11 +281,16 @@ def _check_obstacle_names(obstacles: list) -> None:
         seen.add(name)
 
 
-def _open_edges(mesh) -> int:
-    """Edges of a triangle mesh used by one face only."""
+def _unclosed(mesh) -> str:
+    """Why a triangle mesh is not closed: its edges used by one face only, and those used by more
+    than two (parts that touch along an edge or a face without being one solid)."""
     edges = np.sort(np.asarray(mesh.edges), axis=1)
     _, counts = np.unique(edges, axis=0, return_counts=True)
-    return int(np.sum(counts == 1))
+    said = f"{int(np.sum(counts == 1))} open edges"
+    shared = int(np.sum(counts > 2))
+    if shared:
+        said += f", {shared} edges shared by more than two faces: parts that touch without being one solid"
+    return said
 
 
 def _overlap(a: Fluid, b: Fluid) -> bool:
