@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rasterize import surface_layers
+from .rasterize import oriented, surface_layers
 from .sampling import _box_shell
 
 
@@ -31,13 +31,13 @@ def sample_body(body, h: float, rho0: float, device) -> dict:
 
     mass, com, inertia = body.mass_properties()
     shape = body.shape
+    mesh = oriented(body.mesh())
     if isinstance(shape, Box):
         points, depth = _box_layers(*shape.bounds, h)
     elif isinstance(shape, Sphere):
         points, depth = _sphere_layers(np.asarray(shape.center, np.float64), shape.radius, h)
     else:
-        points, depth = _mesh_layers(body.mesh(), h, device)
-    mesh = _oriented(body.mesh())
+        points, depth = surface_layers(mesh.vertices, mesh.faces, h, device, sign=1.0)
     added_mass, added_inertia = added_inertias(mesh, mass, inertia, rho0)
     return {
         "added_mass": added_mass,
@@ -73,15 +73,6 @@ def added_inertias(mesh, mass: float, inertia: np.ndarray, rho0: float) -> tuple
     projected = 0.5 * np.abs(normals).T @ areas  # a closed surface's silhouette across each axis
     added = ADDED_MASS * rho0 * projected**1.5
     return np.diag(added), np.asarray(inertia) * (float(added.max()) / mass)
-
-
-def _oriented(mesh):
-    """A copy of ``mesh`` with its faces wound outwards (the containment's rays read the winding)."""
-    import trimesh
-
-    m = mesh.copy()
-    trimesh.repair.fix_normals(m)
-    return m
 
 
 def _box_layers(lo: np.ndarray, hi: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -135,8 +126,3 @@ def _sphere_layers(center: np.ndarray, radius: float, h: float) -> tuple[np.ndar
         np.concatenate(layers) + center,
         np.concatenate([np.full(len(p), d) for p, d in zip(layers, depth)]),
     )
-
-
-def _mesh_layers(mesh, h: float, device) -> tuple[np.ndarray, np.ndarray]:
-    mesh = _oriented(mesh)
-    return surface_layers(mesh.vertices, mesh.faces, h, device, sign=1.0)

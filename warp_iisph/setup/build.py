@@ -16,7 +16,7 @@ from ..sph.rigid import RigidBodies
 from .bodies import sample_body
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
-from .rasterize import clear_fluid, sample_mesh, surface_layers
+from .rasterize import clear_fluid, oriented, sample_mesh, surface_layers
 from .sampling import sample_box_faces, sample_fluid, sample_tank_walls
 
 # Largest initial compression (fraction of rho0) a fluid particle beside a mesh may start with.
@@ -123,7 +123,7 @@ def _containment(scene: Scene, meshes: dict, h: float, moving, free: list, devic
         solids.append((m.vertices, m.faces, -1, True, 0.5 * h))
     body = 0
     for o in scene.obstacles:
-        m = meshes.get(id(o)) or shape_mesh(o)
+        m = meshes[id(o)]
         k = -1
         if o.motion is not None:
             k, body = body, body + 1
@@ -151,19 +151,10 @@ def _tank_faces(scene: Scene):
 
 def _shape_meshes(scene: Scene) -> dict:
     """The triangle mesh of every mesh tank and obstacle, built or read once, by ``id`` of the
-    shape; a closed one wound outwards, whatever the file's winding (its layers and the
-    containment's nearest-face tests read the winding)."""
-    import trimesh
-
+    shape; a closed one wound outwards (:func:`~warp_iisph.setup.rasterize.oriented`)."""
     shapes = ([] if isinstance(scene.tank, Box) else [scene.tank]) + list(scene.obstacles)
-    meshes = {}
-    for s in shapes:
-        m = shape_mesh(s)
-        if m.is_watertight:
-            m = m.copy()
-            trimesh.repair.fix_normals(m)
-        meshes[id(s)] = m
-    return meshes
+    meshes = {id(s): shape_mesh(s) for s in shapes}
+    return {k: oriented(m) if m.is_watertight else m for k, m in meshes.items()}
 
 
 def _layered(shape, mesh) -> bool:

@@ -9,9 +9,9 @@ cell, are removed on the host. An open shell, and a box obstacle sampled by cell
 points as its particles.
 
 A closed mesh is sampled behind its surface instead (:func:`surface_layers`; a mesh tank outside
-it, an obstacle, a sphere, a thin box or a free body inside): each point moved onto the triangles whose plane it
-projects into and from there by ``h/2`` to the solid's side, and the points of the grid shifted by
-``h/2`` likewise by ``h``, as a box tank's two staggered layers lie ``h/2`` and ``h`` outside its
+it, an obstacle, a sphere, a thin box or a free body inside): each point moved onto the triangles
+whose plane it projects into and from there by ``h/2`` to the solid's side, and the points of the
+grid shifted by ``h/2`` likewise by ``h``, as a box tank's two staggered layers lie ``h/2`` and ``h`` outside its
 faces, so the weights ``psi`` calibrated on those walls hold (one layer of cell centres outweighs
 the liquid it replaces by 8 % of rho0 at one spacing) and where the cell centres fall (up to
 ``h/2`` either side of a surface, with how its faces meet the grid) no longer moves where the
@@ -264,6 +264,16 @@ def layer_behind(
     d = _room_behind(mesh, c, n, depth)
     out[i] = c - d * n
     kept_depth[i] = _checked_depth(mesh, c - d * n, d, sign)
+
+
+def oriented(mesh):
+    """A copy of a closed ``mesh`` with its faces wound outwards, whatever the file's winding (the
+    layers behind it and the containment's nearest-face and ray tests read the winding)."""
+    import trimesh
+
+    m = mesh.copy()
+    trimesh.repair.fix_normals(m)
+    return m
 
 
 def unit_normals(triangles: np.ndarray) -> np.ndarray:

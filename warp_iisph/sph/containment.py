@@ -7,8 +7,8 @@ for an obstacle sampled on the cells its surface crosses, the surface; for one s
 h/2 and h inside its surface (a closed mesh, a box sampled by faces), h/2 inside it
 (``Solids.depth``), so that a particle that touches it, its centre a little past the face but
 short of the layer, is the pressure's to push back, as it is at the tank's walls; where such a
-solid is thinner than a spacing (its layers meet at its middle), the surface. A free body's wall stays its surface:
-no particle's centre may be inside a body. The pressure solver is meant to do
+solid is thinner than a spacing (its layers meet at its middle), the surface. A free body's wall
+stays its surface: no particle's centre may be inside a body. The pressure solver is meant to do
 nearly all of this work: the count says how much it left.
 
 Obstacles are queried as ``wp.Mesh`` signed distances, in their own frame (a moving body's
