@@ -1144,3 +1144,49 @@ def test_fuzzed_run_options_run_or_change_nothing(made, tmp_path, capsys, option
     else:
         assert RunFolder(out).record()["ended"] == "completed"
     assert leftovers(tmp_path) == []
+
+
+def test_ctrl_c_just_after_a_staged_file_closes_is_an_interrupt(tmp_path, monkeypatch):
+    """A Ctrl-C landing between the staged file's close and the next line used to close the
+    descriptor again, so the run ended "failed: [Errno 9] Bad file descriptor" (a rare CI failure):
+    the interrupt is what comes out, and nothing is left beside the place."""
+    from warp_iisph.run import atomic
+
+    real_close = os.close
+
+    def close_then_interrupt(fd):
+        real_close(fd)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic.os, "close", close_then_interrupt)
+    target = tmp_path / "run.json"
+    with pytest.raises(KeyboardInterrupt):
+        atomic.write_json(target, {"a": 1})
+    monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_error_met_while_a_ctrl_c_unwinds_still_ends_the_run_as_interrupted(tmp_path, monkeypatch, capsys):
+    """Whatever a cleanup meets while a Ctrl-C is on its way out (here an OSError raised while
+    handling it, during the third frame's write), the run ends as interrupted, with exit 130."""
+    from warp_iisph.run.frame_writer import FrameWriter
+
+    real, calls = FrameWriter.write, []
+
+    def write(self, k):
+        calls.append(k)
+        if len(calls) == 3:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt:
+                raise OSError(9, "Bad file descriptor") from None
+        return real(self, k)
+
+    monkeypatch.setattr(FrameWriter, "write", write)
+    out = tmp_path / "out"
+    capsys.readouterr()
+    assert main(["run", str(scene_file(tmp_path)), "--out", str(out), *QUICK]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "interrupted" in err[0], err
+    record = RunFolder(out).record()
+    assert record["ended"] == "interrupted" and record["totals"]["frames"] == 2

@@ -58,15 +58,14 @@ def staged_write(path: Path, write) -> StagedFile:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
     try:
-        os.fchmod(fd, FILE_MODE)
-        os.close(fd)
-        fd = None
+        try:
+            os.fchmod(fd, FILE_MODE)
+        finally:  # closed exactly once: a Ctrl-C landing just after the close must not close it again
+            os.close(fd)
         write(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
     except BaseException:
-        if fd is not None:
-            os.close(fd)
         if os.path.exists(tmp):
             os.remove(tmp)
         raise

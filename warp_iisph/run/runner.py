@@ -299,7 +299,12 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
     except KeyboardInterrupt:
         ended, message = "interrupted", f"interrupted at step {sim.step_count}, t = {sim.time:.5f} s"
     except OSError as e:
-        ended, message = "failed", f"writing the run to {run.path}: {e}"
+        stop = _signal_behind(e)  # a cleanup that failed while a Ctrl-C was on its way out
+        if stop is not None:
+            ended = "terminated" if isinstance(stop, Terminated) else "interrupted"
+            message = f"{ended} at step {sim.step_count}, t = {sim.time:.5f} s"
+        else:
+            ended, message = "failed", f"writing the run to {run.path}: {e}"
     except MemoryError as e:  # storage that would outgrow the device or its indices: frames so far stay
         ended, message = "failed", str(e) or "out of memory"
     except Exception as e:  # anything else at run time (a surface grid outgrowing its limit, a thread
@@ -327,6 +332,18 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
         note = f"run.json could not be updated ({e})"
         record.end(ended if ended != "completed" else "failed", f"{message}; {note}" if message else note)
     return record.data
+
+
+def _signal_behind(e: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C or SIGTERM an exception was raised while handling, if any: that is how the run
+    ended, not the error its cleanup met."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        e = e.__context__
+    return None
 
 
 def _continue_logs(run: RunFolder, sim, scene, plan, first: int, record: RunRecord, kept: list[dict]) -> tuple:
