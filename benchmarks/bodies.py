@@ -4,7 +4,10 @@
 channel) with its free bodies, against the same scene with the bodies fixed where they start (the
 same boxes as still obstacles, sampled in layers inside their faces as a body is; at its defaults,
 so from the hydrostatic warm start, and once more from the half start the free bodies' scene
-takes): wall seconds per simulated second, the median of interleaved repeats (free, fixed, free, fixed, ...). Each
+takes), and against the same boxes moved along the path the free bodies took (keyframes from the
+first free run's steps every 10 ms: the same flow round them, with nothing pushed back; from
+either start), which sets the coupling's own cost apart from the different flow that bodies held
+still make: wall seconds per simulated second, the median of interleaved repeats (free, fixed, free, fixed, ...). Each
 run also reports the containment's last-line corrections (``obstacle_corrections``: particles it
 put back out of an obstacle or a body; ``wall_corrections``: out of the tank), the fluid
 particles found inside a body at every frame (checked outside the timing, in each body's frame:
@@ -60,28 +63,99 @@ from warp_iisph import Box, Physics, Scene, Simulation
 from warp_iisph.engine.launch import get_threads
 from warp_iisph.scene import load_scene
 from warp_iisph.scene.bodies import quaternion_matrix
+from warp_iisph.scene.motion import MAX_KEYS, Motion
 from warp_iisph.scene.probes import Probe
 
-FLOOD_VARIANTS = ("free", "fixed", "fixed_half", "free_hydrostatic")
-VARIANT_WARM_STARTS = {"fixed_half": "half", "free_hydrostatic": "hydrostatic"}  # the others: the scene's own
+FLOOD_VARIANTS = ("free", "fixed", "fixed_half", "free_hydrostatic", "replayed", "replayed_half")
+VARIANT_WARM_STARTS = {
+    "fixed_half": "half",
+    "free_hydrostatic": "hydrostatic",
+    "replayed_half": "half",
+}  # the others: the scene's own
+REPLAY_KEY_INTERVAL = 0.01  # s between the keys a replay takes from the free run's steps
+_free_path: dict = {}  # the first free run's bodies' path, which the replays follow (every run is the same)
 
 
-def flood(variant: str, overrides: list) -> Scene:
+def flood(variant: str, overrides: list, path: dict | None = None) -> Scene:
     """The flood scene; ``fixed``: its bodies replaced by still box obstacles of the same shapes
     (then the scene's warm start is the hydrostatic one, the default without free bodies);
     ``fixed_half``: so, with the half warm start the free bodies' scene runs with;
     ``free_hydrostatic``: the free bodies from the hydrostatic start (beside a body at least half the
-    last pressure), the still boxes' own."""
+    last pressure), the still boxes' own; ``replayed``, ``replayed_half``: the same box obstacles
+    moved along the free run's ``path`` (keyframes, :func:`replay_motions`), so the liquid flows
+    round the bodies as they moved, but pushes nothing: the same flow without the coupling, from
+    either start."""
     scene = load_scene("flood", overrides)
     if variant in VARIANT_WARM_STARTS:
         scene.physics.warm_start = VARIANT_WARM_STARTS[variant]
         scene.physics.validate()
-    if variant in ("fixed", "fixed_half"):
-        for body in scene.bodies:  # in layers inside its faces where it is thick enough (3 spacings)
+    if variant in ("fixed", "fixed_half", "replayed", "replayed_half"):
+        motions = replay_motions(scene, path) if variant.startswith("replayed") else [None] * len(scene.bodies)
+        for body, motion in zip(scene.bodies, motions):  # in layers inside its faces where thick enough
             thick = min(np.subtract(body.shape.upper, body.shape.lower)) >= 3 * scene.spacing
-            scene.add_obstacle(Box(body.shape.lower, body.shape.upper, sampling="faces" if thick else "cells"))
+            box = Box(body.shape.lower, body.shape.upper, sampling="faces" if thick else "cells", motion=motion)
+            scene.add_obstacle(box)
         scene.bodies = []
     return scene
+
+
+def replay_motions(scene: Scene, path: dict) -> list:
+    """Keyframes that move each body's box as the free run moved the body: at every key (the free
+    run's steps, one every REPLAY_KEY_INTERVAL) its centre's translation and its rotation as
+    angles about x, then y, then z (unwrapped), about its centre at the start; smooth
+    interpolation between keys."""
+    from scipy.spatial.transform import Rotation
+
+    keep = np.unique(np.linspace(0, len(path["times"]) - 1, min(len(path["times"]), MAX_KEYS)).round().astype(int))
+    times = np.asarray(path["times"])[keep]
+    path = {key: np.asarray(v)[keep] for key, v in path.items()}
+    out = []
+    for k, body in enumerate(scene.bodies):
+        start = 0.5 * (np.asarray(body.shape.lower) + np.asarray(body.shape.upper))
+        centres = np.asarray(path["position"])[:, k]
+        angles = continuous_angles(Rotation.from_quat(np.asarray(path["orientation"])[:, k]).as_euler("xyz"))
+        out.append(
+            Motion(
+                times=times.tolist(),
+                translate=(centres - start).tolist(),
+                rotate=angles.tolist(),
+                pivot=tuple(start),
+                interpolation="smooth",
+            ).validate(f"bodies[{k}].replay")
+        )
+    return out
+
+
+def continuous_angles(angles: np.ndarray) -> np.ndarray:
+    """Angles about x, then y, then z (radians, one row per key) made continuous from key to key,
+    in degrees: of the two triples that give each rotation, ``(a, b, c)`` and ``(a + pi, pi - b,
+    c + pi)``, the one nearer the last key's (a body tumbling past 90 degrees about y), each angle
+    then within half a turn of the last key's."""
+    out = np.array(angles, dtype=float)
+    for i in range(1, len(out)):
+        a, b, c = out[i]
+        best = None
+        for triple in ((a, b, c), (a + np.pi, np.pi - b, c + np.pi)):
+            t = np.asarray(triple)
+            t = out[i - 1] + (t - out[i - 1] + np.pi) % (2.0 * np.pi) - np.pi  # the nearest turn
+            if best is None or np.abs(t - out[i - 1]).sum() < np.abs(best - out[i - 1]).sum():
+                best = t
+        out[i] = best
+    return np.degrees(out)
+
+
+def replay_poses(scene: Scene, t: float) -> dict:
+    """The replayed boxes' poses at ``t`` as Simulation.bodies gives a free body's (centre, x y z w)."""
+    from scipy.spatial.transform import Rotation
+
+    position, orientation = [], []
+    for o in scene.obstacles:
+        if o.motion is None:
+            continue
+        translate, angles = o.motion.at(t)
+        position.append(np.asarray(o.motion.pivot) + translate)
+        orientation.append(Rotation.from_euler("xyz", np.radians(angles)).as_quat())
+    return {"position": np.array(position), "orientation": np.array(orientation)}
 
 
 def inside_count(x: np.ndarray, boxes: list, poses: dict, inset: float = 0.0) -> int:
@@ -113,11 +187,18 @@ def outside_tank(boxes: list, poses: dict, lower, upper, margin: float) -> bool:
 def run_flood(variant: str, overrides: list, duration) -> dict:
     load = load_scene("flood", overrides)
     boxes = [(b.shape.lower, b.shape.upper) for b in load.bodies]
-    scene = flood(variant, overrides)
+    replay = variant.startswith("replayed")
+    if replay and not _free_path:
+        run_flood("free", overrides, duration)  # the path to follow (not timed, not recorded)
+    scene = flood(variant, overrides, _free_path if replay else None)
     duration = duration or scene.output.duration
     sim = Simulation(scene, "cpu", history=1)
     frame = 1.0 / scene.output.fps
     counts = {"steps": 0, "obstacle_corrections": 0, "wall_corrections": 0, "corrected_steps": 0, "iterations": 0}
+    path, speeds = None, []
+    if variant == "free" and not _free_path:  # the bodies' path, kept for the replays
+        start = sim.bodies
+        path = {"times": [0.0], "position": [start["position"]], "orientation": [start["orientation"]]}
 
     def on_step(r):
         counts["steps"] += 1
@@ -125,23 +206,32 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         counts["wall_corrections"] += r["wall_corrections"]
         counts["corrected_steps"] += bool(r["obstacle_corrections"] or r["wall_corrections"])
         counts["iterations"] += r["iterations"]
+        speeds.append(r["max_velocity"])
+        if path is not None and r["t"] - path["times"][-1] >= REPLAY_KEY_INTERVAL - 1e-9:
+            pose = sim.bodies
+            path["times"].append(r["t"])
+            path["position"].append(pose["position"])
+            path["orientation"].append(pose["orientation"])
 
     # the boxes' walls for the last line: a free body's surface, a still box's inner boundary layer
     # h/2 inside its faces (sampled by faces; sph/containment.py)
-    inset = 0.5 * scene.spacing if variant != "free" else 0.0
+    inset = 0.5 * scene.spacing if variant not in ("free", "free_hydrostatic") else 0.0
     wall, inside, inside_frames, past_walls, left = 0.0, 0, 0, 0, False
     while sim.time < duration - 1e-9:
         t0 = time.perf_counter()
         sim.advance(min(frame, duration - sim.time), callback=on_step)
         wall += time.perf_counter() - t0
-        poses = sim.bodies
+        poses = replay_poses(scene, sim.time) if replay else sim.bodies
         k = inside_count(sim.positions, boxes, poses)
         inside += k
         inside_frames += bool(k)
         past_walls += inside_count(sim.positions, boxes, poses, inset) if inset else k
         if poses:
             left |= outside_tank(boxes, poses, scene.tank.lower, scene.tank.upper, scene.spacing)
-    poses = sim.bodies
+    if path is not None:
+        path.update({key: np.array(v) for key, v in path.items() if key != "times"})
+        _free_path.update(path)
+    poses = replay_poses(scene, sim.time) if replay else sim.bodies
     return {
         "variant": variant,
         "particles": sim.n_particles,
@@ -152,6 +242,7 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         "wall_seconds_per_simulated_second": wall / sim.time,
         **counts,
         "mean_iterations": counts["iterations"] / counts["steps"],
+        "median_fastest_speed": float(np.median(speeds)),  # the fastest particle's, over the steps (m/s)
         "inside_bodies_at_frames": inside,  # centres inside the boxes' surfaces, summed over frames
         "past_walls_at_frames": past_walls,  # centres past their walls (module docstring), summed over frames
         "frames_with_particles_inside": inside_frames,
@@ -345,18 +436,25 @@ def summarize(runs: list) -> dict:
     if "free_hydrostatic" in per_s:  # the free bodies from the still boxes' start
         out["cost_ratio_hydrostatic_start"] = per_s["free_hydrostatic"] / per_s["fixed"]
         out["cost_ratio_per_step_hydrostatic_start"] = per_step["free_hydrostatic"] / per_step["fixed"]
+    # the coupling alone: the free bodies against boxes moved along their path, from the same start
+    for free, replayed in (("free", "replayed_half"), ("free_hydrostatic", "replayed")):
+        if free in per_s and replayed in per_s:
+            out[f"cost_ratio_{free}_to_{replayed}"] = per_s[free] / per_s[replayed]
+            out[f"cost_ratio_per_step_{free}_to_{replayed}"] = per_step[free] / per_step[replayed]
     return out
 
 
 def chart(record: dict, path) -> None:
     plt = pyplot()
-    fig, (a, b, c) = plt.subplots(1, 3, figsize=(16, 4.2))
+    fig, (a, b, c) = plt.subplots(1, 3, figsize=(20, 4.8), gridspec_kw={"width_ratios": [1.6, 1, 1]})
     runs = record["flood"]["runs"]
     names = {
         "free": "free bodies",
         "fixed": "bodies fixed\n(still obstacles)",
         "fixed_half": "fixed,\nhalf warm start",
         "free_hydrostatic": "free,\nhydrostatic start",
+        "replayed": "moved along the\nfree path (uncoupled)",
+        "replayed_half": "moved along it,\nhalf start",
     }
     shown = [v for v in FLOOD_VARIANTS if any(r["variant"] == v for r in runs)]
     for i, variant in enumerate(shown):
@@ -364,7 +462,7 @@ def chart(record: dict, path) -> None:
         a.scatter([i] * len(ys), ys, color=f"C{i}", alpha=0.6)
         a.bar(i, statistics.median(ys), width=0.5, color=f"C{i}", alpha=0.5)
     s = record["flood"]["summary"]
-    a.set_xticks(range(len(shown)), [names[v] for v in shown])
+    a.set_xticks(range(len(shown)), [names[v] for v in shown], fontsize=8)
     a.set_ylabel("wall s per simulated s (median, repeats as dots)")
     a.set_title(
         f"flood, {s['particles']} particles: free / fixed = {s['cost_ratio']:.2f} per simulated s, "
@@ -372,6 +470,12 @@ def chart(record: dict, path) -> None:
         + (
             f"\n(against the fixed run with the half start: {s['cost_ratio_same_start']:.2f})"
             if "cost_ratio_same_start" in s
+            else ""
+        )
+        + (
+            f"\nfree / moved along its path: {s['cost_ratio_free_to_replayed_half']:.2f} (half start), "
+            f"{s['cost_ratio_free_hydrostatic_to_replayed']:.2f} (hydrostatic start)"
+            if "cost_ratio_free_to_replayed_half" in s
             else ""
         ),
         fontsize=9,
@@ -536,7 +640,9 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
         f"(medians {med['free']:.1f} and {med['fixed']:.1f} wall s per s), "
         f"{summary['cost_ratio_per_step']:.3f} per step; against the fixed run with the half start "
         f"{summary.get('cost_ratio_same_start', float('nan')):.3f}; free from the hydrostatic start / fixed "
-        f"{summary.get('cost_ratio_hydrostatic_start', float('nan')):.3f}"
+        f"{summary.get('cost_ratio_hydrostatic_start', float('nan')):.3f}; free / replayed along its path, "
+        f"half start {summary.get('cost_ratio_free_to_replayed_half', float('nan')):.3f}, hydrostatic start "
+        f"{summary.get('cost_ratio_free_hydrostatic_to_replayed', float('nan')):.3f}"
     )
     record["flood"] = {"overrides": overrides, "repeats": repeats, "runs": runs, "summary": summary}
 

@@ -504,3 +504,47 @@ def test_obstacle_sampling_quick_mode(tmp_path):
     assert runs["mesh", 0.0]["fluid_particles"] == runs["box_faces", 0.0]["fluid_particles"]
     dam = record["dam_break"]
     assert dam["steps"] > 10 and dam["fluid_particles"] == 9216 and dam["wall_corrections"] == 0
+
+
+def test_a_replayed_body_follows_the_path_it_was_given():
+    """benchmarks/bodies.py's replays (the flood's boxes moved along the free bodies' path, the
+    coupling's cost set apart): at every key the keyframed box stands where the free body stood,
+    corners and all, through a spin of more than a turn (the angles unwrapped)."""
+    import importlib.util
+
+    from scipy.spatial.transform import Rotation
+
+    from warp_iisph.scene.bodies import quaternion_matrix
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        spec = importlib.util.spec_from_file_location("bodies_benchmark", ROOT / "benchmarks" / "bodies.py")
+        bodies = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(bodies)
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    scene = bodies.load_scene("flood", ["spacing=0.04"])
+    n, k = len(scene.bodies), 40
+    times = np.linspace(0.0, 0.8, k)
+    rng = np.random.default_rng(3)
+    starts = np.array([0.5 * (np.add(b.shape.lower, b.shape.upper)) for b in scene.bodies])
+    position = starts + np.cumsum(rng.normal(0.0, 0.01, (k, n, 3)), axis=0) * (times[:, None, None] > 0)
+    spin = np.radians(np.linspace(0.0, 400.0, k))  # about y, past a whole turn
+    tilt = 0.3 * np.sin(np.linspace(0.0, 3.0, k))
+    rot = Rotation.from_euler("xyz", np.stack([tilt, spin, 0.5 * tilt], axis=1))
+    orientation = np.stack([rot.as_quat()] * n, axis=1)
+    orientation[:, 1] *= -1.0  # the same rotations with the quaternions' other sign
+    path = {"times": times, "position": position, "orientation": orientation}
+    motions = bodies.replay_motions(scene, path)
+    for j, (body, motion) in enumerate(zip(scene.bodies, motions)):
+        lo, hi = np.asarray(body.shape.lower), np.asarray(body.shape.upper)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        for i in range(0, k, 7):
+            m = motion.matrix(times[i], np.asarray(motion.pivot))
+            moved = corners @ m[:3, :3].T + m[:3, 3]
+            want = (corners - starts[j]) @ quaternion_matrix(orientation[i, j]).T + position[i, j]
+            np.testing.assert_allclose(moved, want, atol=1e-9)
+        for i in range(k - 1):  # between keys: near the halfway rotation (keys 10 degrees of spin apart)
+            m = motion.matrix(0.5 * (times[i] + times[i + 1]), np.asarray(motion.pivot))
+            half = Rotation.from_quat(orientation[i : i + 2, j]).mean().as_matrix()
+            assert np.degrees(np.arccos(np.clip((np.trace(m[:3, :3].T @ half) - 1.0) / 2.0, -1, 1))) < 2.0
