@@ -239,6 +239,35 @@ def test_render_run_writes_frames_and_video_and_skips_done_frames(tiny_run, caps
     assert "rendered 4 frames (0 already there)" in capsys.readouterr().out
 
 
+@needs_mitsuba
+def test_a_run_extended_by_resume_renders_only_its_new_frames_with_the_same_camera(tmp_path, capsys):
+    """A resume that extends a run frames other last frames; the render goes on with the camera
+    its frames were made with and keeps them (they took hours on a farm), rendering the new ones."""
+    from conftest import collapsing_block
+
+    from warp_iisph.run.runner import run_scene
+
+    out = tmp_path / "run"
+    scene = collapsing_block()
+    scene.output.mesh = True
+    assert run_scene(scene, out, duration=0.1, fps=30, progress=False)["ended"] == "completed"
+    args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
+    assert main(args) == 0
+    camera = RunFolder(out).provenance("frames")["settings"]["camera"]
+    first = {p.name: p.stat().st_mtime_ns for p in (out / "frames").glob("frame_*.png")}
+    assert len(first) == 4
+    assert main(["run", "--resume", str(out), "--duration", "0.4", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "rendered 9 frames (4 already there)" in capsys.readouterr().out
+    assert RunFolder(out).provenance("frames")["settings"]["camera"] == camera
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "frames").glob("frame_*.png") if p.name in first} == first
+    assert len(video_frames(out / "video.mp4")) == 13
+    # other settings frame the run anew, and every frame is made again with them
+    assert main(args[:3] + ["48x36"] + args[4:]) == 0
+    assert "rendered 13 frames (0 already there)" in capsys.readouterr().out
+
+
 def test_missing_extra_is_a_clear_message(tiny_run, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "mitsuba", None)  # import mitsuba now raises ImportError
     assert main(["render", str(tiny_run), "--no-progress"]) == 2

@@ -113,6 +113,29 @@ def render_frame(settings: dict, mesh: str, obstacles: str | None, png: str) -> 
     return time.perf_counter() - t0
 
 
+def kept_camera(run: RunFolder, record: dict, framed: dict, eye, target, fov: float):
+    """The camera of the frames already rendered with these settings, where the scene leaves the
+    camera to the framing: a run extended by ``--resume`` (or meshed again the same way) frames
+    other last frames, and a camera framed anew would throw away every frame rendered (hours on a
+    farm), so the render goes on with the camera it began with. Otherwise ``eye, target, fov``."""
+    if ((record.get("scene") or {}).get("camera") or {}).get("position") is not None:
+        return eye, target, fov  # the scene's own camera: nothing to keep
+    prior = run.provenance(FRAMES)
+    if not isinstance(prior, dict) or prior.get("run_id") != record.get("run_id"):
+        return eye, target, fov
+    settings = prior.get("settings")
+    if not isinstance(settings, dict) or {k: v for k, v in settings.items() if k != "camera"} != framed:
+        return eye, target, fov
+    try:
+        old_eye, old_target, old_fov = settings["camera"]
+        old = np.asarray(old_eye, float), np.asarray(old_target, float), float(old_fov)
+    except (KeyError, TypeError, ValueError):
+        return eye, target, fov
+    if old[2] != float(fov) or not all(v.shape == (3,) and np.all(np.isfinite(v)) for v in old[:2]):
+        return eye, target, fov
+    return old
+
+
 def render_run(
     run_dir,
     spp: int = 16,
@@ -150,6 +173,17 @@ def render_run(
     # as the full video sees it, and keeps the frames rendered outside it
     box = framing_box(run, record, every, solid)
     eye, target, fov = run_camera(record, box, width / height, run.record_path)
+    framed = {
+        "meshes": run.provenance(MESHES),
+        "spp": spp,
+        "resolution": [width, height],
+        "material": list(color),
+        "walls": walls,
+        "denoise": use_denoiser,
+        "variant": chosen_variant,
+        "obstacles": solid is not None,
+    }
+    eye, target, fov = kept_camera(run, record, framed, eye, target, fov)
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
     wall_list = far_walls(*tank, eye) if walls and tank is not None else []
@@ -178,16 +212,7 @@ def render_run(
         # another run, other meshes or other settings go
         made = {
             "run_id": record.get("run_id"),
-            "settings": {
-                "meshes": run.provenance(MESHES),
-                "spp": spp,
-                "resolution": [width, height],
-                "material": list(color),
-                "walls": walls,
-                "denoise": use_denoiser,
-                "variant": chosen_variant,
-                "camera": [eye.tolist(), np.asarray(target).tolist(), fov],
-            },
+            "settings": {**framed, "camera": [eye.tolist(), np.asarray(target).tolist(), fov]},
         }
         if run.provenance(FRAMES) != made:
             for old in frame_files(out, "png"):
