@@ -1166,9 +1166,10 @@ def test_ctrl_c_just_after_a_staged_file_closes_is_an_interrupt(tmp_path, monkey
     assert list(tmp_path.iterdir()) == []
 
 
-def test_an_error_met_while_a_ctrl_c_unwinds_still_ends_the_run_as_interrupted(tmp_path, monkeypatch, capsys):
-    """Whatever a cleanup meets while a Ctrl-C is on its way out (here an OSError raised while
-    handling it, during the third frame's write), the run ends as interrupted, with exit 130."""
+@pytest.mark.parametrize("error", [OSError(9, "Bad file descriptor"), RuntimeError("cleanup failed")])
+def test_an_error_met_while_a_ctrl_c_unwinds_still_ends_the_run_as_interrupted(tmp_path, monkeypatch, capsys, error):
+    """Whatever a cleanup meets while a Ctrl-C is on its way out (an error raised while handling
+    it, during the third frame's write), the run ends as interrupted, with exit 130."""
     from warp_iisph.run.frame_writer import FrameWriter
 
     real, calls = FrameWriter.write, []
@@ -1179,7 +1180,7 @@ def test_an_error_met_while_a_ctrl_c_unwinds_still_ends_the_run_as_interrupted(t
             try:
                 raise KeyboardInterrupt
             except KeyboardInterrupt:
-                raise OSError(9, "Bad file descriptor") from None
+                raise error from None
         return real(self, k)
 
     monkeypatch.setattr(FrameWriter, "write", write)
@@ -1190,3 +1191,30 @@ def test_an_error_met_while_a_ctrl_c_unwinds_still_ends_the_run_as_interrupted(t
     assert len(err) == 1 and "interrupted" in err[0], err
     record = RunFolder(out).record()
     assert record["ended"] == "interrupted" and record["totals"]["frames"] == 2
+
+
+def test_a_ctrl_c_while_a_staged_file_is_made_leaves_nothing(tmp_path):
+    """A Ctrl-C that lands while the staged file is created waits until its name is known, so the
+    file goes with the interrupt (it stayed beside its place)."""
+    code, err = child(
+        f"""
+        import os, signal, sys, tempfile
+        from pathlib import Path
+        from warp_iisph.engine import signals
+        from warp_iisph.run import atomic
+        signals.install()
+        real = os.open
+        def open_then_signal(*a, **k):
+            fd = real(*a, **k)
+            os.kill(os.getpid(), signal.SIGINT)
+            return fd
+        atomic.tempfile._os.open = open_then_signal
+        try:
+            atomic.write_json(Path({str(tmp_path)!r}) / "run.json", {{"a": 1}})
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+        atomic.tempfile._os.open = real
+        print(sorted(os.listdir({str(tmp_path)!r})), file=sys.stderr)
+        """
+    )
+    assert code == 0 and err == ["interrupted", "[]"], err

@@ -253,7 +253,8 @@ def test_a_run_extended_by_resume_renders_only_its_new_frames_with_the_same_came
     assert run_scene(scene, out, duration=0.1, fps=30, progress=False)["ended"] == "completed"
     args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
     assert main(args) == 0
-    camera = RunFolder(out).provenance("frames")["settings"]["camera"]
+    first_settings = RunFolder(out).provenance("frames")["settings"]
+    camera = first_settings["camera"]
     first = {p.name: p.stat().st_mtime_ns for p in (out / "frames").glob("frame_*.png")}
     assert len(first) == 4
     assert main(["run", "--resume", str(out), "--duration", "0.4", "--no-progress"]) == 0
@@ -263,9 +264,83 @@ def test_a_run_extended_by_resume_renders_only_its_new_frames_with_the_same_came
     assert RunFolder(out).provenance("frames")["settings"]["camera"] == camera
     assert {p.name: p.stat().st_mtime_ns for p in (out / "frames").glob("frame_*.png") if p.name in first} == first
     assert len(video_frames(out / "video.mp4")) == 13
+    # the floor the liquid stands on stays with the camera (it is framed on the run too)
+    settings = RunFolder(out).provenance("frames")["settings"]
+    assert settings["floor"] == first_settings["floor"]
     # other settings frame the run anew, and every frame is made again with them
     assert main(args[:3] + ["48x36"] + args[4:]) == 0
     assert "rendered 13 frames (0 already there)" in capsys.readouterr().out
+
+
+@needs_mitsuba
+def test_a_resume_takes_the_images_of_the_frames_it_makes_again(tmp_path, capsys, monkeypatch):
+    """A run stopped after its checkpoint: its resume makes the frames after the checkpoint again,
+    and their rendered images (and the video showing them) go with their meshes, so a render never
+    shows a frame the run no longer has."""
+    from conftest import collapsing_block
+
+    from warp_iisph.run.frame_writer import FrameWriter
+    from warp_iisph.run.runner import run_scene
+
+    real = FrameWriter.write
+
+    def stop_at_8(self, k):
+        if k == 8:
+            raise KeyboardInterrupt
+        return real(self, k)
+
+    out = tmp_path / "run"
+    scene = collapsing_block()
+    scene.output.mesh, scene.output.checkpoint_every = True, 3
+    monkeypatch.setattr(FrameWriter, "write", stop_at_8)
+    assert run_scene(scene, out, duration=0.4, fps=30, progress=False)["ended"] == "interrupted"
+    monkeypatch.undo()
+    args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
+    assert main(args) == 0
+    pngs = sorted((out / "frames").glob("frame_*.png"))
+    assert len(pngs) == 8 and (out / "video.mp4").is_file()
+    kept = {p.name: p.stat().st_mtime_ns for p in pngs[:7]}  # frames 0..6: the checkpoint's is 6
+    resumed = ["run", "--resume", str(out), "--set", "physics.gravity=[0,-30,0]", "--no-progress"]
+    assert main(resumed) == 0
+    assert not (out / "frames" / "frame_00007.png").exists() and not (out / "video.mp4").exists()
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "rendered 6 frames (7 already there)" in capsys.readouterr().out
+    assert {n: (out / "frames" / n).stat().st_mtime_ns for n in kept} == kept
+
+
+@needs_mitsuba
+def test_frames_rendered_by_an_earlier_version_or_a_hand_edited_view_are_handled(tmp_path, capsys):
+    """A record of rendered frames without the keys this version adds keeps its frames; a camera
+    edited into nonsense (its eye on its target) is not used: the run is framed anew."""
+    import json
+
+    from conftest import collapsing_block
+
+    from warp_iisph.run.runner import run_scene
+
+    out = tmp_path / "run"
+    scene = collapsing_block()
+    scene.output.mesh = True
+    assert run_scene(scene, out, duration=0.1, fps=30, progress=False)["ended"] == "completed"
+    args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
+    assert main(args) == 0
+    source = out / "frames" / "source.json"
+    record = json.loads(source.read_text())
+    for key in ("floor", "obstacles"):  # as the version before them wrote it
+        del record["settings"][key]
+    source.write_text(json.dumps(record))
+    capsys.readouterr()
+    assert main(args) == 0
+    assert "rendered 0 frames (4 already there)" in capsys.readouterr().out
+    assert "floor" in json.loads(source.read_text())["settings"]  # the keys it lacked, added
+    record = json.loads(source.read_text())
+    record["settings"]["camera"][1] = record["settings"]["camera"][0]
+    source.write_text(json.dumps(record))
+    assert main(args) == 0
+    assert "rendered 4 frames (0 already there)" in capsys.readouterr().out
+    camera = json.loads(source.read_text())["settings"]["camera"]
+    assert camera[0] != camera[1]
 
 
 def test_missing_extra_is_a_clear_message(tiny_run, monkeypatch, capsys):

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine import signals
+
 
 def _umask() -> int:
     mask = os.umask(0)
@@ -56,17 +58,19 @@ def staged_write(path: Path, write) -> StagedFile:
     """:func:`atomic_write` in two halves: the file written and flushed beside ``path`` now, put
     in place by the returned file's ``commit`` (so that it appears only after other files)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    tmp = None
     try:
-        try:
-            os.fchmod(fd, FILE_MODE)
-        finally:  # closed exactly once: a Ctrl-C landing just after the close must not close it again
-            os.close(fd)
+        with signals.held():  # a Ctrl-C waits until the file is made, named here and closed once
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+            try:
+                os.fchmod(fd, FILE_MODE)
+            finally:
+                os.close(fd)
         write(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
     except BaseException:
-        if os.path.exists(tmp):
+        if tmp is not None and os.path.exists(tmp):
             os.remove(tmp)
         raise
     return StagedFile(tmp, path)

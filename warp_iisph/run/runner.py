@@ -27,6 +27,7 @@ from ..scene.checks import in_range
 from ..scene.settings import MESH_FORMATS, PARTICLE_FORMATS
 from .checkpoint import check_checkpoint, check_positions, load_checkpoint, owner
 from .folder import (
+    FRAMES,
     MESHES,
     OBSTACLE_FRAMES,
     PARTICLES,
@@ -298,18 +299,18 @@ def _simulate(scene, sim, run, plan, first, t_start, background_output, progress
         ended, message = "terminated", f"terminated at step {sim.step_count}, t = {sim.time:.5f} s"
     except KeyboardInterrupt:
         ended, message = "interrupted", f"interrupted at step {sim.step_count}, t = {sim.time:.5f} s"
-    except OSError as e:
-        stop = _signal_behind(e)  # a cleanup that failed while a Ctrl-C was on its way out
+    except Exception as e:  # an error met while a Ctrl-C or SIGTERM unwound is how that signal ended it
+        stop = _signal_behind(e)
         if stop is not None:
             ended = "terminated" if isinstance(stop, Terminated) else "interrupted"
             message = f"{ended} at step {sim.step_count}, t = {sim.time:.5f} s"
-        else:
+        elif isinstance(e, OSError):
             ended, message = "failed", f"writing the run to {run.path}: {e}"
-    except MemoryError as e:  # storage that would outgrow the device or its indices: frames so far stay
-        ended, message = "failed", str(e) or "out of memory"
-    except Exception as e:  # anything else at run time (a surface grid outgrowing its limit, a thread
-        # that cannot start): the run stops, and its record says why
-        ended, message = "failed", f"at step {sim.step_count}, t = {sim.time:.5f} s: {_failure(e)}"
+        elif isinstance(e, MemoryError):  # storage that would outgrow the device or its indices: frames so far stay
+            ended, message = "failed", str(e) or "out of memory"
+        else:  # anything else at run time (a surface grid outgrowing its limit, a thread that cannot
+            # start): the run stops, and its record says why
+            ended, message = "failed", f"at step {sim.step_count}, t = {sim.time:.5f} s: {_failure(e)}"
     finally:
         _close_quietly(bar.close)
         if queue is not None:
@@ -348,10 +349,14 @@ def _signal_behind(e: BaseException) -> KeyboardInterrupt | None:
 
 def _continue_logs(run: RunFolder, sim, scene, plan, first: int, record: RunRecord, kept: list[dict]) -> tuple:
     """A resumed run's growing files, cut back to its checkpoint (frame ``first - 1``): what the
-    stopped run wrote after it goes, and what a killed run staged; the step records up to its step
+    stopped run wrote after it goes (and the rendered images of those frames, with the videos
+    made of them: the frames are made again), and what a killed run staged; the step records up to its step
     (``kept``, checked by :func:`.kept.check_kept`) stay and go into the totals, the solids' and
     the probes' rows up to its time."""
-    for old in _frames_after(run, first - 1) + run.temporary_files():
+    renders = [f for f in frame_files(run.path / FRAMES, "png") if frame_index(f) > first - 1]
+    if renders:  # images of frames this resume makes again, and the videos that show them
+        renders += [v for v in (run.path / "video.mp4", run.path / "video.gif") if v.is_file()]
+    for old in _frames_after(run, first - 1) + renders + run.temporary_files():
         old.unlink()
     for r in kept:
         record.totals.add(r)

@@ -113,27 +113,48 @@ def render_frame(settings: dict, mesh: str, obstacles: str | None, png: str) -> 
     return time.perf_counter() - t0
 
 
-def kept_camera(run: RunFolder, record: dict, framed: dict, eye, target, fov: float):
-    """The camera of the frames already rendered with these settings, where the scene leaves the
-    camera to the framing: a run extended by ``--resume`` (or meshed again the same way) frames
-    other last frames, and a camera framed anew would throw away every frame rendered (hours on a
-    farm), so the render goes on with the camera it began with. Otherwise ``eye, target, fov``."""
+# what the frames of a render were made with beyond ``framed`` (render_run): where it looked from
+# and the floor it stood the liquid on; an earlier version's record may lack a key (then the
+# frames' value is taken as today's: "obstacles", "floor")
+VIEW_KEYS = ("camera", "floor")
+
+
+def _comparable(settings: dict, made: dict) -> dict:
+    """``settings`` of rendered frames, keys an earlier version did not record taken from ``made``."""
+    return {**{k: made[k] for k in ("obstacles", "floor") if k in made}, **settings}
+
+
+def kept_view(run: RunFolder, record: dict, framed: dict):
+    """``(eye, target, fov, floor)`` of the frames already rendered with ``framed`` settings (the
+    frames' own view), where the scene leaves the camera to the framing; ``None`` otherwise. A run
+    extended by ``--resume`` frames other last frames, and a camera framed anew would throw away
+    every frame rendered (hours on a farm): the render goes on with the view it began with.
+    ``floor`` is ``[floor_y, extent]`` or ``None`` (not recorded by an earlier version)."""
     if ((record.get("scene") or {}).get("camera") or {}).get("position") is not None:
-        return eye, target, fov  # the scene's own camera: nothing to keep
+        return None  # the scene's own camera: nothing to keep
     prior = run.provenance(FRAMES)
     if not isinstance(prior, dict) or prior.get("run_id") != record.get("run_id"):
-        return eye, target, fov
+        return None
     settings = prior.get("settings")
-    if not isinstance(settings, dict) or {k: v for k, v in settings.items() if k != "camera"} != framed:
-        return eye, target, fov
+    if not isinstance(settings, dict):
+        return None
+    rest = {k: v for k, v in _comparable(settings, framed).items() if k not in VIEW_KEYS}
+    if rest != framed:
+        return None
     try:
         old_eye, old_target, old_fov = settings["camera"]
-        old = np.asarray(old_eye, float), np.asarray(old_target, float), float(old_fov)
-    except (KeyError, TypeError, ValueError):
-        return eye, target, fov
-    if old[2] != float(fov) or not all(v.shape == (3,) and np.all(np.isfinite(v)) for v in old[:2]):
-        return eye, target, fov
-    return old
+        eye, target, fov = np.asarray(old_eye, float), np.asarray(old_target, float), float(old_fov)
+        floor = settings.get("floor")
+        floor = None if floor is None else [float(floor[0]), float(floor[1])]
+    except (KeyError, TypeError, ValueError, IndexError):
+        return None
+    if eye.shape != (3,) or target.shape != (3,) or not np.all(np.isfinite(np.r_[eye, target])):
+        return None  # a record edited by hand: framed anew
+    if not 0.0 < fov < 180.0 or not np.linalg.norm(target - eye) > 1e-6:
+        return None
+    if floor is not None and not (np.all(np.isfinite(floor)) and floor[1] > 0.0):
+        floor = None
+    return eye, target, fov, floor
 
 
 def render_run(
@@ -183,9 +204,12 @@ def render_run(
         "variant": chosen_variant,
         "obstacles": solid is not None,
     }
-    eye, target, fov = kept_camera(run, record, framed, eye, target, fov)
     floor_y = float(tank[0][1]) if tank is not None else float(box[0][1])
     extent = 4.0 * float(np.linalg.norm(box[1] - box[0])) + 1.0
+    kept = kept_view(run, record, framed)
+    if kept is not None:  # the view the frames already rendered were made with
+        eye, target, fov, floor = kept
+        floor_y, extent = floor if floor is not None else (floor_y, extent)
     wall_list = far_walls(*tank, eye) if walls and tank is not None else []
     settings = {
         "variant": chosen_variant,
@@ -212,11 +236,23 @@ def render_run(
         # another run, other meshes or other settings go
         made = {
             "run_id": record.get("run_id"),
-            "settings": {**framed, "camera": [eye.tolist(), np.asarray(target).tolist(), fov]},
+            "settings": {
+                **framed,
+                "camera": [np.asarray(eye).tolist(), np.asarray(target).tolist(), fov],
+                "floor": [floor_y, extent],
+            },
         }
-        if run.provenance(FRAMES) != made:
+        prior = run.provenance(FRAMES)
+        rendered = prior.get("settings") if isinstance(prior, dict) else None
+        if (
+            not isinstance(rendered, dict)
+            or prior.get("run_id") != made["run_id"]
+            or _comparable(rendered, made["settings"]) != made["settings"]
+        ):
             for old in frame_files(out, "png"):
                 old.unlink()
+            run.write_provenance(FRAMES, made["run_id"], made["settings"])
+        elif rendered != made["settings"]:  # an earlier version's record: the keys it lacked added
             run.write_provenance(FRAMES, made["run_id"], made["settings"])
         if progress:
             print(f"rendering with Mitsuba {chosen_variant}: {why}", file=sys.stderr)
