@@ -275,7 +275,7 @@ def test_a_run_extended_by_resume_renders_only_its_new_frames_with_the_same_came
 @needs_mitsuba
 def test_a_resume_takes_the_images_of_the_frames_it_makes_again(tmp_path, capsys, monkeypatch):
     """A run stopped after its checkpoint: its resume makes the frames after the checkpoint again,
-    and their rendered images (and the video showing them) go with their meshes, so a render never
+    and their rendered images (and the videos showing them) go with their meshes, so a view never
     shows a frame the run no longer has."""
     from conftest import collapsing_block
 
@@ -298,11 +298,13 @@ def test_a_resume_takes_the_images_of_the_frames_it_makes_again(tmp_path, capsys
     args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
     assert main(args) == 0
     pngs = sorted((out / "frames").glob("frame_*.png"))
-    assert len(pngs) == 8 and (out / "video.mp4").is_file()
+    assert main(["preview", str(out), "--no-progress"]) == 0
+    assert len(pngs) == 8 and (out / "video.mp4").is_file() and (out / "preview.mp4").is_file()
     kept = {p.name: p.stat().st_mtime_ns for p in pngs[:7]}  # frames 0..6: the checkpoint's is 6
     resumed = ["run", "--resume", str(out), "--set", "physics.gravity=[0,-30,0]", "--no-progress"]
     assert main(resumed) == 0
-    assert not (out / "frames" / "frame_00007.png").exists() and not (out / "video.mp4").exists()
+    assert not (out / "frames" / "frame_00007.png").exists()
+    assert not (out / "video.mp4").exists() and not (out / "preview.mp4").exists()
     capsys.readouterr()
     assert main(args) == 0
     assert "rendered 6 frames (7 already there)" in capsys.readouterr().out

@@ -41,6 +41,9 @@ CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, 
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
 USD_NAMES = (USD, "run.usda", "run.usd")
+# the views a run folder holds by default, each made of all its frames (a resume that makes frames
+# again leaves them stale)
+VIEW_FILES = ("video.mp4", "video.gif", "preview.mp4", "preview.gif", *USD_NAMES)
 DATA_FOLDERS = (PARTICLES, MESHES, FRAMES, OBSTACLE_FRAMES)
 DEFAULT_FPS = 30.0
 MAX_FPS = 10_000.0  # output.fps's limit, and a video's

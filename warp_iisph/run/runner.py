@@ -31,6 +31,7 @@ from .folder import (
     MESHES,
     OBSTACLE_FRAMES,
     PARTICLES,
+    VIEW_FILES,
     RunError,
     RunFolder,
     frame_files,
@@ -349,14 +350,15 @@ def _signal_behind(e: BaseException) -> KeyboardInterrupt | None:
 
 def _continue_logs(run: RunFolder, sim, scene, plan, first: int, record: RunRecord, kept: list[dict]) -> tuple:
     """A resumed run's growing files, cut back to its checkpoint (frame ``first - 1``): what the
-    stopped run wrote after it goes (and the rendered images of those frames, with the videos
-    made of them: the frames are made again), and what a killed run staged; the step records up to its step
-    (``kept``, checked by :func:`.kept.check_kept`) stay and go into the totals, the solids' and
-    the probes' rows up to its time."""
-    renders = [f for f in frame_files(run.path / FRAMES, "png") if frame_index(f) > first - 1]
-    if renders:  # images of frames this resume makes again, and the videos that show them
-        renders += [v for v in (run.path / "video.mp4", run.path / "video.gif") if v.is_file()]
-    for old in _frames_after(run, first - 1) + renders + run.temporary_files():
+    stopped run wrote after it goes (and the rendered images of those frames, with the views made
+    of them, :data:`.folder.VIEW_FILES`: the frames are made again), and what a killed run staged;
+    the step records up to its step (``kept``, checked by :func:`.kept.check_kept`) stay and go
+    into the totals, the solids' and the probes' rows up to its time."""
+    again = _frames_after(run, first - 1)
+    again += [f for f in frame_files(run.path / FRAMES, "png") if frame_index(f) > first - 1]  # their images
+    if again:  # frames this resume makes again: the views that show them go too
+        again += [run.path / v for v in VIEW_FILES if (run.path / v).is_file()]
+    for old in again + run.temporary_files():
         old.unlink()
     for r in kept:
         record.totals.add(r)
