@@ -1218,3 +1218,17 @@ def test_a_ctrl_c_while_a_staged_file_is_made_leaves_nothing(tmp_path):
         """
     )
     assert code == 0 and err == ["interrupted", "[]"], err
+
+
+def test_a_listing_whose_reader_went_away_ends_quietly():
+    """``warp-iisph scenes | head -2``: the reader may close the pipe before the listing is out;
+    the command then ends with status 0 and nothing on stderr (it said "error: Broken pipe")."""
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before the first line
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "warp_iisph", "scenes"], stdout=write, stderr=subprocess.PIPE, text=True, timeout=120
+        )
+    finally:
+        os.close(write)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr

@@ -450,7 +450,7 @@ def test_render_on_two_workers_writes_and_skips_the_frames_render_does(tiny_run,
     assert (farm / "video.mp4").stat().st_size > 0 and not list((farm / "frames").glob("*.part.png"))
     (farm / "frames" / "frame_00002.png").unlink()
     assert main(["render", str(farm), "--scheduler", scheduler, *args]) == 0
-    assert "rendered 1 frames (3 already there)" in capsys.readouterr().out
+    assert "rendered 1 frame (3 already there)" in capsys.readouterr().out
     assert (farm / "frames" / "frame_00002.png").read_bytes() == (tiny_run / "frames" / "frame_00002.png").read_bytes()
 
 

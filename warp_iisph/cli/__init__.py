@@ -83,11 +83,25 @@ def _command(argv: list, debug: bool) -> int:
     except KeyboardInterrupt as e:
         return _stopped(signal_of(e))
     except Exception as e:
+        if isinstance(e, BrokenPipeError) and _stdout_gone():  # the reader went away (| head): done
+            return 0
         if debug:
             raise
         code, text = _one_line(e)
         _say(f"warp-iisph: error: {text}")
         return code
+
+
+def _stdout_gone() -> bool:
+    """Whether standard output is a pipe whose reader has gone (polled: an error on it)."""
+    import select
+
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poll.poll(0))
+    except (OSError, ValueError, AttributeError):  # no poll here, or no stdout to ask
+        return False
 
 
 def _repeatable(parser) -> set:

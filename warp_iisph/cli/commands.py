@@ -8,6 +8,11 @@ import sys
 from . import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_TERMINATED, use_graph
 
 
+def _frames(n: int) -> str:
+    """``n`` frames, in words ("1 frame", "4 frames")."""
+    return f"{n} frame{'' if n == 1 else 's'}"
+
+
 def _preview(args) -> int:
     from ..view.preview import preview_run
 
@@ -24,7 +29,7 @@ def _preview(args) -> int:
         progress=not args.no_progress,
     )
     print(
-        f"preview of {r['frames']} frames ({r['source']}, "
+        f"preview of {_frames(r['frames'])} ({r['source']}, "
         f"{1e3 * r['seconds_per_frame']:.0f} ms per frame) -> {r['path']}"
     )
     return 0
@@ -60,8 +65,8 @@ def _render(args) -> int:
     except (RenderUnavailable, ClusterUnavailable) as e:
         raise ValueError(f"render: {e}") from None
     print(
-        f"rendered {r['rendered']} frames ({r['skipped']} already there) with Mitsuba {r['why']}, "
-        f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']} ({r['video_frames']} frames)"
+        f"rendered {_frames(r['rendered'])} ({r['skipped']} already there) with Mitsuba {r['why']}, "
+        f"{r['seconds_per_frame']:.1f} s per frame -> {r['video']} ({_frames(r['video_frames'])})"
     )
     return 0
 
@@ -133,7 +138,7 @@ def _mesh(args) -> int:
     kept = result["skipped"]
     # a run's meshes record their settings (refused when other); another tool's files' meshes do not
     unknown = ", kept as they are: --overwrite remakes them with these settings" if kept and not result["run"] else ""
-    print(f"meshed {result['written']} frames ({kept} already there{unknown}) -> {result['out']}; {secs}")
+    print(f"meshed {_frames(result['written'])} ({kept} already there{unknown}) -> {result['out']}; {secs}")
     return 0
 
 
@@ -200,7 +205,7 @@ def _run(args) -> int:
     summary = (
         f"{record['ended']}: {t['steps']} steps, {t['simulated_time']:.3f} s simulated{cut} "
         f"in {t['wall_seconds']:.1f} s wall, "
-        f"{t['frames']} frames of {wrote}, {t.get('particles', record['particles']['fluid'])} particles"
+        f"{_frames(t['frames'])} of {wrote}, {t.get('particles', record['particles']['fluid'])} particles"
         + (
             f" ({t['emitted']} emitted, {t['removed']} removed by sinks"
             + (f", {t['blocked']} not emitted: liquid at the nozzle" if t.get("blocked") else "")

@@ -27,7 +27,7 @@ def _parser():
         "--resume",
         metavar="RUN_DIR",
         default=None,
-        help="continue a stopped, interrupted or diverged (then --set fixed) run from its last checkpoint, "
+        help="continue a stopped, interrupted, terminated or diverged (then --set fixed) run from its last checkpoint, "
         "bitwise as it would have run; --duration may extend it; refused while a file the run wrote up to "
         "the checkpoint is missing or cut",
     )
@@ -73,7 +73,11 @@ def _parser():
         help="record the loop over steps as a graph and replay it (no per-step Python launches); "
         "default: on with a CUDA device, off on the CPU (a replay there runs on one thread)",
     )
-    run.add_argument("--overwrite", action="store_true", help="replace the contents of an existing output folder")
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing run in the output folder (only a run of warp-iisph holding none of the run's inputs)",
+    )
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sweep = sub.add_parser(
         "sweep",
@@ -138,7 +142,7 @@ def _parser():
     )
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("scenes", help="list bundled scenes")
-    mesh = sub.add_parser("mesh", help="mesh a run's particle frames (or any particle files) into OBJ surfaces")
+    mesh = sub.add_parser("mesh", help="mesh a run's particle frames (or any particle files) into OBJ or PLY surfaces")
     mesh.add_argument(
         "run_dir",
         metavar="PATH",
