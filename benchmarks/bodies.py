@@ -4,9 +4,9 @@
 channel) with its free bodies, against the same scene with the bodies fixed where they start (the
 same boxes as still obstacles, sampled in layers inside their faces as a body is; at its defaults,
 so from the hydrostatic warm start, and once more from the half start the free bodies' scene
-takes), and against the same boxes moved along the path the free bodies took (keyframes from the
-first free run's steps every 10 ms: the same flow round them, with nothing pushed back; from
-either start), which sets the coupling's own cost apart from the different flow that bodies held
+takes), and against the same boxes moved along the path the free bodies took from the same start
+(keyframes every 10 ms from a free run of its own, untimed: the same flow round them, with nothing
+pushed back), which sets the coupling's own cost apart from the different flow that bodies held
 still make: wall seconds per simulated second, the median of interleaved repeats (free, fixed, free, fixed, ...). Each
 run also reports the containment's last-line corrections (``obstacle_corrections``: particles it
 put back out of an obstacle or a body; ``wall_corrections``: out of the tank), the fluid
@@ -72,8 +72,10 @@ VARIANT_WARM_STARTS = {
     "free_hydrostatic": "hydrostatic",
     "replayed_half": "half",
 }  # the others: the scene's own
+# each replay follows the path the free bodies take from its own start
+REPLAYS = {"replayed": "free_hydrostatic", "replayed_half": "free"}
 REPLAY_KEY_INTERVAL = 0.01  # s between the keys a replay takes from the free run's steps
-_free_path: dict = {}  # the first free run's bodies' path, which the replays follow (every run is the same)
+_paths: dict = {}  # the free variants' paths, recorded once in runs of their own (every run is the same)
 
 
 def flood(variant: str, overrides: list, path: dict | None = None) -> Scene:
@@ -82,9 +84,9 @@ def flood(variant: str, overrides: list, path: dict | None = None) -> Scene:
     ``fixed_half``: so, with the half warm start the free bodies' scene runs with;
     ``free_hydrostatic``: the free bodies from the hydrostatic start (beside a body at least half the
     last pressure), the still boxes' own; ``replayed``, ``replayed_half``: the same box obstacles
-    moved along the free run's ``path`` (keyframes, :func:`replay_motions`), so the liquid flows
-    round the bodies as they moved, but pushes nothing: the same flow without the coupling, from
-    either start."""
+    moved along the ``path`` the free bodies took from the same start (keyframes,
+    :func:`replay_motions`), so the liquid flows round the bodies as they moved, but pushes
+    nothing: the same flow without the coupling."""
     scene = load_scene("flood", overrides)
     if variant in VARIANT_WARM_STARTS:
         scene.physics.warm_start = VARIANT_WARM_STARTS[variant]
@@ -101,18 +103,18 @@ def flood(variant: str, overrides: list, path: dict | None = None) -> Scene:
 
 def replay_motions(scene: Scene, path: dict) -> list:
     """Keyframes that move each body's box as the free run moved the body: at every key (the free
-    run's steps, one every REPLAY_KEY_INTERVAL) its centre's translation and its rotation as
-    angles about x, then y, then z (unwrapped), about its centre at the start; smooth
-    interpolation between keys."""
+    run's steps, one every REPLAY_KEY_INTERVAL, at most MAX_KEYS) its centre of mass's translation
+    and its rotation as angles about x, then y, then z (kept continuous), about its centre of mass
+    at the start; smooth interpolation between keys."""
     from scipy.spatial.transform import Rotation
 
     keep = np.unique(np.linspace(0, len(path["times"]) - 1, min(len(path["times"]), MAX_KEYS)).round().astype(int))
     times = np.asarray(path["times"])[keep]
     path = {key: np.asarray(v)[keep] for key, v in path.items()}
     out = []
-    for k, body in enumerate(scene.bodies):
-        start = 0.5 * (np.asarray(body.shape.lower) + np.asarray(body.shape.upper))
+    for k in range(len(scene.bodies)):
         centres = np.asarray(path["position"])[:, k]
+        start = centres[0]
         angles = continuous_angles(Rotation.from_quat(np.asarray(path["orientation"])[:, k]).as_euler("xyz"))
         out.append(
             Motion(
@@ -184,21 +186,40 @@ def outside_tank(boxes: list, poses: dict, lower, upper, margin: float) -> bool:
     return False
 
 
+def free_path(variant: str, overrides: list, duration) -> dict:
+    """The path the free bodies of ``variant`` take (a run of its own, untimed, advanced frame by
+    frame as the timed runs are): their centres and orientations at the first step every
+    REPLAY_KEY_INTERVAL."""
+    scene = flood(variant, overrides)
+    duration = duration or scene.output.duration
+    sim = Simulation(scene, "cpu", history=1)
+    start = sim.bodies
+    path = {"times": [0.0], "position": [start["position"]], "orientation": [start["orientation"]]}
+
+    def on_step(r):
+        if r["t"] - path["times"][-1] >= REPLAY_KEY_INTERVAL - 1e-9:
+            pose = sim.bodies
+            path["times"].append(r["t"])
+            path["position"].append(pose["position"])
+            path["orientation"].append(pose["orientation"])
+
+    while sim.time < duration - 1e-9:
+        sim.advance(min(1.0 / scene.output.fps, duration - sim.time), callback=on_step)
+    return {key: np.array(v) for key, v in path.items()}
+
+
 def run_flood(variant: str, overrides: list, duration) -> dict:
     load = load_scene("flood", overrides)
     boxes = [(b.shape.lower, b.shape.upper) for b in load.bodies]
-    replay = variant.startswith("replayed")
-    if replay and not _free_path:
-        run_flood("free", overrides, duration)  # the path to follow (not timed, not recorded)
-    scene = flood(variant, overrides, _free_path if replay else None)
+    replay = variant in REPLAYS
+    if replay and REPLAYS[variant] not in _paths:
+        _paths[REPLAYS[variant]] = free_path(REPLAYS[variant], overrides, duration)
+    scene = flood(variant, overrides, _paths[REPLAYS[variant]] if replay else None)
     duration = duration or scene.output.duration
     sim = Simulation(scene, "cpu", history=1)
     frame = 1.0 / scene.output.fps
     counts = {"steps": 0, "obstacle_corrections": 0, "wall_corrections": 0, "corrected_steps": 0, "iterations": 0}
-    path, speeds = None, []
-    if variant == "free" and not _free_path:  # the bodies' path, kept for the replays
-        start = sim.bodies
-        path = {"times": [0.0], "position": [start["position"]], "orientation": [start["orientation"]]}
+    speeds = []
 
     def on_step(r):
         counts["steps"] += 1
@@ -207,11 +228,6 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         counts["corrected_steps"] += bool(r["obstacle_corrections"] or r["wall_corrections"])
         counts["iterations"] += r["iterations"]
         speeds.append(r["max_velocity"])
-        if path is not None and r["t"] - path["times"][-1] >= REPLAY_KEY_INTERVAL - 1e-9:
-            pose = sim.bodies
-            path["times"].append(r["t"])
-            path["position"].append(pose["position"])
-            path["orientation"].append(pose["orientation"])
 
     # the boxes' walls for the last line: a free body's surface, a still box's inner boundary layer
     # h/2 inside its faces (sampled by faces; sph/containment.py)
@@ -228,9 +244,6 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         past_walls += inside_count(sim.positions, boxes, poses, inset) if inset else k
         if poses:
             left |= outside_tank(boxes, poses, scene.tank.lower, scene.tank.upper, scene.spacing)
-    if path is not None:
-        path.update({key: np.array(v) for key, v in path.items() if key != "times"})
-        _free_path.update(path)
     poses = replay_poses(scene, sim.time) if replay else sim.bodies
     return {
         "variant": variant,
@@ -453,7 +466,7 @@ def chart(record: dict, path) -> None:
         "fixed": "bodies fixed\n(still obstacles)",
         "fixed_half": "fixed,\nhalf warm start",
         "free_hydrostatic": "free,\nhydrostatic start",
-        "replayed": "moved along the\nfree path (uncoupled)",
+        "replayed": "moved along the free path\n(hydrostatic start)",
         "replayed_half": "moved along it,\nhalf start",
     }
     shown = [v for v in FLOOD_VARIANTS if any(r["variant"] == v for r in runs)]
