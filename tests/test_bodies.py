@@ -574,8 +574,9 @@ def test_momentum_balances_in_a_closed_tank():
 
 def test_bodies_benchmark_quick_mode(tmp_path):
     """benchmarks/bodies.py --quick: the flood (coarse, short) with free and with fixed bodies (from
-    the default and from the half warm start), the drafts (IISPH's and DFSPH's) and DFSPH's heave,
-    into its JSON and chart; the liquid is never found past a wall."""
+    the default and from the half warm start) and with the boxes moved along the free bodies'
+    paths, the drafts (IISPH's and DFSPH's) and DFSPH's heave, into its JSON and chart; the liquid
+    is never found past a wall."""
     import json
     import subprocess
     import sys
@@ -592,13 +593,22 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     record = json.loads((tmp_path / "bodies_quick.json").read_text())
     assert record["versions"]["warp"] and record["date"] and (tmp_path / "bodies_quick.png").stat().st_size > 10_000
     runs = record["flood"]["runs"]
-    assert [r["variant"] for r in runs] == ["free", "fixed", "fixed_half", "free_hydrostatic"]
+    assert [r["variant"] for r in runs] == [
+        "free",
+        "fixed",
+        "fixed_half",
+        "free_hydrostatic",
+        "replayed",
+        "replayed_half",
+    ]
     # no centre past a wall, and none inside a free body's surface (a still box's wall is h/2 inside it)
     assert all(r["past_walls_at_frames"] == 0 and not r["body_left_tank"] and r["steps"] > 0 for r in runs)
     assert runs[0]["inside_bodies_at_frames"] == 0 and runs[3]["inside_bodies_at_frames"] == 0
     summary = record["flood"]["summary"]
     assert summary["cost_ratio"] > 0 and summary["cost_ratio_same_start"] > 0
     assert summary["cost_ratio_hydrostatic_start"] > 0
+    # the boxes moved along the free bodies' paths, from each start: the coupling's own cost
+    assert summary["cost_ratio_free_to_replayed_half"] > 0 and summary["cost_ratio_free_hydrostatic_to_replayed"] > 0
     (heave,) = record["heave"]["runs"]  # the fit found an oscillation, not a flat line
     assert 0.2 < heave["damped_period"] < 2.0 and 0.0 <= heave["damping_ratio"] < 0.95
     assert [(d["spacing"], d["density"]) for d in record["drafts"]] == [(0.04, 500.0), (0.04, 250.0)]
