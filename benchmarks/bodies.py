@@ -109,16 +109,15 @@ def replay_motions(scene: Scene, path: dict) -> list:
     from scipy.spatial.transform import Rotation
 
     keep = np.unique(np.linspace(0, len(path["times"]) - 1, min(len(path["times"]), MAX_KEYS)).round().astype(int))
-    times = np.asarray(path["times"])[keep]
     path = {key: np.asarray(v)[keep] for key, v in path.items()}
     out = []
     for k in range(len(scene.bodies)):
-        centres = np.asarray(path["position"])[:, k]
+        centres = path["position"][:, k]
         start = centres[0]
-        angles = continuous_angles(Rotation.from_quat(np.asarray(path["orientation"])[:, k]).as_euler("xyz"))
+        angles = continuous_angles(Rotation.from_quat(path["orientation"][:, k]).as_euler("xyz"))
         out.append(
             Motion(
-                times=times.tolist(),
+                times=path["times"].tolist(),
                 translate=(centres - start).tolist(),
                 rotate=angles.tolist(),
                 pivot=tuple(start),

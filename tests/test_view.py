@@ -239,19 +239,30 @@ def test_render_run_writes_frames_and_video_and_skips_done_frames(tiny_run, caps
     assert "rendered 4 frames (0 already there)" in capsys.readouterr().out
 
 
-@needs_mitsuba
-def test_a_run_extended_by_resume_renders_only_its_new_frames_with_the_same_camera(tmp_path, capsys):
-    """A resume that extends a run frames other last frames; the render goes on with the camera
-    its frames were made with and keeps them (they took hours on a farm), rendering the new ones."""
+# a render small and quick enough for a test (the scalar variant runs everywhere Mitsuba does)
+TINY_RENDER = ["--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
+
+
+def _meshed_block_run(out: Path, duration: float, **output) -> dict:
+    """conftest's collapsing block run with meshes into ``out`` (``output``: more output settings)."""
     from conftest import collapsing_block
 
     from warp_iisph.run.runner import run_scene
 
-    out = tmp_path / "run"
     scene = collapsing_block()
     scene.output.mesh = True
-    assert run_scene(scene, out, duration=0.1, fps=30, progress=False)["ended"] == "completed"
-    args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
+    for key, value in output.items():
+        setattr(scene.output, key, value)
+    return run_scene(scene, out, duration=duration, fps=30, progress=False)
+
+
+@needs_mitsuba
+def test_a_run_extended_by_resume_renders_only_its_new_frames_with_the_same_camera(tmp_path, capsys):
+    """A resume that extends a run frames other last frames; the render goes on with the camera
+    its frames were made with and keeps them (they took hours on a farm), rendering the new ones."""
+    out = tmp_path / "run"
+    assert _meshed_block_run(out, 0.1)["ended"] == "completed"
+    args = ["render", str(out), *TINY_RENDER]
     assert main(args) == 0
     first_settings = RunFolder(out).provenance("frames")["settings"]
     camera = first_settings["camera"]
@@ -265,8 +276,7 @@ def test_a_run_extended_by_resume_renders_only_its_new_frames_with_the_same_came
     assert {p.name: p.stat().st_mtime_ns for p in (out / "frames").glob("frame_*.png") if p.name in first} == first
     assert len(video_frames(out / "video.mp4")) == 13
     # the floor the liquid stands on stays with the camera (it is framed on the run too)
-    settings = RunFolder(out).provenance("frames")["settings"]
-    assert settings["floor"] == first_settings["floor"]
+    assert RunFolder(out).provenance("frames")["settings"]["floor"] == first_settings["floor"]
     # other settings frame the run anew, and every frame is made again with them
     assert main(args[:3] + ["48x36"] + args[4:]) == 0
     assert "rendered 13 frames (0 already there)" in capsys.readouterr().out
@@ -277,10 +287,7 @@ def test_a_resume_takes_the_images_of_the_frames_it_makes_again(tmp_path, capsys
     """A run stopped after its checkpoint: its resume makes the frames after the checkpoint again,
     and their rendered images (and the videos showing them) go with their meshes, so a view never
     shows a frame the run no longer has."""
-    from conftest import collapsing_block
-
     from warp_iisph.run.frame_writer import FrameWriter
-    from warp_iisph.run.runner import run_scene
 
     real = FrameWriter.write
 
@@ -290,12 +297,10 @@ def test_a_resume_takes_the_images_of_the_frames_it_makes_again(tmp_path, capsys
         return real(self, k)
 
     out = tmp_path / "run"
-    scene = collapsing_block()
-    scene.output.mesh, scene.output.checkpoint_every = True, 3
     monkeypatch.setattr(FrameWriter, "write", stop_at_8)
-    assert run_scene(scene, out, duration=0.4, fps=30, progress=False)["ended"] == "interrupted"
+    assert _meshed_block_run(out, 0.4, checkpoint_every=3)["ended"] == "interrupted"
     monkeypatch.undo()
-    args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
+    args = ["render", str(out), *TINY_RENDER]
     assert main(args) == 0
     pngs = sorted((out / "frames").glob("frame_*.png"))
     assert main(["preview", str(out), "--no-progress"]) == 0
@@ -317,15 +322,9 @@ def test_frames_rendered_by_an_earlier_version_or_a_hand_edited_view_are_handled
     edited into nonsense (its eye on its target) is not used: the run is framed anew."""
     import json
 
-    from conftest import collapsing_block
-
-    from warp_iisph.run.runner import run_scene
-
     out = tmp_path / "run"
-    scene = collapsing_block()
-    scene.output.mesh = True
-    assert run_scene(scene, out, duration=0.1, fps=30, progress=False)["ended"] == "completed"
-    args = ["render", str(out), "--resolution", "64x36", "--spp", "2", "--variant", "scalar_rgb", "--no-progress"]
+    assert _meshed_block_run(out, 0.1)["ended"] == "completed"
+    args = ["render", str(out), *TINY_RENDER]
     assert main(args) == 0
     source = out / "frames" / "source.json"
     record = json.loads(source.read_text())

@@ -58,22 +58,36 @@ def staged_write(path: Path, write) -> StagedFile:
     """:func:`atomic_write` in two halves: the file written and flushed beside ``path`` now, put
     in place by the returned file's ``commit`` (so that it appears only after other files)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = None
+    tmp = temporary_beside(path, f".{path.name}.", ".tmp" + path.suffix)
     try:
-        with signals.held():  # a Ctrl-C waits until the file is made, named here and closed once
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
-            try:
-                os.fchmod(fd, FILE_MODE)
-            finally:
-                os.close(fd)
         write(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
     except BaseException:
-        if tmp is not None and os.path.exists(tmp):
+        if os.path.exists(tmp):
             os.remove(tmp)
         raise
     return StagedFile(tmp, path)
+
+
+def temporary_beside(path: Path, prefix: str, suffix: str) -> str:
+    """The name of a new empty file ``prefix...suffix`` of its own in ``path``'s folder, readable as
+    any file the user makes (mkstemp's are private). A Ctrl-C waits until it is made, named here
+    and closed exactly once (one landing between them left the file behind, or closed it twice),
+    and takes it with it."""
+    name = None
+    try:
+        with signals.held():
+            fd, name = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
+            try:
+                os.fchmod(fd, FILE_MODE)
+            finally:
+                os.close(fd)
+    except BaseException:
+        if name is not None and os.path.exists(name):
+            os.remove(name)
+        raise
+    return name
 
 
 def write_json(path, obj) -> None:

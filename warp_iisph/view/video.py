@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from ..engine import signals
-from ..run.atomic import FILE_MODE
+from ..run.atomic import FILE_MODE, temporary_beside
 from ..run.folder import RunError
 
 
@@ -38,16 +36,7 @@ def write_video(images, path, fps: float, gif: bool = False) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     # a name of its own beside the video (two previews at once never share one), ending in the
     # video's suffix, which says the format
-    name = None
-    try:
-        with signals.held():  # a Ctrl-C waits until the file is made, named here and closed
-            fd, name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".part{path.suffix}", dir=path.parent)
-            os.close(fd)
-    except BaseException:
-        if name is not None:
-            Path(name).unlink(missing_ok=True)
-        raise
-    tmp = Path(name)
+    tmp = Path(temporary_beside(path, f".{path.stem}.", f".part{path.suffix}"))
     try:
         if gif:
             writer = imageio.get_writer(tmp, mode="I", duration=1000.0 / fps, loop=0)
