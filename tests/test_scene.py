@@ -71,6 +71,20 @@ def test_touching_blocks_and_spheres_are_accepted():
     assert abs(sim.n_particles * 0.02**3 - (0.2 + 4 / 3 * 3.14159 * 0.2**3)) < 0.01
 
 
+def test_a_spacing_typed_to_a_few_digits_keeps_the_blocks_volume():
+    """SPHERIC Test 2's column, 0.55 x 1 m across, at 0.016667 m (1/60 to six digits): the lattice
+    holds 33 x 60 columns as at 1/60 exactly (it held 32 x 59 until 2026-12-05, 5 % of the water
+    lost), and a spacing that really differs (0.0167) still fills only the whole layers it fits."""
+    from warp_iisph.setup.sampling import sample_fluid
+
+    tank, column = Box((0, 0, 0), (3.22, 1, 1)), Box((1.992, 0, 0), (3.22, 0.55, 1))
+    exact = sample_fluid([column], tank, 1 / 60)
+    typed = sample_fluid([column], tank, 0.016667)
+    assert len(exact) == len(typed) == 73 * 33 * 60
+    assert np.all(typed[:, 2] <= 1.0 - 0.49 * 0.016667)  # the last column stays h/2 inside the tank's face
+    assert len(sample_fluid([column], tank, 0.0167)) == 73 * 32 * 59
+
+
 def test_a_misspelt_key_or_keys_beside_a_body_are_refused_not_ignored():
     """Setting a key a record does not have (``physics.etaa``) would be ignored without a word, as
     would keys given beside a ready Body: both refused, naming them."""
