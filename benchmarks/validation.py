@@ -34,7 +34,10 @@ docs/physics.md quote.
    (warp_iisph.analysis.spheric: the first impact's arrival, the plateau's mean over 0.6-1.2 s,
    the peak with its sampling rate, the gauges' RMS error over 0-2 s over the depth 0.55 m; beside
    them, where a delay is made: the front's arrival at each gauge downstream of the column, and
-   each sensor's arrival counted from the front's passage at x = 1.488 m).
+   each sensor's arrival counted from the front's passage at x = 1.488 m; when each downstream
+   gauge's level first rises above 1, 3 and 5 cm, and when the column's gauge first reads 1, 2
+   and 3 cm below its start). The finest default spacing, 1 cm (674k particles), takes about
+   35 minutes on 2 cores; the five together about an hour.
 
 Writes benchmarks/results/validation.json (the parts not run this time kept from the file there),
 validation.png (Z against T beside the experiment, shifted and not; the slope per step within the
@@ -42,7 +45,7 @@ validation.png (Z against T beside the experiment, shifted and not; the slope pe
 experiment).
 
     python benchmarks/validation.py [--parts martin_moyce,rest,release,loads,spheric] [--nx 20,30,40]
-        [--finer 60] [--spheric 0.025,0.016667,0.0125] [--quick] [--peer [--peer-nx 20]]
+        [--finer 60] [--spheric 0.05,0.025,0.016667,0.0125,0.01] [--quick] [--peer [--peer-nx 20]]
         [--workers N | --scheduler ADDRESS]
 
 --peer runs SPlisHSPlasH's IISPH (the `bench` extra, peer_splishsplash.py) on the same Martin &
@@ -448,7 +451,7 @@ def main():
     ap.add_argument(
         "--finer", type=int, default=60, help="a finer Martin & Moyce run for the self-convergence (0: none)"
     )
-    ap.add_argument("--spheric", default="0.025,0.016667,0.0125", help="SPHERIC Test 2 spacings (m)")
+    ap.add_argument("--spheric", default="0.05,0.025,0.016667,0.0125,0.01", help="SPHERIC Test 2 spacings (m)")
     ap.add_argument("--spheric-duration", type=float, default=2.0, help="SPHERIC Test 2 simulated seconds")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
@@ -587,6 +590,19 @@ def describe(kind: str, key, r: dict, t_max: float) -> str:
         for n in ("P1", "P2", "P3", "P4")
         if n in sc
     ]
+    for n, reading, verb in [(n, "front_depths", "rises above") for n in marin.DOWNSTREAM] + [
+        (marin.COLUMN, "drops", "falls")
+    ]:
+        timed = sc.get(n, {}).get(reading)
+        if timed:
+            errors = " / ".join(_num(v.get("error"), 1e3, "+.0f", "") for v in timed.values())
+            cells.append(f"{n} {verb} {' / '.join(timed)} cm {errors} ms")
+    lead = sc.get(marin.COLUMN, {}).get("lead")
+    if lead:
+        cells.append(
+            f"the column's clock leads its release by {_num(lead['sim'], 1e3, '+.0f', ' ms')} "
+            f"(the experiment's {_num(lead['experiment'], 1e3, '+.0f', ' ms')})"
+        )
     head = f"{label}SPHERIC Test 2 at {key:g} m ({r['particles']} particles, {r.get('wall_seconds', 0):.0f} s): "
     return head + "; ".join(cells)
 
@@ -623,12 +639,34 @@ def save_record(args, parts: list, done: dict, t_max: float):
             fresh_runs = {r["spacing"]: r for r in done[key]}
             kept = [r for r in record.get(key, []) if r["spacing"] not in fresh_runs]
             record[key] = sorted(kept + list(fresh_runs.values()), key=lambda r: -r["spacing"])
+            for r in record[key]:
+                with_front_depths(r)
     record.setdefault("peer_runs", [])
     # the file's date is its last run's; each part keeps the date it was measured on (absent: before
     # part dates were recorded)
     dates = record.setdefault("part_dates", {})
     dates.update(dict.fromkeys(parts, fresh["date"]))
     return save(record, args.out, "validation", args.quick)
+
+
+def with_front_depths(run: dict) -> None:
+    """Give a SPHERIC run kept from before the front's depths, the column's fall and its clock's lead
+    were scored (warp_iisph.analysis.spheric) those readings, from its stored series (every 2 ms:
+    their times within a millisecond of a reading every step's)."""
+    if "failed" in run or "lead" in run["scores"].get(marin.COLUMN, {}):
+        return
+    ref, t = marin.load_marin(), np.asarray(run["t"])
+    for name in marin.DOWNSTREAM:
+        if name in run["series"]:
+            h = np.asarray(run["series"][name])
+            run["scores"][name]["front_depths"] = marin.front_depths(t, h, ref["t"], ref[name])
+    if marin.COLUMN in run["series"]:
+        h, col = np.asarray(run["series"][marin.COLUMN]), marin.COLUMN
+        run["scores"][col]["drops"] = marin.column_drops(t, h, ref["t"], ref[col])
+        run["scores"][col]["lead"] = {
+            "sim": marin.column_lead(t, h),
+            "experiment": marin.column_lead(ref["t"], ref[col]),
+        }
 
 
 def _series_errors(r: dict, prefix: str) -> str:

@@ -424,8 +424,9 @@ def test_sampling_inside_a_graph_allocates_nothing(tmp_path, conditional_body_al
 
 def test_spheric_scores_locate_a_delay_between_the_release_and_the_run_out():
     """SPHERIC Test 2's scores of the experiment against itself are zero; a run whose every series is
-    the experiment's 50 ms late is scored 50 ms late at every sensor and gauge front, and on time
-    from the front's passage at the gauge nearest the column."""
+    the experiment's 50 ms late is scored 50 ms late at every sensor and gauge front, at every depth
+    of the front and in the column's fall, and on time from the front's passage at the gauge
+    nearest the column."""
     from warp_iisph.analysis import spheric
 
     ref = spheric.load_marin()
@@ -441,3 +442,17 @@ def test_spheric_scores_locate_a_delay_between_the_release_and_the_run_out():
         assert same[name]["rms"] == pytest.approx(0.0, abs=1e-12)
         assert late[name]["front_error"] == pytest.approx(0.05, abs=1e-9)
     assert 0.18 < same["H_x1.488"]["front"]["experiment"] < 0.2  # the front passes x = 1.488 m at 0.19 s
+    for name in spheric.DOWNSTREAM:  # the front's depths and the column's fall: the same 50 ms
+        assert list(late[name]["front_depths"]) == ["1", "3", "5"]
+        assert all(v["error"] == pytest.approx(0.05, abs=1e-9) for v in late[name]["front_depths"].values())
+    drops = late[spheric.COLUMN]["drops"]
+    assert all(v["error"] == pytest.approx(0.05, abs=1e-9) for v in drops.values())
+    assert all(abs(v["error"]) < 1e-9 for v in same[spheric.COLUMN]["drops"].values())
+    # the experiment's column falls 1 cm at 0.066 s, 3 cm at 0.166 s: ahead of the exact release's
+    # fall there by about 22 ms; the copy 50 ms late reads 50 ms less (fitted on other samples: within 2 ms)
+    assert 0.06 < drops["1"]["experiment"] < 0.07 and 0.16 < drops["3"]["experiment"] < 0.17
+    lead = late[spheric.COLUMN]["lead"]
+    assert 0.015 < lead["experiment"] < 0.03 and lead["sim"] == pytest.approx(lead["experiment"] - 0.05, abs=2e-3)
+    t = np.arange(0.0, 0.3, 0.001)
+    exact = 0.55 - 0.5 * 2.0269 * t**2  # the exact release's top there, 2.03 m/s^2 down
+    assert abs(spheric.column_lead(t, exact)) <= 0.002 and abs(spheric.column_lead(t - 0.01, exact) - 0.01) <= 0.002

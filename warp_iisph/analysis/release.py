@@ -43,3 +43,19 @@ def release_pressure(
     ratio = np.exp(k * (x - width)) * (1.0 + np.exp(-2.0 * k * x)) / (1.0 + np.exp(-2.0 * k * width))
     series = np.sum(np.cos(k * y) * ratio / k**2, axis=-1)
     return rho * g * ((height - y[..., 0]) - 2.0 / height * series)
+
+
+def release_surface_acceleration(x, width: float, height: float, g: float = 9.81, terms: int = 4000) -> np.ndarray:
+    """The free top's downward acceleration (m/s^2) at ``x`` from the back wall at the instant of
+    release: at y = H, where p = 0, ``A_y = -g - (1/rho) dp/dy``, and from the series above
+    ``dp/dy = rho g [-1 + (2/H) sum_n (-1)^n cosh(k_n x) / (k_n cosh(k_n a))]`` (``sin(k_n H) =
+    (-1)^n``), so the top falls at ``(2 g / H) sum_n (-1)^n cosh(k_n x) / (k_n cosh(k_n a))``: g at
+    the front corner, nearly nothing far behind it. No gate lets the top fall faster: a gate still
+    partly there holds a pressure of at least zero on part of the front face, so by the maximum
+    principle the pressure inside is no lower than after the complete release, and where the top
+    keeps p = 0 its pressure falls less steeply towards it."""
+    x = np.asarray(x, dtype=np.float64)[..., None]
+    k = (2.0 * np.arange(terms) + 1.0) * np.pi / (2.0 * height)
+    ratio = np.exp(k * (x - width)) * (1.0 + np.exp(-2.0 * k * x)) / (1.0 + np.exp(-2.0 * k * width))
+    sign = np.where(np.arange(terms) % 2 == 0, 1.0, -1.0)
+    return 2.0 * g / height * np.sum(sign * ratio / k, axis=-1)

@@ -15,7 +15,17 @@ run's series interpolated at the experiment's samples) as a fraction of the init
 Where a delay is made, reported beside the scores (not targets): the front's arrival at each gauge
 downstream of the column (its level's first rise above 1 cm), and each sensor's arrival counted
 from the front's passage at the gauge nearest the column (x = 1.488 m, 0.5 m from the gate), which
-leaves out whatever the release itself delays or hurries.
+leaves out whatever the release itself delays or hurries. Beside these, two readings that say
+which part of the flow is late: the time each downstream gauge's level first rises above 1, 3 and
+5 cm (the front's thin tip against the water behind it; a particle 1-2.5 cm across cannot make a
+tip thinner than itself), and the time the gauge in the column (x = 2.638 m, 0.65 m behind the
+gate) first reads 1, 2 and 3 cm below its start (the release as the column feels it: where those
+agree with the experiment's, the two time origins agree). That gauge also gives the lead of a
+clock over the release: its fall over 20-100 ms set against the exact release's, ``(1/2) A_0 (t +
+lead)^2`` with ``A_0`` the top's acceleration there at the instant of release (2.03 m/s^2:
+:func:`.release.release_surface_acceleration`, the fastest any gate lets it fall). A run released
+at its t = 0 reads a lead near zero; a lead in the experiment's says its clock started after its
+column began to fall.
 """
 
 from __future__ import annotations
@@ -26,6 +36,7 @@ from importlib import resources
 import numpy as np
 
 from . import trapezoid
+from .release import release_surface_acceleration
 
 MARIN = "spheric_test2_marin.csv"
 DEPTH = 0.55  # the water column's initial depth (m)
@@ -33,6 +44,12 @@ IMPACT = 1000.0  # a first impact is the first rise above this (Pa)
 PLATEAU = (0.6, 1.2)  # the window of the plateau after the impact (s)
 GAUGE_WINDOW = (0.0, 2.0)  # the window of the gauges' RMS error (s)
 FRONT = 0.01  # the front has reached a gauge when its level first rises above this (m)
+FRONT_DEPTHS = (0.01, 0.03, 0.05)  # the levels (m) whose first rise at each downstream gauge is reported
+COLUMN = "H_x2.638"  # the gauge in the column, behind the gate
+COLUMN_DROPS = (0.01, 0.02, 0.03)  # how far (m) below its start the column's level is reported falling
+# the column (x from the gate at 1.992 m to the back wall at 3.22 m) and its gauge's distance from the back wall
+COLUMN_WIDTH, COLUMN_GAUGE_FROM_BACK = 3.22 - 1.992, 3.22 - 2.638
+LEAD_WINDOW = (0.02, 0.1)  # the column gauge's fall fitted for a clock's lead (s): 1-15 mm, a linear response
 DOWNSTREAM = ("H_x1.488", "H_x0.992", "H_x0.496")  # the gauges the front reaches, nearest the column first
 PRESSURES = tuple(f"P{k}" for k in range(1, 9))
 GAUGES = ("H_x0.496", "H_x0.992", "H_x1.488", "H_x2.638")
@@ -62,6 +79,11 @@ def arrival(t: np.ndarray, p: np.ndarray, threshold: float = IMPACT) -> float | 
     if k == 0:
         return float(t[0])
     return float(t[k - 1] + (threshold - p[k - 1]) / (p[k] - p[k - 1]) * (t[k] - t[k - 1]))
+
+
+def first_drop(t: np.ndarray, h: np.ndarray, drop: float, start: float) -> float | None:
+    """The time ``h`` first falls ``drop`` below ``start``, interpolated; ``None`` when it never does."""
+    return arrival(t, start - h, drop)
 
 
 def window_mean(t: np.ndarray, y: np.ndarray, window=PLATEAU) -> float | None:
@@ -133,4 +155,52 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
             out[name]["front"] = front
             if front["sim"] is not None:
                 out[name]["front_error"] = front["sim"] - front["experiment"]
+            out[name]["front_depths"] = front_depths(t, h, ref["t"], ref[name])
+        if name == COLUMN:
+            out[name]["drops"] = column_drops(t, h, ref["t"], ref[name])
+            out[name]["lead"] = _timed(column_lead(t, h), column_lead(ref["t"], ref[name]))
     return out
+
+
+def _timed(sim: float | None, experiment: float | None) -> dict:
+    out = {"sim": sim, "experiment": experiment}
+    if sim is not None and experiment is not None:
+        out["error"] = sim - experiment
+    return out
+
+
+def front_depths(t, h, t_exp, h_exp) -> dict:
+    """At a downstream gauge: when its level first rises above each of :data:`FRONT_DEPTHS`, the
+    run's and the experiment's (keys in cm)."""
+    return {f"{100 * d:g}": _timed(arrival(t, h, d), arrival(t_exp, h_exp, d)) for d in FRONT_DEPTHS}
+
+
+def column_drops(t, h, t_exp, h_exp) -> dict:
+    """At the column's gauge: when its level first falls each of :data:`COLUMN_DROPS` below its
+    start (its median over the first 30 ms, before the fall: the experiment's gauge reads 0.547 m
+    at rest), the run's and the experiment's (keys in cm)."""
+
+    def fall(t, h, d):
+        return first_drop(t, h, d, float(np.median(h[t < t[0] + 0.03])))
+
+    return {f"{100 * d:g}": _timed(fall(t, h, d), fall(t_exp, h_exp, d)) for d in COLUMN_DROPS}
+
+
+def column_lead(t: np.ndarray, h: np.ndarray) -> float | None:
+    """How long before its t = 0 a column's release began, from its gauge at x = 2.638 m: the
+    ``lead`` (s) whose ``(1/2) A_0 (t + lead)^2`` fits the fall below the start (the median over
+    the first 30 ms) over :data:`LEAD_WINDOW` in least squares, ``A_0`` the exact release's
+    acceleration of the top there (see the module); ``None`` without samples in the window or where
+    no lead within 0.1 s fits (the best at the search's edge). Searched over -0.1 .. 0.1 s in 0.1 ms
+    steps (the fit is not linear in the lead). The start read over the first 30 ms, while the top
+    already falls, makes an exact release read -1.5 ms."""
+    inside = (t >= LEAD_WINDOW[0]) & (t <= LEAD_WINDOW[1])
+    if inside.sum() < 5:
+        return None
+    a0 = float(release_surface_acceleration(COLUMN_GAUGE_FROM_BACK, COLUMN_WIDTH, DEPTH))
+    fall = float(np.median(h[t < t[0] + 0.03])) - h[inside]
+    leads = np.arange(-1000, 1001) * 1e-4
+    shifted = np.clip(t[inside][None, :] + leads[:, None], 0.0, None)
+    misfit = np.sum((0.5 * a0 * shifted**2 - fall[None, :]) ** 2, axis=1)
+    best = int(np.argmin(misfit))
+    return None if best in (0, len(leads) - 1) else float(leads[best])

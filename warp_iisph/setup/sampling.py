@@ -13,7 +13,6 @@ import numpy as np
 from ..scene import Box, Sphere
 from ..scene.checks import floats
 
-
 # A block is filled with whole layers; one that falls short of another layer by at most this
 # fraction of a spacing gets it: a spacing typed to a few digits (0.016667 for 1/60 in a 0.55 m
 # column) keeps the block's volume instead of losing a layer (3 % of it there).
