@@ -74,6 +74,27 @@ def test_accuracy_benchmark_quick_mode(script, stem, tmp_path):
         assert record["part_dates"] == {"martin_moyce": record["date"], "rest": record["date"]}  # the quick parts
 
 
+def test_validation_spheric_quick_mode(tmp_path):
+    """validation.py's SPHERIC part (5 cm, 0.6 s): scored against the experiment, with the front's
+    depths at the downstream gauges, the column's fall and its clock's lead, and charted."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "validation.py"), "--quick", "--parts", "spheric"]
+        + ["--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "the column's clock leads its release by" in proc.stdout
+    (run,) = json.loads((tmp_path / "validation_quick.json").read_text())["spheric"]
+    scores = run["scores"]
+    assert not run["diverged"] and 0.0 < scores["P1"]["arrival_error"] < 0.2  # late, as the docs say
+    assert set(scores["H_x1.488"]["front_depths"]) == {"1", "3", "5"}
+    column = scores["H_x2.638"]
+    assert set(column["drops"]) == {"1", "2", "3"} and column["lead"]["experiment"] == pytest.approx(0.0224)
+    assert (tmp_path / "validation_quick_spheric.png").stat().st_size > 10_000
+
+
 def test_a_benchmark_on_two_workers_measures_what_it_measures_alone(tmp_path):
     """validation.py's runs as the variants of a sweep on a LocalCluster of 2 workers: the same
     results as one after another in this process, but for the timings."""

@@ -275,3 +275,20 @@ def test_a_liquid_too_small_for_the_default_viscosity_is_warned_about():
     for name in bundled_scenes():
         reynolds = liquid_reynolds(scene_to_dict(load_scene(name)))
         assert reynolds is None or reynolds > 25.0, name
+
+
+def test_a_box_of_liquid_its_whole_layers_fill_short_is_warned_of():
+    """A box holds the whole layers of the spacing that fit: 5 cm of water at 2 cm is 4 cm, 20 %
+    short; below 90 % the run's warnings say so, naming the block; no bundled scene is."""
+    from warp_iisph.run.run_record import lattice_shortfalls
+    from warp_iisph.scene import scene_to_dict
+    from warp_iisph.scene.library import bundled_scenes
+
+    shallow = {"lower": [0.0, 0.0, 0.0], "upper": [0.2, 0.05, 0.2]}
+    ball = {"center": [0.5, 0.5, 0.5], "radius": 0.1}
+    (warning,) = lattice_shortfalls({"spacing": 0.02, "fluids": [ball, shallow]})
+    assert warning.startswith("fluids[1]: whole layers of spacing = 0.02 m fill only 80 % of it (0.2 x 0.04 x 0.2 m")
+    assert "20 % short" in warning
+    assert lattice_shortfalls({"spacing": 0.025, "fluids": [shallow]}) == []  # two whole layers
+    for name in bundled_scenes():
+        assert lattice_shortfalls(scene_to_dict(load_scene(name))) == [], name
