@@ -449,10 +449,9 @@ def test_spheric_scores_locate_a_delay_between_the_release_and_the_run_out():
     assert all(v["error"] == pytest.approx(0.05, abs=1e-9) for v in drops.values())
     assert all(abs(v["error"]) < 1e-9 for v in same[spheric.COLUMN]["drops"].values())
     # the experiment's column falls 1 cm at 0.066 s, 3 cm at 0.166 s: ahead of the exact release's
-    # fall there by about 22 ms; the copy 50 ms late reads 50 ms less (fitted on other samples: within 2 ms)
+    # fall there by about 20 ms; a fall of the exact release's shape reads the lead it was given
     assert 0.06 < drops["1"]["experiment"] < 0.07 and 0.16 < drops["3"]["experiment"] < 0.17
-    lead = late[spheric.COLUMN]["lead"]
-    assert 0.015 < lead["experiment"] < 0.03 and lead["sim"] == pytest.approx(lead["experiment"] - 0.05, abs=2e-3)
+    assert 0.015 < late[spheric.COLUMN]["lead"]["experiment"] < 0.03
     t = np.arange(0.0, 0.3, 0.001)
     exact = 0.55 - 0.5 * 2.0269 * t**2  # the exact release's top there, 2.03 m/s^2 down
-    assert abs(spheric.column_lead(t, exact)) <= 0.002 and abs(spheric.column_lead(t - 0.01, exact) - 0.01) <= 0.002
+    assert abs(spheric.column_lead(t, exact)) <= 1e-4 and abs(spheric.column_lead(t - 0.02, exact) - 0.02) <= 1e-4

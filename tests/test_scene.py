@@ -74,7 +74,8 @@ def test_touching_blocks_and_spheres_are_accepted():
 def test_a_spacing_typed_to_a_few_digits_keeps_the_blocks_volume():
     """SPHERIC Test 2's column, 0.55 x 1 m across, at 0.016667 m (1/60 to six digits): the lattice
     holds 33 x 60 columns as at 1/60 exactly (it held 32 x 59 until 2026-12-05, 5 % of the water
-    lost), and a spacing that really differs (0.0167) still fills only the whole layers it fits."""
+    lost), and a spacing that really differs (0.0167) still fills only the whole layers it fits;
+    an emitter's nozzle counts its columns alike."""
     from warp_iisph.setup.sampling import sample_fluid
 
     tank, column = Box((0, 0, 0), (3.22, 1, 1)), Box((1.992, 0, 0), (3.22, 0.55, 1))
@@ -83,6 +84,11 @@ def test_a_spacing_typed_to_a_few_digits_keeps_the_blocks_volume():
     assert len(exact) == len(typed) == 73 * 33 * 60
     assert np.all(typed[:, 2] <= 1.0 - 0.49 * 0.016667)  # the last column stays h/2 inside the tank's face
     assert len(sample_fluid([column], tank, 0.0167)) == 73 * 32 * 59
+    # a nozzle's layer the same: 0.1 x 0.05 m at 0.016667 m is 6 x 3 particles, as at 1/60
+    from warp_iisph.scene import Emitter
+
+    nozzle = Emitter(center=(0.5, 0.5, 0.5), direction=(1.0, 0.0, 0.0), speed=1.0, shape="rectangle", size=(0.1, 0.05))
+    assert nozzle.layer_size(0.016667) == len(nozzle.layer(0.016667)) == nozzle.layer_size(1 / 60) == 18
 
 
 def test_a_misspelt_key_or_keys_beside_a_body_are_refused_not_ignored():

@@ -21,8 +21,8 @@ which part of the flow is late: the time each downstream gauge's level first ris
 tip thinner than itself), and the time the gauge in the column (x = 2.638 m, 0.65 m behind the
 gate) first reads 1, 2 and 3 cm below its start (the release as the column feels it: where those
 agree with the experiment's, the two time origins agree). That gauge also gives the lead of a
-clock over the release: its fall over 20-100 ms set against the exact release's, ``(1/2) A_0 (t +
-lead)^2`` with ``A_0`` the top's acceleration there at the instant of release (2.03 m/s^2:
+clock over the release: its level over 20-100 ms set against the exact release's, ``start - (1/2)
+A_0 (t + lead)^2`` with ``A_0`` the top's acceleration there at the instant of release (2.03 m/s^2:
 :func:`.release.release_surface_acceleration`, the fastest any gate lets it fall). A run released
 at its t = 0 reads a lead near zero; a lead in the experiment's says its clock started after its
 column began to fall.
@@ -158,11 +158,12 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
             out[name]["front_depths"] = front_depths(t, h, ref["t"], ref[name])
         if name == COLUMN:
             out[name]["drops"] = column_drops(t, h, ref["t"], ref[name])
-            out[name]["lead"] = _timed(column_lead(t, h), column_lead(ref["t"], ref[name]))
+            out[name]["lead"] = timed(column_lead(t, h), column_lead(ref["t"], ref[name]))
     return out
 
 
-def _timed(sim: float | None, experiment: float | None) -> dict:
+def timed(sim: float | None, experiment: float | None) -> dict:
+    """A run's time and the experiment's, and their difference where both are known."""
     out = {"sim": sim, "experiment": experiment}
     if sim is not None and experiment is not None:
         out["error"] = sim - experiment
@@ -172,7 +173,7 @@ def _timed(sim: float | None, experiment: float | None) -> dict:
 def front_depths(t, h, t_exp, h_exp) -> dict:
     """At a downstream gauge: when its level first rises above each of :data:`FRONT_DEPTHS`, the
     run's and the experiment's (keys in cm)."""
-    return {f"{100 * d:g}": _timed(arrival(t, h, d), arrival(t_exp, h_exp, d)) for d in FRONT_DEPTHS}
+    return {f"{100 * d:g}": timed(arrival(t, h, d), arrival(t_exp, h_exp, d)) for d in FRONT_DEPTHS}
 
 
 def column_drops(t, h, t_exp, h_exp) -> dict:
@@ -183,24 +184,22 @@ def column_drops(t, h, t_exp, h_exp) -> dict:
     def fall(t, h, d):
         return first_drop(t, h, d, float(np.median(h[t < t[0] + 0.03])))
 
-    return {f"{100 * d:g}": _timed(fall(t, h, d), fall(t_exp, h_exp, d)) for d in COLUMN_DROPS}
+    return {f"{100 * d:g}": timed(fall(t, h, d), fall(t_exp, h_exp, d)) for d in COLUMN_DROPS}
 
 
 def column_lead(t: np.ndarray, h: np.ndarray) -> float | None:
     """How long before its t = 0 a column's release began, from its gauge at x = 2.638 m: the
-    ``lead`` (s) whose ``(1/2) A_0 (t + lead)^2`` fits the fall below the start (the median over
-    the first 30 ms) over :data:`LEAD_WINDOW` in least squares, ``A_0`` the exact release's
-    acceleration of the top there (see the module); ``None`` without samples in the window or where
-    no lead within 0.1 s fits (the best at the search's edge). Searched over -0.1 .. 0.1 s in 0.1 ms
-    steps (the fit is not linear in the lead). The start read over the first 30 ms, while the top
-    already falls, makes an exact release read -1.5 ms."""
+    ``lead`` (s) whose ``start - (1/2) A_0 (t + lead)^2`` fits the level over :data:`LEAD_WINDOW`
+    in least squares (the start fitted with it: the level at rest is not read before the fall),
+    ``A_0`` the exact release's acceleration of the top there (see the module); ``None`` without
+    samples in the window or where no lead within 0.1 s fits (the best at the search's edge).
+    Searched over -0.1 .. 0.1 s in 0.1 ms steps (the fit is not linear in the lead)."""
     inside = (t >= LEAD_WINDOW[0]) & (t <= LEAD_WINDOW[1])
     if inside.sum() < 5:
         return None
     a0 = float(release_surface_acceleration(COLUMN_GAUGE_FROM_BACK, COLUMN_WIDTH, DEPTH))
-    fall = float(np.median(h[t < t[0] + 0.03])) - h[inside]
     leads = np.arange(-1000, 1001) * 1e-4
-    shifted = np.clip(t[inside][None, :] + leads[:, None], 0.0, None)
-    misfit = np.sum((0.5 * a0 * shifted**2 - fall[None, :]) ** 2, axis=1)
+    fall = 0.5 * a0 * np.clip(t[inside][None, :] + leads[:, None], 0.0, None) ** 2
+    misfit = np.var(h[inside][None, :] + fall, axis=1)  # the best start for each lead is the mean
     best = int(np.argmin(misfit))
     return None if best in (0, len(leads) - 1) else float(leads[best])

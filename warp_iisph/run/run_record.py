@@ -14,7 +14,7 @@ import numpy as np
 from .. import __version__
 from ..engine.timing import StageTimes
 from ..scene import scene_to_dict
-from ..setup.sampling import LAYER_TOLERANCE
+from ..scene.shapes import whole_layers
 from .folder import new_run_id
 from .frame_queue import FrameQueue
 
@@ -229,8 +229,8 @@ def lattice_shortfalls(scene: dict) -> list[str]:
         if not h or "lower" not in f or "upper" not in f:
             continue
         sides = [b - a for a, b in zip(f["lower"], f["upper"])]
-        filled = [h * math.floor(s / h + LAYER_TOLERANCE) for s in sides]
-        share = math.prod(filled) / math.prod(sides)
+        filled = [h * whole_layers(s, h) for s in sides]
+        share = math.prod(filled) / math.prod(sides) if math.prod(sides) > 0.0 else 1.0
         if share < LATTICE_SHARE:
             out.append(
                 f"fluids[{k}]: whole layers of spacing = {h:g} m fill only {100 * share:.0f} % of it "

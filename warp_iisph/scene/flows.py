@@ -10,6 +10,7 @@ from typing import Optional
 import numpy as np
 
 from .checks import MAX_COORDINATE, Record, box_corners, floats, in_range, position, unit
+from .shapes import whole_layers
 
 NOZZLES = ("disc", "rectangle")
 
@@ -76,7 +77,7 @@ class Emitter(Record):
             keep = a**2 + b**2 <= max(self.radius, 0.5 * h) ** 2 + 1e-12
         else:
             w, ht = self.size
-            na, nb = max(1, int(np.floor(w / h + 1e-9))), max(1, int(np.floor(ht / h + 1e-9)))
+            na, nb = max(1, whole_layers(w, h)), max(1, whole_layers(ht, h))
             a, b = (
                 g.ravel()
                 for g in np.meshgrid(
@@ -91,7 +92,7 @@ class Emitter(Record):
         that a nozzle far wider than the spacing costs no memory to count."""
         if self.shape != "disc":
             w, ht = self.size
-            return max(1, int(np.floor(w / h + 1e-9))) * max(1, int(np.floor(ht / h + 1e-9)))
+            return max(1, whole_layers(w, h)) * max(1, whole_layers(ht, h))
         n = int(np.ceil(self.radius / h)) + 1
         a = np.arange(-n, n + 1) * h
         bound = max(self.radius, 0.5 * h) ** 2 + 1e-12

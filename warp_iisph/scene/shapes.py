@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,18 @@ def _check_motion(shape, name: str) -> None:
     if not isinstance(shape.motion, Motion):
         raise ValueError(f"{name}.motion = {shape.motion!r}: must be a table of keyframes")
     shape.motion.validate(f"{name}.motion")
+
+
+# A length holds the whole layers of the spacing that fit in it; one that falls short of another
+# layer by at most this fraction of a spacing gets it: a spacing typed to a few digits (0.016667
+# for 1/60 in a 0.55 m column) keeps the length instead of losing a layer (3 % of it there).
+LAYER_TOLERANCE = 0.01
+
+
+def whole_layers(length: float, h: float) -> int:
+    """How many layers of spacing ``h`` a block or a nozzle ``length`` long holds (see
+    :data:`LAYER_TOLERANCE`)."""
+    return int(math.floor(length / h + LAYER_TOLERANCE))
 
 
 # obstacles[k].sampling of a box: boundary particles in the cells its faces cross, or in layers

@@ -12,15 +12,11 @@ import numpy as np
 
 from ..scene import Box, Sphere
 from ..scene.checks import floats
-
-# A block is filled with whole layers; one that falls short of another layer by at most this
-# fraction of a spacing gets it: a spacing typed to a few digits (0.016667 for 1/60 in a 0.55 m
-# column) keeps the block's volume instead of losing a layer (3 % of it there).
-LAYER_TOLERANCE = 0.01
+from ..scene.shapes import LAYER_TOLERANCE, whole_layers
 
 
 def _axis(lo: float, hi: float, h: float) -> np.ndarray:
-    n = int(np.floor((hi - lo) / h + LAYER_TOLERANCE))
+    n = whole_layers(hi - lo, h)
     return lo + h * (0.5 + np.arange(n))
 
 
