@@ -51,6 +51,16 @@ def test_run_dam_break_writes_frames_and_stats(tmp_path, capsys):
     assert "--overwrite" in capsys.readouterr().err
 
 
+def test_a_box_of_liquid_filled_short_is_warned_of_before_the_run(tmp_path, capsys):
+    """The dam break at 7 cm: its 0.4 x 0.6 x 0.6 m block holds 5 x 8 x 8 whole layers, 76 % of it;
+    the warning comes once, before the run's summary, with the block named."""
+    args = ["run", "dam_break", "--duration", "0.05", "--spacing", "0.07", "--out", str(tmp_path / "run")]
+    assert main([*args, "--no-progress"]) == 0
+    cap = capsys.readouterr()
+    assert cap.err.count("warning: fluids[0]: whole layers of spacing = 0.07 m fill only 76 % of it") == 1, cap.err
+    assert "completed" in cap.out
+
+
 def test_unknown_scene_is_a_clear_error(capsys):
     assert main(["run", "no_such_scene", "--no-progress"]) == 2
     err = capsys.readouterr().err

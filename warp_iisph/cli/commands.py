@@ -171,6 +171,13 @@ def _run(args) -> int:
     else:
         scene = load_scene(args.scene, overrides)
         out, source = args.out or f"runs/{scene.name}", resolve_scene(args.scene)
+    from ..run.run_record import lattice_shortfalls
+    from ..scene import scene_to_dict
+
+    # said before a long run starts, not only in the warnings it ends with
+    early = lattice_shortfalls(scene_to_dict(scene))
+    for warning in early:
+        print(f"warp-iisph: warning: {warning}", file=sys.stderr)
     _start_warp(args.threads)
     device = checked_device(args.device)
     from ..run.folder import RunError
@@ -232,7 +239,8 @@ def _run(args) -> int:
     from ..run.run_record import run_warnings
 
     for warning in run_warnings(record):
-        print(f"warp-iisph: warning: {warning}", file=sys.stderr)
+        if warning not in early:
+            print(f"warp-iisph: warning: {warning}", file=sys.stderr)
     if record["ended"] == "completed":
         print(summary)
         return 0
