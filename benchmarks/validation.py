@@ -656,14 +656,9 @@ def with_front_depths(run: dict) -> None:
     if "failed" in run or "lead" in run["scores"].get(marin.COLUMN, {}):
         return
     ref, t = marin.load_marin(), np.asarray(run["t"])
-    for name in marin.DOWNSTREAM:
+    for name in (*marin.DOWNSTREAM, marin.COLUMN):
         if name in run["series"]:
-            h = np.asarray(run["series"][name])
-            run["scores"][name]["front_depths"] = marin.front_depths(t, h, ref["t"], ref[name])
-    if marin.COLUMN in run["series"]:
-        h, col = np.asarray(run["series"][marin.COLUMN]), marin.COLUMN
-        run["scores"][col]["drops"] = marin.column_drops(t, h, ref["t"], ref[col])
-        run["scores"][col]["lead"] = marin.timed(marin.column_lead(t, h), marin.column_lead(ref["t"], ref[col]))
+            run["scores"][name].update(marin.delay_readings(name, t, np.asarray(run["series"][name]), ref))
 
 
 def _series_errors(r: dict, prefix: str) -> str:

@@ -31,16 +31,21 @@ from __future__ import annotations
 import numpy as np
 
 
+def _modes(x, width: float, height: float, terms: int) -> tuple[np.ndarray, np.ndarray]:
+    """The series' wavenumbers ``k_n`` and ``cosh(k_n x) / cosh(k_n a)`` at each ``x`` (a last
+    axis over n), the ratio written without overflow."""
+    x = np.asarray(x, dtype=np.float64)[..., None]
+    k = (2.0 * np.arange(terms) + 1.0) * np.pi / (2.0 * height)
+    return k, np.exp(k * (x - width)) * (1.0 + np.exp(-2.0 * k * x)) / (1.0 + np.exp(-2.0 * k * width))
+
+
 def release_pressure(
     x, y, width: float, height: float, rho: float = 1000.0, g: float = 9.81, terms: int = 4000
 ) -> np.ndarray:
     """The pressure (Pa) at (x, y) in the column (``0 <= x <= width``, ``0 <= y <= height``) at the
     instant of release (see the module); ``terms`` of the series."""
-    x = np.asarray(x, dtype=np.float64)[..., None]
     y = np.asarray(y, dtype=np.float64)[..., None]
-    k = (2.0 * np.arange(terms) + 1.0) * np.pi / (2.0 * height)
-    # cosh(k x) / cosh(k a) without overflow
-    ratio = np.exp(k * (x - width)) * (1.0 + np.exp(-2.0 * k * x)) / (1.0 + np.exp(-2.0 * k * width))
+    k, ratio = _modes(x, width, height, terms)
     series = np.sum(np.cos(k * y) * ratio / k**2, axis=-1)
     return rho * g * ((height - y[..., 0]) - 2.0 / height * series)
 
@@ -54,8 +59,6 @@ def release_surface_acceleration(x, width: float, height: float, g: float = 9.81
     partly there holds a pressure of at least zero on part of the front face, so by the maximum
     principle the pressure inside is no lower than after the complete release, and where the top
     keeps p = 0 its pressure falls less steeply towards it."""
-    x = np.asarray(x, dtype=np.float64)[..., None]
-    k = (2.0 * np.arange(terms) + 1.0) * np.pi / (2.0 * height)
-    ratio = np.exp(k * (x - width)) * (1.0 + np.exp(-2.0 * k * x)) / (1.0 + np.exp(-2.0 * k * width))
+    k, ratio = _modes(x, width, height, terms)
     sign = np.where(np.arange(terms) % 2 == 0, 1.0, -1.0)
     return 2.0 * g / height * np.sum(sign * ratio / k, axis=-1)

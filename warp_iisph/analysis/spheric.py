@@ -155,11 +155,20 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
             out[name]["front"] = front
             if front["sim"] is not None:
                 out[name]["front_error"] = front["sim"] - front["experiment"]
-            out[name]["front_depths"] = front_depths(t, h, ref["t"], ref[name])
-        if name == COLUMN:
-            out[name]["drops"] = column_drops(t, h, ref["t"], ref[name])
-            out[name]["lead"] = timed(column_lead(t, h), column_lead(ref["t"], ref[name]))
+        out[name].update(delay_readings(name, t, h, ref))
     return out
+
+
+def delay_readings(name: str, t: np.ndarray, h: np.ndarray, reference: dict) -> dict:
+    """The readings that say where a delay is made, for gauge ``name`` of a run (``t``, ``h``)
+    beside the experiment (``reference``, :func:`load_marin`): a downstream gauge's
+    ``front_depths``, the column's gauge's ``drops`` and ``lead``; nothing for the others."""
+    t_exp, h_exp = reference["t"], reference[name]
+    if name in DOWNSTREAM:
+        return {"front_depths": front_depths(t, h, t_exp, h_exp)}
+    if name == COLUMN:
+        return {"drops": column_drops(t, h, t_exp, h_exp), "lead": timed(column_lead(t, h), column_lead(t_exp, h_exp))}
+    return {}
 
 
 def timed(sim: float | None, experiment: float | None) -> dict:
