@@ -55,9 +55,10 @@ import argparse
 import json
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
-from common import RESULTS, header, keep_parts, pyplot, save, warm_up
+from common import RESULTS, header, keep_parts, pyplot, save, saved, warm_up
 
 from warp_iisph import Box, Physics, Scene, Simulation
 from warp_iisph.engine.launch import get_threads
@@ -308,6 +309,7 @@ def run_draft(spacing: float, density: float, settle: float, end: float, method:
         "method": method,
         "spacing": spacing,
         "density": density,
+        "wall_gradient": scene.physics.wall_gradient_for(True) if method != "dfsph" else "akinci",
         "particles": sim.n_particles,
         "draft": draft,
         "target": target,
@@ -620,8 +622,9 @@ def main():
     def checkpoint():
         save(record, args.out, "bodies", args.quick)
 
+    previous = {} if args.quick or not (Path(args.out) / "bodies.json").is_file() else saved(args.out, "bodies")[0]
     if "drafts" in parts:
-        measure_drafts(record, spacings, settle, end, checkpoint=checkpoint)
+        measure_drafts(record, spacings, settle, end, checkpoint=checkpoint, kept=previous.get("drafts", []))
     if "dfsph_drafts" in parts:
         measure_drafts(record, spacings, settle, end, "dfsph", checkpoint)
     if "dfsph_heave" in parts:
@@ -660,10 +663,13 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
 
 
 def measure_drafts(
-    record: dict, spacings: list, settle: float, end: float, method: str = "iisph", checkpoint=None
+    record: dict, spacings: list, settle: float, end: float, method: str = "iisph", checkpoint=None, kept=()
 ) -> None:
     """Each spacing's drafts of the density 500 and 250 boxes; ``checkpoint()`` after each, with
-    the record holding the drafts measured so far (a long run stopped keeps what it measured)."""
+    the record holding the drafts measured so far (a long run stopped keeps what it measured) and
+    ``kept``, the saved runs at other spacings (each run says which walls' gradient it had; runs
+    saved before 2026-12-06 had Akinci's)."""
+    kept = [{**r, "wall_gradient": r.get("wall_gradient", "akinci")} for r in kept if r["spacing"] not in spacings]
     drafts = []
     for h in spacings:
         for density in (500.0, 250.0):
@@ -676,7 +682,9 @@ def measure_drafts(
                 f"{d['wall_seconds']:.0f} s",
                 flush=True,
             )
-            record["drafts" if method == "iisph" else f"{method}_drafts"] = drafts
+            record["drafts" if method == "iisph" else f"{method}_drafts"] = sorted(
+                drafts + kept, key=lambda r: (-r["spacing"], -r["density"])
+            )
             record["settle"] = [settle, end]
             if checkpoint is not None:
                 checkpoint()

@@ -20,6 +20,11 @@ Every 50 ms from the start (between steps; in the window above its 10 ms pieces 
 before), the force's 50 ms mean and the number of fluid particles under the bar (within its
 width, below its bottom face) are kept as a series: the reading's history.
 
+``completed`` (the third part): the plain runs from the hydrostatic start with the walls completing
+the kernel gradient in the pressure force (``physics.wall_gradient = "completed"``,
+warp_iisph/sph/wall_gradient.py); the other parts take Akinci's walls, the default without free
+bodies.
+
 ``--crossed`` (the second part): the same bar settled from one start for the first second and
 run on from the other to 3 s, both ways, at the ``--crossed`` spacings: whether the excess
 belongs to the solve that holds the water or to the packing it settled into.
@@ -27,7 +32,7 @@ belongs to the solve that holds the water or to the packing it settled into.
 Writes benchmarks/results/held_bar.json (a part not run this time kept from the file there, with
 the day each part was measured) and held_bar.png.
 
-    python benchmarks/held_bar.py [--spacings 8,12,16] [--crossed 12,16] [--parts plain,crossed] [--quick]
+    python benchmarks/held_bar.py [--spacings 8,12,16] [--crossed 12,16] [--parts plain,crossed,completed] [--quick]
 
 --quick (the test suite's): 8 spacings for 0.6 s, the last 0.2 s measured; crossed at 0.3 s.
 """
@@ -94,12 +99,20 @@ def under_bar(x: np.ndarray, lo, hi) -> int:
 
 
 def measure(
-    n: int, start: str, duration: float, window: float, settled_from: str | None = None, switch: float = SWITCH
+    n: int,
+    start: str,
+    duration: float,
+    window: float,
+    settled_from: str | None = None,
+    switch: float = SWITCH,
+    wall_gradient: str = "akinci",
 ) -> dict:
     """The bar at ``n`` spacings across from warm start ``start`` (see the module); with
-    ``settled_from``, from that start up to ``switch`` seconds and from ``start`` after."""
+    ``settled_from``, from that start up to ``switch`` seconds and from ``start`` after; with
+    ``wall_gradient`` the walls' gradient in the pressure force (``physics.wall_gradient``)."""
     h = LENGTH / n
     scene, lo, hi = loads_scene(h, True, LENGTH)
+    scene.physics.wall_gradient = wall_gradient
     first = settled_from or start
     scene.physics.warm_start = "hydrostatic" if "hydrostatic" in (first, start) else start
     t0 = time.perf_counter()
@@ -155,6 +168,7 @@ def measure(
         "L_over_h": n,
         "spacing": h,
         "warm_start": start,
+        "wall_gradient": wall_gradient,
         **({"settled_from": settled_from, "switch": switch, "iterations_before_after": phases} if settled_from else {}),
         "particles": sim.n_particles,
         "steps": sim.step_count,
@@ -189,6 +203,11 @@ def chart(record: dict, path) -> None:
             a.plot(
                 [r["L_over_h"] for r in rows], [r["ratio"] for r in rows], "x--", label=f"settled {first}, then {then}"
             )
+    rows = record.get("completed", [])
+    if rows:
+        n, label = [r["L_over_h"] for r in rows], "hydrostatic, completed walls"
+        a.plot(n, [r["ratio"] for r in rows], "D-", label=label)
+        b.plot(n, [r["beside_slope"] for r in rows], "D-", label=label)
     a.axhspan(0.98, 1.02, color="0.9", label="issue 29's 2 %")
     a.axhline(1.0, color="k", lw=0.8)
     a.set(xlabel="spacings across the bar", ylabel="force / rho0 g V", title="held bar's buoyancy")
@@ -218,6 +237,7 @@ def chart(record: dict, path) -> None:
 def report(r: dict) -> None:
     parts = ", ".join(f"{k} {v:+.4f}" for k, v in r["parts"].items())
     how = f"settled {r['settled_from']}, then {r['warm_start']}" if "settled_from" in r else f"{r['warm_start']} start"
+    how += ", completed walls" if r.get("wall_gradient") == "completed" else ""
     print(
         f"{r['L_over_h']:3d} spacings, {how}: force / rho0 g V {r['ratio']:.4f} ({parts}); slope beside "
         f"{r['beside_slope']:.4f} rho0 g; faces {r['top_face_pressure']:.0f} / "
@@ -233,21 +253,25 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--spacings", default="8,12,16", help="spacings across the bar")
     ap.add_argument("--crossed", default="12,16", help="spacings of the crossed runs")
-    ap.add_argument("--parts", default="plain,crossed", help="plain, crossed (a part not run is kept from the file)")
+    ap.add_argument(
+        "--parts", default="plain,crossed,completed", help="plain, crossed, completed (a part not run is kept)"
+    )
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULTS))
     args = ap.parse_args()
     wp.config.log_level = wp.LOG_WARNING
     parts = set(args.parts.split(","))
-    if not parts <= {"plain", "crossed"}:
-        raise SystemExit(f"--parts {args.parts!r}: plain and/or crossed")
+    if not parts <= {"plain", "crossed", "completed"}:
+        raise SystemExit(f"--parts {args.parts!r}: among plain, crossed, completed")
     spacings = [8] if args.quick else [int(s) for s in args.spacings.split(",")]
     crossed = [8] if args.quick else [int(s) for s in args.crossed.split(",")]
     duration, window, switch = (0.6, 0.2, 0.3) if args.quick else (3.0, 0.5, SWITCH)
     record = header("held_bar", duration=duration, window=window, switch=switch)
-    keep_parts(record, args.out, "held_bar", {"plain": ("results",), "crossed": ("crossed",)}, parts, args.quick)
+    kept = {"plain": ("results",), "crossed": ("crossed",), "completed": ("completed",)}
+    keep_parts(record, args.out, "held_bar", kept, parts, args.quick)
     record.setdefault("results", [])
     record.setdefault("crossed", [])
+    record.setdefault("completed", [])
     if "plain" in parts:
         record["results"] = []
         for n in spacings:
@@ -260,6 +284,11 @@ def main():
             for first, then in CROSSINGS:
                 record["crossed"].append(measure(n, then, duration, window, settled_from=first, switch=switch))
                 report(record["crossed"][-1])
+    if "completed" in parts:
+        record["completed"] = []
+        for n in spacings:
+            record["completed"].append(measure(n, "hydrostatic", duration, window, wall_gradient="completed"))
+            report(record["completed"][-1])
     chart(record, save(record, args.out, "held_bar", args.quick))
 
 

@@ -455,8 +455,9 @@ def test_held_bar_quick_mode(tmp_path):
     """The held bar's study: its split of the bar's force over faces and edges adds up to the force
     probe's reading (the same step's wall sums, grouped otherwise), the faces carry about their
     hydrostatic load (within what the split between a face's two layers leaves uncertain), the
-    half start pays for its rest in iterations, and the crossed runs switch their start where they
-    say (the settling, not the solve, is what the crossed part compares)."""
+    half start pays for its rest in iterations, the crossed runs switch their start where they
+    say (the settling, not the solve, is what the crossed part compares), and the completed walls'
+    part runs with them."""
     record = _quick("held_bar.py", tmp_path, "held_bar_quick")
     rows = {r["warm_start"]: r for r in record["results"]}
     assert set(rows) == {"hydrostatic", "half"}
@@ -482,6 +483,10 @@ def test_held_bar_quick_mode(tmp_path):
     assert [plain["ratio"][k] for k in settling] == [switched["ratio"][k] for k in settling]
     assert [plain["under"][k] for k in settling] == [switched["under"][k] for k in settling]
     assert switched["ratio"][-1] != plain["ratio"][-1]
+    # the completed walls' run: the same measurement, the faces nearer their hydrostatic load
+    (completed,) = record["completed"]
+    assert completed["wall_gradient"] == "completed" and rows["hydrostatic"]["wall_gradient"] == "akinci"
+    assert completed["parts_sum"] == pytest.approx(completed["ratio"], rel=1e-6) and 0.95 < completed["ratio"] < 1.06
 
 
 def test_pinned_films_quick_mode(tmp_path):

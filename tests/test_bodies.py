@@ -431,10 +431,11 @@ def settled_draft(density: float) -> tuple:
     return float(np.mean(drafts)), float(np.ptp(heights)), sim
 
 
-# measured (h = 0.02, the box 4 spacings tall): the drafts 6.5 % (500) and 12 % (250) short, an
-# offset of about 0.1 h (at h = 0.01 the 500 one's is 2.3 % short): the issue's 2 % is not reached
-# at this resolution; these bounds hold what was measured, with a margin
-DRAFT_TOLERANCE = {500.0: 0.09, 250.0: 0.16}
+# measured (h = 0.02, the box 4 spacings tall, the walls completing the kernel gradient, the free
+# bodies' default): the drafts 1.8 % (500) and 8.8 % (250) short, the 250 box's a spacing deep
+# (with Akinci's walls 6.4 and 11.6 %; at h = 0.01 the gauges' level puts both within 0.2 %:
+# benchmarks/bodies.py); these bounds hold what was measured, with a margin
+DRAFT_TOLERANCE = {500.0: 0.04, 250.0: 0.12}
 
 
 def test_archimedes_boxes_float_at_their_draft():
@@ -449,8 +450,10 @@ def test_archimedes_boxes_float_at_their_draft():
         assert np.abs(b["position"][0][[0, 2]] - 0.2).max() < 0.001
         assert heave < 0.001, heave
         drafts[density] = draft
-    # the offset cancels in the difference: a quarter of the height within 3 %
-    assert abs((drafts[500.0] - drafts[250.0]) / 0.02 - 1) < 0.03, drafts
+    # the lighter box floats higher by about a quarter of the height (+5.3 % measured: what is left
+    # at this spacing is the 250 box's draft of one spacing; with Akinci's walls a share of the load
+    # that cancelled here, -1.2 %)
+    assert abs((drafts[500.0] - drafts[250.0]) / 0.02 - 1) < 0.08, drafts
 
 
 def test_a_resumed_run_keeps_its_bodies_bitwise(tmp_path):
@@ -483,7 +486,9 @@ def test_a_heavy_box_sinks_and_comes_to_rest_on_the_floor(warm_start):
     estimate alone the film under it kept the box jittering at 0.10 m/s). Its bottom rests on one
     trapped layer of liquid (measured 0.012 m, 0.6 h: a film thinner than a spacing does not drain
     at this resolution), and its velocity keeps a jitter of a few cm/s from that film (measured at
-    most 0.039 m/s, mean -0.002 m/s over 1.0 .. 1.3 s). Before the film particles' diagonal
+    most 0.039 m/s with Akinci's walls, mean -0.002 m/s over 1.0 .. 1.3 s; 0.083 m/s from the
+    hydrostatic start with the walls completing the kernel gradient, the free bodies' default
+    since 2026-12-06: the film's particles are held by the solve alone). Before the film particles' diagonal
     counted the walls on both sides (sph/solvers/iisph.py), this run diverged at t = 0.615 s."""
     from warp_iisph.scene.bodies import quaternion_matrix
 
@@ -505,7 +510,7 @@ def test_a_heavy_box_sinks_and_comes_to_rest_on_the_floor(warm_start):
     bottoms, velocities = np.array(bottoms), np.array(velocities)
     assert np.all(bottoms < scene.spacing) and np.all(bottoms > 0.0), bottoms  # on the floor, within a spacing
     assert np.ptp(bottoms) < 0.1 * scene.spacing, np.ptp(bottoms)  # at rest: it stays where it is
-    assert abs(velocities[:, 1].mean()) < 0.005 and np.linalg.norm(velocities, axis=1).max() < 0.08
+    assert abs(velocities[:, 1].mean()) < 0.005 and np.linalg.norm(velocities, axis=1).max() < 0.1
     assert np.abs(sim.bodies["orientation"][0, :3]).max() < 0.02  # upright
 
 

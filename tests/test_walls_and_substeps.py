@@ -1,6 +1,6 @@
-"""The walls' extrapolated pressure (physics.wall_pressure), fixed steps cut into substeps
-(physics.substeps) and the viscosity's own sub-steps: physics first, then the plain, graph and
-resumed paths agreeing bitwise."""
+"""The walls' extrapolated pressure (physics.wall_pressure) and completed kernel gradient
+(physics.wall_gradient), fixed steps cut into substeps (physics.substeps) and the viscosity's own
+sub-steps: physics first, then the plain, graph and resumed paths agreeing bitwise."""
 
 import numpy as np
 import pytest
@@ -47,6 +47,41 @@ def test_extrapolated_walls_hold_the_floor_layer_at_hydrostatic_pressure():
     ratio = {w: floor_layer_over_hydrostatic(w) for w in ("extrapolated", "fluid")}
     assert abs(ratio["extrapolated"] - 1.0) < 0.1, ratio
     assert ratio["fluid"] > 1.4, ratio
+
+
+def floor_layer_against_interior(wall_gradient: str, h: float = 0.02, depth: float = 0.3) -> float:
+    """The column above settled 1 s, then over 0.4 s of steps: the mean pressure of the layer on
+    the floor (away from the side walls) over the pressure a linear fit of the interior's (more
+    than two spacings from the floor, three from the top) gives at its height."""
+    scene = Scene(
+        spacing=h,
+        tank=Box((0.0, 0.0, 0.0), (0.16, 0.4, 0.16)),
+        physics=Physics(wall_gradient=wall_gradient),
+        name="resting_column",
+    )
+    scene.add_fluid_box((0.0, 0.0, 0.0), (0.16, depth, 0.16))
+    sim = Simulation(scene, "cpu")
+    sim.advance(1.0)
+    ratios = []
+    while sim.time < 1.4 - 1e-9:
+        sim.step()
+        x, p = sim.positions, sim.pressures
+        inner = np.all((x[:, [0, 2]] > 1.5 * h) & (x[:, [0, 2]] < 0.16 - 1.5 * h), axis=1)
+        interior = inner & (x[:, 1] > 2 * h) & (x[:, 1] < depth - 3 * h)
+        fit = np.polyfit(x[interior, 1], p[interior], 1)
+        floor = inner & (x[:, 1] < h)
+        ratios.append(np.mean(p[floor]) / np.mean(np.polyval(fit, x[floor, 1])))
+    return float(np.mean(ratios))
+
+
+def test_completed_wall_gradients_keep_the_wall_layer_on_the_interior_pressure():
+    """Akinci's volumes fill a wall particle's share of the density, not of the kernel gradient:
+    a uniform pressure pushes the layer on the floor off it, and that layer carries less than the
+    hydrostatic field around it (about 8 % at 2 cm). With the walls completing the gradient
+    (physics.wall_gradient = "completed", the default) it carries the field's pressure."""
+    ratio = {w: floor_layer_against_interior(w) for w in ("completed", "akinci")}
+    assert abs(ratio["completed"] - 1.0) < 0.02, ratio
+    assert ratio["akinci"] < 0.95, ratio
 
 
 def dam(dt: float, substeps: bool = True, graph: bool = False) -> Simulation:
@@ -148,6 +183,12 @@ def test_substeps_in_a_graph_and_after_a_resume_are_bitwise_the_plain_run():
 def test_wall_pressure_must_be_a_known_name(value):
     with pytest.raises(ValueError, match="physics.wall_pressure"):
         Physics(wall_pressure=value).validate()
+
+
+@pytest.mark.parametrize("value", ["akinci2012", 0, ""])
+def test_wall_gradient_must_be_a_known_name(value):
+    with pytest.raises(ValueError, match="physics.wall_gradient"):
+        Physics(wall_gradient=value).validate()
 
 
 @pytest.mark.parametrize("substeps", [True, False])

@@ -5,9 +5,10 @@ behind a free body's coupling (:mod:`.rigid`) and a force probe (:mod:`..steppin
 
 A fluid particle i with boundary neighbour b was pushed in the step by
 
-- pressure: ``F_ib = -m psi_b (p_i/rho_i^2 + w p_b) grad W_ib`` (IISPH, WCSPH:
+- pressure: ``F_ib = -m s_i psi_b (p_i/rho_i^2 + w p_b) grad W_ib`` (IISPH, WCSPH:
   :func:`~.solvers.base.integrate`, with ``w = 1/rho0^2`` and the walls' extrapolated pressures
-  ``p_b = max(p~_i + head_ib, 0)`` of :mod:`.wall_pressure`, ``w = 0`` with Akinci's walls), or
+  ``p_b = max(p~_i + head_ib, 0)`` of :mod:`.wall_pressure`, ``s_i`` the walls' completed gradient
+  of :mod:`.wall_gradient`; ``w = 0``, ``s_i = 1`` with Akinci's walls), or
   ``F_ib = -m psi_b (kappa_i + kappa_v_i) grad W_ib`` (DFSPH: the stiffness both solves applied
   over the step, :func:`~.solvers.dfsph.apply_stiffness`; as force = impulse / dt);
 - friction: ``F_ib = m 2 mu_b (psi_b / rho_i) ((v_i - v_b) . x_ib) / (|x_ib|^2 + 0.01 h^2) grad W_ib``
@@ -114,7 +115,9 @@ def pressure_loads(
             own = p[i] / (rho_i * rho_i)
         extrapolated = walls.pressure_factor > 0.0
         p_c = float(0.0)
+        s_i = float(1.0)
         if extrapolated:  # the smoothed pressure, summed as the solver's integrate sums it
+            s_i = walls.gradient_scale[i]
             p_sum = float(0.0)
             for m in range(nf.count[i]):
                 k = entry(nf, i, m)
@@ -130,7 +133,7 @@ def pressure_loads(
             p_b = float(0.0)
             if extrapolated:
                 p_b = wp.max(p_c + nb.head[k], 0.0)
-            term = walls.psi[b] * (own + walls.pressure_factor * p_b) * nb.grad_W[k]  # the fluid's a_i -= term
+            term = (walls.psi[b] * s_i) * (own + walls.pressure_factor * p_b) * nb.grad_W[k]  # the fluid's a_i -= term
             add_load(partial, blk, r * 6, wp.float64(mass) * wp.vec3d(term), wp.vec3d(xb[b]) - groups.reference[r])
 
 

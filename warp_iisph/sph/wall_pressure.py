@@ -34,6 +34,7 @@ import warp as wp
 from ..engine.launch import launch_particles
 from .kernel import cubic_W_np
 from .neighbors import NeighborList, entry
+from .wall_gradient import complete_gradients
 
 
 @wp.struct
@@ -47,6 +48,9 @@ class Walls:
     pressure_factor: float
     weight: wp.array(dtype=float)  # sum_j W_ij (i included) of each fluid particle near walls
     W0: float  # W(0): a particle's own weight in that sum
+    # s_i: the factor on fluid particle i's walls' gradients in the forces on it (1 where they are
+    # Akinci's as they are; :mod:`.wall_gradient`), written each step for particles near walls
+    gradient_scale: wp.array(dtype=float)
 
 
 @wp.func
@@ -95,17 +99,22 @@ def wall_heads(
 class WallPressures:
     """The walls' pressures a method's pressure force and solve use: extrapolated
     (``physics.wall_pressure = "extrapolated"``, with boundary particles) or Akinci's (the fluid
-    particle's own, in one term). ``walls`` is what the kernels take (:class:`Walls`)."""
+    particle's own, in one term); with extrapolated pressures, walls that complete the fluid's
+    kernel gradient (``physics.wall_gradient = "completed"``, :mod:`.wall_gradient`). ``walls``
+    is what the kernels take (:class:`Walls`)."""
 
     def __init__(self, model, capacity: int):
         ph = model.physics
         self.extrapolated = ph.wall_pressure == "extrapolated" and model.n_boundary > 0
+        self.completed = self.extrapolated and ph.wall_gradient_for(model.rigid is not None) == "completed"
         self.walls = walls_of(model, 1.0 / (ph.rho0 * ph.rho0) if self.extrapolated else 0.0, capacity)
         self.gravity = wp.vec3(*ph.gravity)
 
-    def heads(self, model, state, nf: NeighborList, nb: NeighborList) -> None:
-        """Once per step, after densities: each wall entry's hydrostatic head (nothing with
-        Akinci's walls)."""
+    def prepare(self, model, state, nf: NeighborList, nb: NeighborList) -> None:
+        """Once per step, after densities: the wall entries' gradients completed, and each wall
+        entry's hydrostatic head (nothing with Akinci's walls)."""
+        if self.completed:
+            complete_gradients(model, state, nf, nb, self.walls.gradient_scale)
         if self.extrapolated:
             launch_particles(
                 wall_heads,
@@ -121,5 +130,6 @@ def walls_of(model, pressure_factor: float = 0.0, capacity: int = 1) -> Walls:
     walls.psi, walls.v = model.boundary_psi, model.boundary_v
     walls.pressure_factor = pressure_factor
     walls.weight = wp.ones(max(capacity, 1), dtype=float, device=model.device)
+    walls.gradient_scale = wp.ones(max(capacity, 1), dtype=float, device=model.device)
     walls.W0 = float(cubic_W_np(0.0, model.support_radius))
     return walls

@@ -88,14 +88,16 @@ def integrate(
         if extrapolated:
             p_sum += nf.W[k] * p[j]
     p_c = float(0.0)
+    s_i = float(1.0)
     if extrapolated:
         p_c = smoothed_pressure(i, p, p_sum, walls)
+        s_i = walls.gradient_scale[i]
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         p_b = float(0.0)
         if extrapolated:
             p_b = wp.max(p_c + nb.head[k], 0.0)
-        a -= walls.psi[nb.index[k]] * (p_i + walls.pressure_factor * p_b) * nb.grad_W[k]
+        a -= (walls.psi[nb.index[k]] * s_i) * (p_i + walls.pressure_factor * p_b) * nb.grad_W[k]
     v_i = v_adv[i] + dt * a
     v[i] = v_i
     x[i] = x[i] + dt * v_i

@@ -95,10 +95,13 @@ def predict_advection_velocity(
     rho_i = rho[i]
     e = wp.vec3(0.0, 0.0, 0.0)
     e_off = wp.vec3(0.0, 0.0, 0.0)  # the walls whose pressure is not positive at the start
+    s_i = float(1.0)
+    if wall_weight > 0.0 and nb.count[i] > 0:
+        s_i = walls.gradient_scale[i]  # the forces' side of the walls' gradient (wall_gradient.py)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         b = nb.index[k]
-        g = terms.psi[b] * nb.grad_W[k]
+        g = (terms.psi[b] * s_i) * nb.grad_W[k]
         d -= g
         if wall_weight > 0.0:
             if p[i] + nb.head[k] > 0.0:
@@ -302,10 +305,11 @@ def pressure_sum_dij_pj(
             p_sum += nf.W[k] * p[j]
     if extrapolated:
         p_c = smoothed_pressure(i, p, p_sum, walls)
+        s_i = walls.gradient_scale[i]
         for m in range(nb.count[i]):
             k = entry(nb, i, m)
             p_b = wp.max(p_c + nb.head[k], 0.0)
-            acc -= (walls.psi[nb.index[k]] * walls.pressure_factor * p_b) * nb.grad_W[k]
+            acc -= ((walls.psi[nb.index[k]] * s_i) * walls.pressure_factor * p_b) * nb.grad_W[k]
     sdp = dt * dt * acc
     iisph.sum_dij_pj[i] = sdp
     iisph.displacement[i] = iisph.d_ii[i] * p[i] + sdp
@@ -404,7 +408,7 @@ class IISPHSolver(SPHSolver):
             nf, nb = self.find_neighbours(state, sync)
         with timer("density"):
             self.compute_densities(model, state)
-            self.walls.heads(model, state, nf, nb)
+            self.walls.prepare(model, state, nf, nb)
         with timer("advection"):
             self.predict_advection(model, state)  # v_adv, d_ii, rho_adv, a_ii; the warm start
         with timer("pressure"):

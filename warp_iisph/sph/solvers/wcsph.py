@@ -45,7 +45,7 @@ class WCSPHSolver(SPHSolver):
             nf, nb = self.find_neighbours(state, sync)
         with timer("density"):
             self.compute_densities(model, state)
-            self.walls.heads(model, state, nf, nb)
+            self.walls.prepare(model, state, nf, nb)
         with timer("advection"):
             self.advect_velocity(model, state)
         with timer("pressure"):
