@@ -432,10 +432,10 @@ def settled_draft(density: float) -> tuple:
 
 
 # measured (h = 0.02, the box 4 spacings tall, the walls completing the kernel gradient, the free
-# bodies' default): the drafts 1.8 % (500) and 8.8 % (250) short, the 250 box's a spacing deep
+# bodies' default): the drafts 2.8 % (500) and 9.8 % (250) short, the 250 box's a spacing deep
 # (with Akinci's walls 6.4 and 11.6 %; at h = 0.01 the gauges' level puts both within 0.2 %:
 # benchmarks/bodies.py); these bounds hold what was measured, with a margin
-DRAFT_TOLERANCE = {500.0: 0.04, 250.0: 0.12}
+DRAFT_TOLERANCE = {500.0: 0.05, 250.0: 0.13}
 
 
 def test_archimedes_boxes_float_at_their_draft():
@@ -450,10 +450,10 @@ def test_archimedes_boxes_float_at_their_draft():
         assert np.abs(b["position"][0][[0, 2]] - 0.2).max() < 0.001
         assert heave < 0.001, heave
         drafts[density] = draft
-    # the lighter box floats higher by about a quarter of the height (+5.3 % measured: what is left
+    # the lighter box floats higher by about a quarter of the height (+4.1 % measured: what is left
     # at this spacing is the 250 box's draft of one spacing; with Akinci's walls a share of the load
     # that cancelled here, -1.2 %)
-    assert abs((drafts[500.0] - drafts[250.0]) / 0.02 - 1) < 0.08, drafts
+    assert abs((drafts[500.0] - drafts[250.0]) / 0.02 - 1) < 0.07, drafts
 
 
 def test_a_resumed_run_keeps_its_bodies_bitwise(tmp_path):

@@ -399,7 +399,7 @@ def test_the_force_on_an_obstacle_is_the_reaction_of_what_the_fluid_felt(method)
     sim = Simulation(scene, "cpu")
     sim.state.v.assign(np.tile(np.float32([2.0, 0.0, 0.0]), (sim.state.capacity, 1)))
     m, h = sim.model.mass, scene.spacing
-    hits = 0
+    hits, scaled = 0, 0.0  # scaled: the largest departure of a wall-gradient factor s_i from 1
     while True:
         x = sim.positions
         if np.any(x < 2 * h) or np.any(x > np.array([1.6, 1.0, 1.0]) - 2 * h):
@@ -413,6 +413,9 @@ def test_the_force_on_an_obstacle_is_the_reaction_of_what_the_fluid_felt(method)
         push = s[1:4] + s[4:7]  # pressure and viscous parts on the box
         assert np.allclose(change, -push, rtol=1e-3, atol=1e-3 * max(1.0, np.abs(push).max())), (rec["t"], change, push)
         hits += np.abs(s[1]) > 1.0 and np.abs(s[4]) > 0.0
+        if method != "dfsph":
+            scaled = max(scaled, float(np.abs(sim.solver.walls.walls.gradient_scale.numpy()[: sim.state.n] - 1).max()))
+    assert (scaled > 0.01) if "completed" in method else (scaled == 0.0), scaled  # Akinci's walls keep s_i = 1
     assert hits > 10 and sim.time > 0.15  # the block struck the box, its pressure and friction both measured
     assert sum(bool(s["obstacle_corrections"]) for s in sim.stats) < 0.1 * len(sim.stats)
 

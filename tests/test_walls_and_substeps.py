@@ -78,7 +78,8 @@ def test_completed_wall_gradients_keep_the_wall_layer_on_the_interior_pressure()
     """Akinci's volumes fill a wall particle's share of the density, not of the kernel gradient:
     a uniform pressure pushes the layer on the floor off it, and that layer carries less than the
     hydrostatic field around it (about 8 % at 2 cm). With the walls completing the gradient
-    (physics.wall_gradient = "completed", the default) it carries the field's pressure."""
+    (physics.wall_gradient = "completed", the default only with free bodies) it carries the
+    field's pressure."""
     ratio = {w: floor_layer_against_interior(w) for w in ("completed", "akinci")}
     assert abs(ratio["completed"] - 1.0) < 0.02, ratio
     assert ratio["akinci"] < 0.95, ratio

@@ -2,9 +2,9 @@
 
 Akinci et al.'s volumes ``psi_b = rho0 / sum_k W_bk`` make a fluid particle's density right beside
 a wall: the walls fill the part of its kernel's support the liquid lacks, for ``W``. They do not
-fill it for ``grad W``. Beside a flat wall the walls' sum ``sum_b psi_b grad W_ib`` is 2-4 % longer
-than the liquid's missing part ``-sum_j m grad W_ij`` on the set-up lattice, and 10-20 % longer in
-the packing that water settles into there. In the symmetric pressure force a uniform pressure p
+fill it for ``grad W``. In water settled beside a wall (a held bar's faces, a tank's floor) the
+walls' sum ``sum_b psi_b grad W_ib`` is 2-4 % longer than the liquid's missing part
+``-sum_j m grad W_ij``. In the symmetric pressure force a uniform pressure p
 then pushes the layer at a wall away from it (``2 p / rho^2`` times the excess), and the layer
 answers with less pressure than the field around it: 4-9 % below the hydrostatic fit at the
 faces of a held bar, differently on its top and bottom faces, so that its buoyancy read 3-4 %
@@ -40,7 +40,7 @@ import warp as wp
 from ..engine.launch import launch_particles
 from .neighbors import NeighborList, entry
 
-KAPPA = 0.03  # regularisation, a fraction of a flat wall's |G_b| (0.5 rho0 / h) in units of rho0 / h
+KAPPA = 0.03  # regularisation, in units of rho0 / h (a flat wall's first layer has |G_b| = 0.5 rho0 / h)
 FULL_FROM = wp.constant(0.02)  # density deficit (fraction of rho0) down to which the factor is taken in full
 NONE_FROM = wp.constant(0.05)  # and from which not at all
 S_RANGE = wp.constant(0.25)  # the factor stays within 1 -+ this
