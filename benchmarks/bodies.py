@@ -87,11 +87,15 @@ def flood(variant: str, overrides: list, path: dict | None = None) -> Scene:
     last pressure), the still boxes' own; ``replayed``, ``replayed_half``: the same box obstacles
     moved along the ``path`` the free bodies took from the same start (keyframes,
     :func:`replay_motions`), so the liquid flows round the bodies as they moved, but pushes
-    nothing: the same flow without the coupling."""
+    nothing: the same flow without the coupling. Every box-obstacle variant but ``fixed`` (the still
+    boxes' scene at its own defaults) takes the free bodies' walls, ``physics.wall_gradient =
+    "completed"``, so that it differs from the free run in the coupling only."""
     scene = load_scene("flood", overrides)
     if variant in VARIANT_WARM_STARTS:
         scene.physics.warm_start = VARIANT_WARM_STARTS[variant]
-        scene.physics.validate()
+    if variant in ("fixed_half", "replayed", "replayed_half"):
+        scene.physics.wall_gradient = "completed"
+    scene.physics.validate()
     if variant in ("fixed", "fixed_half", "replayed", "replayed_half"):
         motions = replay_motions(scene, path) if variant.startswith("replayed") else [None] * len(scene.bodies)
         for body, motion in zip(scene.bodies, motions):  # in layers inside its faces where thick enough
