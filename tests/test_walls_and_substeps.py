@@ -12,31 +12,37 @@ from warp_iisph.sph.solvers.forces import viscous_dt_limit
 G = 9.81
 
 
-def floor_layer_over_hydrostatic(wall_pressure: str) -> float:
+COLUMN_H, COLUMN_DEPTH = 0.02, 0.3
+
+
+def floor_layer_of_a_resting_column(physics: Physics, ratio) -> float:
     """Water 0.3 m deep in a 0.16 x 0.4 x 0.16 m tank at 2 cm (960 particles), settled 1 s, then
-    over 0.4 s of steps: the mean pressure of the layer touching the floor, away from the side
-    walls, over rho0 g times its depth below the top layer (whose pressure is zero: the solver
-    clamps the under-dense free surface at p = 0). Averaged over steps, as the column still
-    breathes a little from step to step."""
-    h = 0.02
-    scene = Scene(
-        spacing=h,
-        tank=Box((0.0, 0.0, 0.0), (0.16, 0.4, 0.16)),
-        physics=Physics(wall_pressure=wall_pressure),
-        name="resting_column",
-    )
-    scene.add_fluid_box((0.0, 0.0, 0.0), (0.16, 0.3, 0.16))
+    over 0.4 s of steps the mean of ``ratio(x, p, inner, floor)``: the particles' positions and
+    pressures, those away from the side walls, and those of them in the layer touching the floor.
+    Averaged over steps, as the column still breathes a little from step to step."""
+    h = COLUMN_H
+    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (0.16, 0.4, 0.16)), physics=physics, name="resting_column")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (0.16, COLUMN_DEPTH, 0.16))
     sim = Simulation(scene, "cpu")
     sim.advance(1.0)
     ratios = []
     while sim.time < 1.4 - 1e-9:
         sim.step()
         x, p = sim.positions, sim.pressures
-        top = np.sort(x[:, 1])[-len(x) // 15 :].mean()  # the top layer (15 layers)
         inner = np.all((x[:, [0, 2]] > 1.5 * h) & (x[:, [0, 2]] < 0.16 - 1.5 * h), axis=1)
-        floor = inner & (x[:, 1] < h)
-        ratios.append(np.mean(p[floor]) / (1000.0 * G * np.mean(top - x[floor, 1])))
+        ratios.append(ratio(x, p, inner, inner & (x[:, 1] < h)))
     return float(np.mean(ratios))
+
+
+def floor_layer_over_hydrostatic(wall_pressure: str) -> float:
+    """The resting column's floor layer: its mean pressure over rho0 g times its depth below the top
+    layer (whose pressure is zero: the solver clamps the under-dense free surface at p = 0)."""
+
+    def ratio(x, p, inner, floor):
+        top = np.sort(x[:, 1])[-len(x) // 15 :].mean()  # the top layer (15 layers)
+        return np.mean(p[floor]) / (1000.0 * G * np.mean(top - x[floor, 1]))
+
+    return floor_layer_of_a_resting_column(Physics(wall_pressure=wall_pressure), ratio)
 
 
 def test_extrapolated_walls_hold_the_floor_layer_at_hydrostatic_pressure():
@@ -49,29 +55,17 @@ def test_extrapolated_walls_hold_the_floor_layer_at_hydrostatic_pressure():
     assert ratio["fluid"] > 1.4, ratio
 
 
-def floor_layer_against_interior(wall_gradient: str, h: float = 0.02, depth: float = 0.3) -> float:
-    """The column above settled 1 s, then over 0.4 s of steps: the mean pressure of the layer on
-    the floor (away from the side walls) over the pressure a linear fit of the interior's (more
-    than two spacings from the floor, three from the top) gives at its height."""
-    scene = Scene(
-        spacing=h,
-        tank=Box((0.0, 0.0, 0.0), (0.16, 0.4, 0.16)),
-        physics=Physics(wall_gradient=wall_gradient),
-        name="resting_column",
-    )
-    scene.add_fluid_box((0.0, 0.0, 0.0), (0.16, depth, 0.16))
-    sim = Simulation(scene, "cpu")
-    sim.advance(1.0)
-    ratios = []
-    while sim.time < 1.4 - 1e-9:
-        sim.step()
-        x, p = sim.positions, sim.pressures
-        inner = np.all((x[:, [0, 2]] > 1.5 * h) & (x[:, [0, 2]] < 0.16 - 1.5 * h), axis=1)
-        interior = inner & (x[:, 1] > 2 * h) & (x[:, 1] < depth - 3 * h)
+def floor_layer_against_interior(wall_gradient: str) -> float:
+    """The resting column's floor layer: its mean pressure over the pressure a linear fit of the
+    interior's (more than two spacings from the floor, three from the top) gives at its height."""
+    h = COLUMN_H
+
+    def ratio(x, p, inner, floor):
+        interior = inner & (x[:, 1] > 2 * h) & (x[:, 1] < COLUMN_DEPTH - 3 * h)
         fit = np.polyfit(x[interior, 1], p[interior], 1)
-        floor = inner & (x[:, 1] < h)
-        ratios.append(np.mean(p[floor]) / np.mean(np.polyval(fit, x[floor, 1])))
-    return float(np.mean(ratios))
+        return np.mean(p[floor]) / np.mean(np.polyval(fit, x[floor, 1]))
+
+    return floor_layer_of_a_resting_column(Physics(wall_gradient=wall_gradient), ratio)
 
 
 def test_completed_wall_gradients_keep_the_wall_layer_on_the_interior_pressure():

@@ -37,51 +37,23 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..engine.launch import launch_particles
-from .neighbors import NeighborList, entry
-
 KAPPA = 0.03  # regularisation, in units of rho0 / h (a flat wall's first layer has |G_b| = 0.5 rho0 / h)
 FULL_FROM = wp.constant(0.02)  # density deficit (fraction of rho0) down to which the factor is taken in full
 NONE_FROM = wp.constant(0.05)  # and from which not at all
 S_RANGE = wp.constant(0.25)  # the factor stays within 1 -+ this
 
 
-@wp.kernel
-def complete_wall_gradients(
-    offset: int,
-    mass: float,
-    psi: wp.array(dtype=float),
-    rho: wp.array(dtype=float),
-    rho0: float,
-    regularisation: float,
-    nf: NeighborList,
-    nb: NeighborList,
-    scale: wp.array(dtype=float),
-):
-    """``scale[i] = s_i`` for fluid particle i near a wall (see the module)."""
-    i = wp.tid() + offset
-    if nb.count[i] == 0:
-        return
-    g_f = wp.vec3(0.0, 0.0, 0.0)
-    for m in range(nf.count[i]):
-        g_f += nf.grad_W[entry(nf, i, m)]
-    g_f = mass * g_f
-    g_b = wp.vec3(0.0, 0.0, 0.0)
-    for m in range(nb.count[i]):
-        k = entry(nb, i, m)
-        g_b += psi[nb.index[k]] * nb.grad_W[k]
+@wp.func
+def gradient_factor(g_f: wp.vec3, g_b: wp.vec3, rho_i: float, rho0: float, regularisation: float) -> float:
+    """``s_i`` from fluid particle i's sums ``G_f = sum_j m grad W_ij`` and ``G_b = sum_b psi_b
+    grad W_ib`` and its density (see the module); summed where the walls' heads are
+    (:func:`~.wall_pressure.wall_heads`), which walks the same lists once a step."""
     s = 1.0 - wp.dot(g_f + g_b, g_b) / (wp.dot(g_b, g_b) + regularisation * regularisation)
     s = wp.clamp(s, 1.0 - S_RANGE, 1.0 + S_RANGE)
-    full = wp.clamp((rho[i] / rho0 - 1.0 + NONE_FROM) / (NONE_FROM - FULL_FROM), 0.0, 1.0)
-    scale[i] = 1.0 + full * (s - 1.0)
+    full = wp.clamp((rho_i / rho0 - 1.0 + NONE_FROM) / (NONE_FROM - FULL_FROM), 0.0, 1.0)
+    return 1.0 + full * (s - 1.0)
 
 
-def complete_gradients(model, state, nf: NeighborList, nb: NeighborList, scale: wp.array) -> None:
-    """This step's ``s_i`` into ``scale`` (after the densities, once per list build)."""
-    rho0 = model.physics.rho0
-    launch_particles(
-        complete_wall_gradients,
-        state.n,
-        [model.mass, model.boundary_psi, state.rho, float(rho0), KAPPA * rho0 / model.spacing, nf, nb, scale],
-        model.device,
-    )
+def regularisation(model) -> float:
+    """``kappa rho0 / h`` for ``model``'s liquid."""
+    return KAPPA * model.physics.rho0 / model.spacing

@@ -34,7 +34,7 @@ import warp as wp
 from ..engine.launch import launch_particles
 from .kernel import cubic_W_np
 from .neighbors import NeighborList, entry
-from .wall_gradient import complete_gradients
+from .wall_gradient import gradient_factor, regularisation
 
 
 @wp.struct
@@ -70,11 +70,16 @@ def wall_heads(
     nf: NeighborList,
     nb: NeighborList,
     walls: Walls,
+    complete: int,
+    mass: float,
+    rho0: float,
+    regularisation: float,
 ):
     """For a fluid particle i near a wall, once per step: ``sum_j W_ij`` (i included), the centre
     ``x~_i`` of its neighbourhood, where its smoothed pressure sits, and for each wall neighbour b
     the head ``rho_i (g - a_b) . (x_b - x~_i)`` (stored in the list entry), so that a wall's pressure
-    is ``max(p~_i + head, 0)``."""
+    is ``max(p~_i + head, 0)``; with ``complete``, in the same passes over its lists, the factor
+    ``s_i`` on its walls' gradient (:mod:`.wall_gradient`) into ``walls.gradient_scale``."""
     i = wp.tid() + offset
     if nb.count[i] == 0:
         return
@@ -82,18 +87,26 @@ def wall_heads(
     W0 = walls.W0
     s = W0
     c = W0 * x_i
+    g_f = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nf.count[i]):
         k = entry(nf, i, m)
         w = nf.W[k]
         s += w
         c += w * x[nf.index[k]]
+        if complete != 0:
+            g_f += nf.grad_W[k]
     c = c / s
     walls.weight[i] = s
     rho_i = rho[i]
+    g_b = wp.vec3(0.0, 0.0, 0.0)
     for m in range(nb.count[i]):
         k = entry(nb, i, m)
         b = nb.index[k]
         nb.head[k] = rho_i * wp.dot(gravity - ab[b], xb[b] - c)
+        if complete != 0:
+            g_b += walls.psi[b] * nb.grad_W[k]
+    if complete != 0:
+        walls.gradient_scale[i] = gradient_factor(mass * g_f, g_b, rho_i, rho0, regularisation)
 
 
 class WallPressures:
@@ -111,15 +124,16 @@ class WallPressures:
         self.gravity = wp.vec3(*ph.gravity)
 
     def prepare(self, model, state, nf: NeighborList, nb: NeighborList) -> None:
-        """Once per step, after densities: the wall entries' gradients completed, and each wall
-        entry's hydrostatic head (nothing with Akinci's walls)."""
-        if self.completed:
-            complete_gradients(model, state, nf, nb, self.walls.gradient_scale)
+        """Once per step, after densities: each wall entry's hydrostatic head and, with completed
+        walls, each particle's factor on its walls' gradient (nothing with Akinci's walls)."""
         if self.extrapolated:
             launch_particles(
                 wall_heads,
                 state.n,
-                [state.x, state.rho, model.boundary_x, model.boundary_a, self.gravity, nf, nb, self.walls],
+                [
+                    *(state.x, state.rho, model.boundary_x, model.boundary_a, self.gravity, nf, nb, self.walls),
+                    *(int(self.completed), model.mass, float(model.physics.rho0), regularisation(model)),
+                ],
                 model.device,
             )
 
