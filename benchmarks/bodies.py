@@ -13,7 +13,13 @@ put back out of an obstacle or a body; ``wall_corrections``: out of the tank), t
 particles found inside a body at every frame (checked outside the timing, in each body's frame:
 centres inside its surface, and past its wall, the last line's, which is a free body's surface and
 a still faces-sampled box's inner boundary layer h/2 inside its faces), and whether any body left
-the tank (a corner of its box beyond a face by more than a spacing).
+the tank (a corner of its box beyond a face by more than a spacing). The timed runs advance frame
+by frame at the scene's 30 fps; the free bodies and their replay (half start) are then advanced
+once each at 25 and 60 fps and in one call (``schedule_runs``; the replay on the same 30 fps path):
+the spray the films shoot out is chaotic, a particle faster than 5 m/s cuts the CFL step for as
+long as it flies, and each landing schedule brings the films' particles to the walls at other
+steps, so the steps one schedule takes are one sample (``summary.schedules``: steps and cost per
+schedule, and their medians).
 
 (b) Archimedes: the draft of a box of density 500 and one of 250 (0.16 x 0.08 x 0.16 m, in a
 0.4 m square pool 0.2 m deep, as tests/test_bodies.py's ``pool``) at spacings 0.02 and 0.01 m,
@@ -75,6 +81,10 @@ VARIANT_WARM_STARTS = {
 }  # the others: the scene's own
 # each replay follows the path the free bodies take from its own start
 REPLAYS = {"replayed": "free_hydrostatic", "replayed_half": "free"}
+# Other landing schedules the free bodies and their replay (half start) are advanced with once each:
+# the films' spray is chaotic, and each schedule brings their particles to the walls at other steps
+SCHEDULES = (25.0, 60.0, 0.0)  # frames per second; 0: in one call
+FAST = 5.0  # m/s: a step with a particle faster than this (the wave's front runs at 3.7) is counted
 REPLAY_KEY_INTERVAL = 0.01  # s between the keys a replay takes from the free run's steps
 _paths: dict = {}  # the free variants' paths, recorded once in runs of their own (every run is the same)
 
@@ -212,7 +222,9 @@ def free_path(variant: str, overrides: list, duration) -> dict:
     return {key: np.array(v) for key, v in path.items()}
 
 
-def run_flood(variant: str, overrides: list, duration) -> dict:
+def run_flood(variant: str, overrides: list, duration, fps: float | None = None) -> dict:
+    """One timed run of ``variant``, advanced frame by frame at ``fps`` (None: the scene's; 0: in
+    one call, its steps landing on no frame)."""
     load = load_scene("flood", overrides)
     boxes = [(b.shape.lower, b.shape.upper) for b in load.bodies]
     replay = variant in REPLAYS
@@ -221,7 +233,8 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
     scene = flood(variant, overrides, _paths[REPLAYS[variant]] if replay else None)
     duration = duration or scene.output.duration
     sim = Simulation(scene, "cpu", history=1)
-    frame = 1.0 / scene.output.fps
+    fps = scene.output.fps if fps is None else fps
+    frame = 1.0 / fps if fps else duration
     counts = {"steps": 0, "obstacle_corrections": 0, "wall_corrections": 0, "corrected_steps": 0, "iterations": 0}
     speeds = []
 
@@ -251,6 +264,7 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
     poses = replay_poses(scene, sim.time) if replay else sim.bodies
     return {
         "variant": variant,
+        "fps": fps,
         "particles": sim.n_particles,
         "boundary_particles": sim.model.n_boundary,
         "spacing": scene.spacing,
@@ -260,6 +274,8 @@ def run_flood(variant: str, overrides: list, duration) -> dict:
         **counts,
         "mean_iterations": counts["iterations"] / counts["steps"],
         "median_fastest_speed": float(np.median(speeds)),  # the fastest particle's, over the steps (m/s)
+        "fastest_speed": float(np.max(speeds)),
+        "fast_steps": int(np.sum(np.asarray(speeds) > FAST)),
         "inside_bodies_at_frames": inside,  # centres inside the boxes' surfaces, summed over frames
         "past_walls_at_frames": past_walls,  # centres past their walls (module docstring), summed over frames
         "frames_with_particles_inside": inside_frames,
@@ -600,7 +616,10 @@ def main():
     args = ap.parse_args()
     if args.replot:  # the summary recomputed from the saved runs, the chart redrawn
         record = json.loads((RESULTS / "bodies.json").read_text())
-        record["flood"]["summary"] = summarize(record["flood"]["runs"])
+        flood = record["flood"]
+        flood["summary"] = summarize(flood["runs"])
+        if "schedule_runs" in flood:
+            flood["summary"]["schedules"] = schedule_summary(flood["runs"], flood["schedule_runs"])
         chart(record, save(record, args.out, "bodies", False))
         return
     if args.quick:
@@ -621,7 +640,7 @@ def main():
     record = header("bodies", threads=get_threads(), quick=args.quick, shared_machine=args.shared_machine)
     keep_parts(record, args.out, "bodies", PARTS, parts, args.quick)
     if "flood" in parts:
-        measure_flood(record, overrides, duration, repeats)
+        measure_flood(record, overrides, duration, repeats, (0.0,) if args.quick else SCHEDULES)
 
     def checkpoint():
         save(record, args.out, "bodies", args.quick)
@@ -638,7 +657,7 @@ def main():
     chart(record, save(record, args.out, "bodies", args.quick))
 
 
-def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None:
+def measure_flood(record: dict, overrides: list, duration, repeats: int, schedules: tuple = SCHEDULES) -> None:
     runs = []
     for i in range(repeats):
         for variant in FLOOD_VARIANTS if i % 2 == 0 else FLOOD_VARIANTS[::-1]:
@@ -652,7 +671,18 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
                 f"left the tank {r['body_left_tank']}",
                 flush=True,
             )
+    scheduled = []
+    for fps in schedules:
+        for variant in ("free", "replayed_half"):
+            r = run_flood(variant, overrides, duration, fps)
+            scheduled.append(r)
+            print(
+                f"flood {variant:10s} at {fps:g} fps: {r['steps']} steps, {r['wall_seconds_per_simulated_second']:.1f} "
+                f"wall s per s, fastest {r['fastest_speed']:.2f} m/s, {r['fast_steps']} steps over {FAST:g} m/s",
+                flush=True,
+            )
     summary = summarize(runs)
+    summary["schedules"] = schedule_summary(runs, scheduled)
     med = summary["median_wall_seconds_per_simulated_second"]
     print(
         f"flood: free / fixed = {summary['cost_ratio']:.3f} "
@@ -663,7 +693,44 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int) -> None
         f"half start {summary.get('cost_ratio_free_to_replayed_half', float('nan')):.3f}, hydrostatic start "
         f"{summary.get('cost_ratio_free_hydrostatic_to_replayed', float('nan')):.3f}"
     )
-    record["flood"] = {"overrides": overrides, "repeats": repeats, "runs": runs, "summary": summary}
+    record["flood"] = {
+        "overrides": overrides,
+        "repeats": repeats,
+        "runs": runs,
+        "schedule_runs": scheduled,
+        "summary": summary,
+    }
+
+
+def median_per_s(runs: list) -> float:
+    return statistics.median(r["wall_seconds_per_simulated_second"] for r in runs)
+
+
+def schedule_summary(runs: list, schedules: list) -> dict:
+    """Per landing schedule (the timed runs' own first), the free bodies' steps and wall time per
+    simulated second over their replay's (half start), and the medians over the schedules."""
+    out = {}
+    fps_all = sorted({r["fps"] for r in runs + schedules}, key=lambda f: (f == 0, f))
+    for fps in fps_all:
+        pick = {
+            v: [r for r in runs + schedules if r["variant"] == v and r["fps"] == fps] for v in ("free", "replayed_half")
+        }
+        if not (pick["free"] and pick["replayed_half"]):
+            continue
+        free, replay = pick["free"][0], pick["replayed_half"][0]  # the steps are the same in every repeat
+
+        out[f"{fps:g}"] = {
+            "steps": [free["steps"], replay["steps"]],
+            "fastest_speed": [free["fastest_speed"], replay["fastest_speed"]],
+            "fast_steps": [free["fast_steps"], replay["fast_steps"]],
+            "step_ratio": free["steps"] / replay["steps"],
+            "cost_ratio": median_per_s(pick["free"]) / median_per_s(pick["replayed_half"]),
+        }
+    if out:
+        out["median_step_ratio"] = statistics.median(v["step_ratio"] for v in out.values())
+        ratios = [v["cost_ratio"] for k, v in out.items() if k != "median_step_ratio"]
+        out["median_cost_ratio"] = statistics.median(ratios)
+    return out
 
 
 def measure_drafts(

@@ -614,6 +614,11 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     assert summary["cost_ratio_hydrostatic_start"] > 0
     # the boxes moved along the free bodies' paths, from each start: the coupling's own cost
     assert summary["cost_ratio_free_to_replayed_half"] > 0 and summary["cost_ratio_free_hydrostatic_to_replayed"] > 0
+    # the other landing schedules (quick: in one call only) beside the timed runs' 30 fps
+    schedules = summary["schedules"]
+    assert set(schedules) == {"30", "0", "median_step_ratio", "median_cost_ratio"}, schedules
+    assert [r["fps"] for r in record["flood"]["schedule_runs"]] == [0.0, 0.0]
+    assert schedules["0"]["steps"][0] > 0 and schedules["median_step_ratio"] > 0
     (heave,) = record["heave"]["runs"]  # the fit found an oscillation, not a flat line
     assert 0.2 < heave["damped_period"] < 2.0 and 0.0 <= heave["damping_ratio"] < 0.95
     assert [(d["spacing"], d["density"]) for d in record["drafts"]] == [(0.04, 500.0), (0.04, 250.0)]
@@ -665,6 +670,41 @@ def test_a_particle_put_back_where_its_path_entered_a_body_keeps_only_the_motion
     np.testing.assert_allclose(x.numpy()[0], [kept * dt, 0.001 + CLEARANCE * 0.01, 0.0], atol=1e-6)
     # along the plate half its speed (it was kept whole), across it the clearance's step off the face
     np.testing.assert_allclose(v.numpy()[0], [kept * v0[0], CLEARANCE * 0.01 / dt, 0.0], atol=1e-5)
+
+
+def test_the_path_test_traces_every_path_that_could_cross_a_body():
+    """The containment traces a particle's path through a free body only where it could cross it:
+    where the body's surface is within the reach (2 spacings) of the path's end, or the path is at
+    least that long (sph/containment.py). A path from 3 cm above a 2 mm plate to 2.6 cm below it
+    (longer than the reach, its end beyond it) is still put back where it entered, and one 1 cm
+    long ending 2.5 cm from the plate is left alone."""
+    import trimesh
+    import warp as wp
+
+    from warp_iisph.sph.bodies import Poses
+    from warp_iisph.sph.containment import CLEARANCE, Containment
+    from warp_iisph.sph.neighbors import NeighborListBuffer
+
+    plate = trimesh.creation.box(extents=(0.1, 0.002, 0.1))
+    walls = Containment("cpu", None, [(plate.vertices, plate.faces, 0, False)], spacing=0.01)
+    poses = Poses()
+    still = wp.array([wp.transform_identity()], dtype=wp.transform, device="cpu")
+    poses.start, poses.end, poses.before = still, still, still
+    poses.free = wp.array([1], dtype=wp.int32, device="cpu")
+    for name in ("velocity", "spin", "acceleration", "angular_acceleration"):
+        setattr(poses, name, wp.zeros(1, dtype=wp.vec3, device="cpu"))
+    walls.poses = poses
+    near = NeighborListBuffer(2, "cpu", capacity=2)
+    near.lists.count.fill_(1)
+    dt = 0.01
+    v0 = np.array([[0.0, -5.6, 0.0], [0.0, -1.0, 0.0]])  # through the plate; towards it, short of it
+    end = np.array([[0.0, 0.03, 0.0], [0.02, 0.036, 0.0]]) + dt * v0
+    x = wp.array(end, dtype=wp.vec3, device="cpu")
+    v = wp.array(v0, dtype=wp.vec3, device="cpu")
+    walls.apply(x, v, near.lists, 2, wp.array([dt], dtype=wp.float64, device="cpu"))
+    assert walls.corrections.numpy().tolist() == [0, 1]
+    np.testing.assert_allclose(x.numpy()[0], [0.0, 0.001 + CLEARANCE * 0.01, 0.0], atol=1e-6)
+    np.testing.assert_allclose(x.numpy()[1], end[1], atol=1e-7)
 
 
 @pytest.mark.parametrize("fixed_step", [False, True], ids=["cfl", "fixed 4 ms"])

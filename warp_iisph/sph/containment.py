@@ -18,6 +18,9 @@ a particle whose path over the step (from ``x - dt v``, in the body's frame at t
 to ``x``, in its frame at the end) enters the body's surface is put back where it entered, so that
 a body thinner than a step's relative motion is not crossed either; its velocity is then the
 motion it kept over the step (as position-based dynamics sets it), less any part into the body.
+Only a path that could reach the surface is traced: one ending within the query's reach (two
+spacings) of it, or at least that long (a ray cast per particle and body was half the flood's
+last-line cost).
 """
 
 from __future__ import annotations
@@ -150,8 +153,11 @@ def contain(
             if escaped == 0 and b >= 0:
                 if poses.free[b] != 0:  # through a free body within the step
                     a = wp.transform_point(wp.transform_inverse(poses.start[b]), x_i - h * v_i)
-                    escaped, c, n = entered(solids.meshes[k], a, p)
-                    through = escaped
+                    # a path shorter than its end's distance to the surface (beyond ``reach`` where
+                    # the query found none) stays outside: only the others are traced
+                    if q.result or wp.length(p - a) >= reach:
+                        escaped, c, n = entered(solids.meshes[k], a, p)
+                        through = escaped
             if escaped != 0:
                 x_new = wp.transform_point(frame, c + clearance * n)
                 n_world = wp.transform_vector(frame, n)
