@@ -44,6 +44,9 @@ def test_run_dam_break_writes_frames_and_stats(tmp_path, capsys):
     assert abs(stats[-1]["t"] - 0.1) < 1e-9
     run = json.loads((out / "run.json").read_text())
     assert run["ended"] == "completed" and run["totals"]["frames"] == 3
+    # the choices the scene leaves unset, as the run took them (the scene's table keeps them unset)
+    assert run["resolved"] == {"warm_start": "hydrostatic", "wall_gradient": "akinci"}
+    assert run["scene"]["physics"].get("warm_start") is None
     # a second run into the same folder refuses without --overwrite
     assert (
         main(["run", "dam_break", "--duration", "0.05", "--spacing", "0.04", "--out", str(out), "--no-progress"]) == 2

@@ -23,7 +23,18 @@ from warp_iisph.run.checkpoint import OWNER_KEYS
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = ["--set", "spacing=0.04", "--duration", "0.1", "--no-progress"]
 # the run.json fields a run's physics decides (its wall times, ids and command line differ)
-PHYSICS = ("ended", "message", "scene", "device", "particles", "duration", "requested_duration", "fps", "output")
+PHYSICS = (
+    "ended",
+    "message",
+    "scene",
+    "resolved",
+    "device",
+    "particles",
+    "duration",
+    "requested_duration",
+    "fps",
+    "output",
+)
 TIMED = ("wall_seconds", "wall_seconds_per_simulated_second")
 
 distributed = pytest.importorskip("distributed", reason="Dask distributed (the cluster extra) is not installed")

@@ -328,3 +328,19 @@ def test_a_box_of_liquid_its_whole_layers_fill_short_is_warned_of():
     assert lattice_shortfalls({"spacing": 0.025, "fluids": [shallow]}) == []  # two whole layers
     for name in bundled_scenes():
         assert lattice_shortfalls(scene_to_dict(load_scene(name))) == [], name
+
+
+def test_the_choices_a_scene_leaves_unset_resolve_by_method_and_bodies():
+    """``Physics.resolved`` (run.json's ``resolved``): IISPH's warm start and the walls' gradient
+    where unset, by whether the scene has free bodies; DFSPH's walls are Akinci's whatever is set,
+    and so are the ``"fluid"`` wall pressure's."""
+    assert Physics().resolved() == {"warm_start": "hydrostatic", "wall_gradient": "akinci"}
+    assert Physics().resolved(free_bodies=True) == {"warm_start": "half", "wall_gradient": "completed"}
+    set_ = Physics(warm_start="half_hydrostatic", wall_gradient="completed").resolved()
+    assert set_ == {"warm_start": "half_hydrostatic", "wall_gradient": "completed"}
+    assert Physics(method="dfsph", wall_gradient="completed").resolved(True) == {
+        "warm_start": None,
+        "wall_gradient": "akinci",
+    }
+    assert Physics(wall_pressure="fluid").resolved(True)["wall_gradient"] == "akinci"
+    assert Physics(method="wcsph").resolved(True) == {"warm_start": None, "wall_gradient": "completed"}

@@ -64,6 +64,8 @@ class RunRecord:
             "ended": "running",
             "message": "",
             "scene": _recorded_scene(scene, plan),
+            # what the scene's unset choices came to (its table keeps them unset)
+            "resolved": sim.physics.resolved(bool(scene.bodies)),
             "device": str(sim.device),
             "graph": graph,
             "versions": versions(),

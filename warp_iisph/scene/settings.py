@@ -251,6 +251,17 @@ class Physics(Record):
             return self.wall_gradient
         return "completed" if free_bodies else "akinci"
 
+    def resolved(self, free_bodies: bool = False) -> dict:
+        """What the run takes for the choices a scene may leave unset: IISPH's ``warm_start``
+        (:meth:`pressure_start`; None for other methods) and the walls' gradient the pressure force
+        uses (:meth:`wall_gradient_for` with extrapolated wall pressures in IISPH and WCSPH;
+        DFSPH's and the ``"fluid"`` wall pressure's walls are Akinci's)."""
+        completes = self.method != "dfsph" and self.wall_pressure == "extrapolated"
+        return {
+            "warm_start": self.pressure_start(free_bodies) if self.method == "iisph" else None,
+            "wall_gradient": self.wall_gradient_for(free_bodies) if completes else "akinci",
+        }
+
     def gravity_along_an_axis(self) -> bool:
         """Whether gravity has exactly one non-zero component (the hydrostatic starts' columns)."""
         return sum(1 for g in self.gravity if g != 0.0) == 1
