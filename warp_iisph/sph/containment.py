@@ -19,8 +19,8 @@ to ``x``, in its frame at the end) enters the body's surface is put back where i
 a body thinner than a step's relative motion is not crossed either; its velocity is then the
 motion it kept over the step (as position-based dynamics sets it), less any part into the body.
 Only a path that could reach the surface is traced: one ending within the query's reach (two
-spacings) of it, or at least that long (a ray cast per particle and body was half the flood's
-last-line cost).
+spacings) of it, or at least that long (a ray cast per particle and body was 0.57 of the 1.90 ms
+a step the flood's last line took).
 """
 
 from __future__ import annotations
