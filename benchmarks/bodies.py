@@ -718,7 +718,6 @@ def schedule_summary(runs: list, schedules: list) -> dict:
         if not (pick["free"] and pick["replayed_half"]):
             continue
         free, replay = pick["free"][0], pick["replayed_half"][0]  # the steps are the same in every repeat
-
         out[f"{fps:g}"] = {
             "steps": [free["steps"], replay["steps"]],
             "fastest_speed": [free["fastest_speed"], replay["fastest_speed"]],

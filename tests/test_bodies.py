@@ -633,6 +633,31 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     assert set(record["part_dates"]) == {"flood", "drafts", "heave", "dfsph_drafts", "dfsph_heave"}
 
 
+def plate_at_rest(box, n: int):
+    """The containment of a free body at rest, a plate 2 mm thick and 0.1 m square centred at the
+    origin (spacing 0.01 m), in the box tank ``box`` ((lower, upper), or None), with boundary lists
+    in which each of ``n`` particles had a wall neighbour at the step's start."""
+    import trimesh
+    import warp as wp
+
+    from warp_iisph.sph.bodies import Poses
+    from warp_iisph.sph.containment import Containment
+    from warp_iisph.sph.neighbors import NeighborListBuffer
+
+    plate = trimesh.creation.box(extents=(0.1, 0.002, 0.1))
+    walls = Containment("cpu", box, [(plate.vertices, plate.faces, 0, False)], spacing=0.01)
+    poses = Poses()
+    still = wp.array([wp.transform_identity()], dtype=wp.transform, device="cpu")
+    poses.start, poses.end, poses.before = still, still, still
+    poses.free = wp.array([1], dtype=wp.int32, device="cpu")
+    for name in ("velocity", "spin", "acceleration", "angular_acceleration"):
+        setattr(poses, name, wp.zeros(1, dtype=wp.vec3, device="cpu"))
+    walls.poses = poses
+    near = NeighborListBuffer(n, "cpu", capacity=n)
+    near.lists.count.fill_(1)
+    return walls, near
+
+
 def test_a_particle_put_back_where_its_path_entered_a_body_keeps_only_the_motion_it_kept():
     """The containment's path test (sph/containment.py): a particle whose step carried it through
     a free body thinner than the step (a plate 2 mm thick, at rest) is put back where its path
@@ -641,25 +666,11 @@ def test_a_particle_put_back_where_its_path_entered_a_body_keeps_only_the_motion
     tangential velocity instead let a particle pinned in a film between a crate and a tank wall
     keep every step's pressure kick, still where it stood, until its speed ran away (the bundled
     ``flood`` advanced in one call diverged so at t = 0.845 s)."""
-    import trimesh
     import warp as wp
 
-    from warp_iisph.sph.bodies import Poses
-    from warp_iisph.sph.containment import CLEARANCE, Containment
-    from warp_iisph.sph.neighbors import NeighborListBuffer
+    from warp_iisph.sph.containment import CLEARANCE
 
-    plate = trimesh.creation.box(extents=(0.1, 0.002, 0.1))
-    box_lower, box_upper = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
-    walls = Containment("cpu", (box_lower, box_upper), [(plate.vertices, plate.faces, 0, False)], spacing=0.01)
-    poses = Poses()
-    still = wp.array([wp.transform_identity()], dtype=wp.transform, device="cpu")
-    poses.start, poses.end, poses.before = still, still, still
-    poses.free = wp.array([1], dtype=wp.int32, device="cpu")
-    for name in ("velocity", "spin", "acceleration", "angular_acceleration"):
-        setattr(poses, name, wp.zeros(1, dtype=wp.vec3, device="cpu"))
-    walls.poses = poses
-    near = NeighborListBuffer(1, "cpu", capacity=1)
-    near.lists.count.fill_(1)  # the particle had a wall neighbour at the step's start
+    walls, near = plate_at_rest((np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])), 1)
     dt, v0 = 0.01, np.array([1.0, -1.0, 0.0])  # from 6 mm above the plate's middle to 4 mm below it
     end = np.array([0.0, 0.006, 0.0]) + dt * v0
     x = wp.array([end], dtype=wp.vec3, device="cpu")
@@ -678,24 +689,11 @@ def test_the_path_test_traces_every_path_that_could_cross_a_body():
     least that long (sph/containment.py). A path from 3 cm above a 2 mm plate to 2.6 cm below it
     (longer than the reach, its end beyond it) is still put back where it entered, and one 1 cm
     long ending 2.5 cm from the plate is left alone."""
-    import trimesh
     import warp as wp
 
-    from warp_iisph.sph.bodies import Poses
-    from warp_iisph.sph.containment import CLEARANCE, Containment
-    from warp_iisph.sph.neighbors import NeighborListBuffer
+    from warp_iisph.sph.containment import CLEARANCE
 
-    plate = trimesh.creation.box(extents=(0.1, 0.002, 0.1))
-    walls = Containment("cpu", None, [(plate.vertices, plate.faces, 0, False)], spacing=0.01)
-    poses = Poses()
-    still = wp.array([wp.transform_identity()], dtype=wp.transform, device="cpu")
-    poses.start, poses.end, poses.before = still, still, still
-    poses.free = wp.array([1], dtype=wp.int32, device="cpu")
-    for name in ("velocity", "spin", "acceleration", "angular_acceleration"):
-        setattr(poses, name, wp.zeros(1, dtype=wp.vec3, device="cpu"))
-    walls.poses = poses
-    near = NeighborListBuffer(2, "cpu", capacity=2)
-    near.lists.count.fill_(1)
+    walls, near = plate_at_rest(None, 2)
     dt = 0.01
     v0 = np.array([[0.0, -5.6, 0.0], [0.0, -1.0, 0.0]])  # through the plate; towards it, short of it
     end = np.array([[0.0, 0.03, 0.0], [0.02, 0.036, 0.0]]) + dt * v0

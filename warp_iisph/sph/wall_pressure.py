@@ -119,7 +119,8 @@ class WallPressures:
     def __init__(self, model, capacity: int):
         ph = model.physics
         self.extrapolated = ph.wall_pressure == "extrapolated" and model.n_boundary > 0
-        self.completed = self.extrapolated and ph.wall_gradient_for(model.rigid is not None) == "completed"
+        # the rule run.json's ``resolved`` states (Physics.resolved), with walls to complete
+        self.completed = self.extrapolated and ph.resolved(model.rigid is not None)["wall_gradient"] == "completed"
         self.walls = walls_of(model, 1.0 / (ph.rho0 * ph.rho0) if self.extrapolated else 0.0, capacity)
         self.gravity = wp.vec3(*ph.gravity)
 
