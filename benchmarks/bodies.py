@@ -2,19 +2,19 @@
 
 (a) The bundled ``flood`` scene at its defaults (three crates and a concrete block swept along a
 channel) with its free bodies, against the same scene with the bodies fixed where they start (the
-same boxes as still obstacles, sampled in layers inside their faces as a body is; at its defaults,
-so from the hydrostatic warm start, and once more from the half start the free bodies' scene
-takes), and against the same boxes moved along the path the free bodies took from the same start
-(keyframes every 10 ms from a free run of its own, untimed: the same flow round them, with nothing
-pushed back), which sets the coupling's own cost apart from the different flow that bodies held
-still make: wall seconds per simulated second, the median of interleaved repeats (free, fixed, free, fixed, ...). Each
+same boxes as still obstacles, sampled in layers inside their faces as a body is; at that scene's
+defaults), and against the same boxes moved along the path the free bodies took (keyframes every
+10 ms from a free run of its own, untimed: the same flow round them, with nothing pushed back),
+which sets the coupling's own cost apart from the different flow that bodies held still make; the
+three once more from the half warm start (the free bodies' default until 2026-12-06): wall
+seconds per simulated second, the median of interleaved repeats (free, fixed, ..., then backwards). Each
 run also reports the containment's last-line corrections (``obstacle_corrections``: particles it
 put back out of an obstacle or a body; ``wall_corrections``: out of the tank), the fluid
 particles found inside a body at every frame (checked outside the timing, in each body's frame:
 centres inside its surface, and past its wall, the last line's, which is a free body's surface and
 a still faces-sampled box's inner boundary layer h/2 inside its faces), and whether any body left
 the tank (a corner of its box beyond a face by more than a spacing). The timed runs advance frame
-by frame at the scene's 30 fps; the free bodies and their replay (half start) are then advanced
+by frame at the scene's 30 fps; the free bodies and their replay are then advanced
 once each at 25 and 60 fps and in one call (``schedule_runs``; the replay on the same 30 fps path):
 the spray the films shoot out is chaotic, a particle faster than 5 m/s cuts the CFL step for as
 long as it flies, and each landing schedule brings the films' particles to the walls at other
@@ -73,15 +73,12 @@ from warp_iisph.scene.bodies import quaternion_matrix
 from warp_iisph.scene.motion import MAX_KEYS, Motion
 from warp_iisph.scene.probes import Probe
 
-FLOOD_VARIANTS = ("free", "fixed", "fixed_half", "free_hydrostatic", "replayed", "replayed_half")
-VARIANT_WARM_STARTS = {
-    "fixed_half": "half",
-    "free_hydrostatic": "hydrostatic",
-    "replayed_half": "half",
-}  # the others: the scene's own
+FLOOD_VARIANTS = ("free", "fixed", "replayed", "free_half", "fixed_half", "replayed_half")
+# the half-start variants; the others take the scene's own
+VARIANT_WARM_STARTS = {"free_half": "half", "fixed_half": "half", "replayed_half": "half"}
 # each replay follows the path the free bodies take from its own start
-REPLAYS = {"replayed": "free_hydrostatic", "replayed_half": "free"}
-# Other landing schedules the free bodies and their replay (half start) are advanced with once each:
+REPLAYS = {"replayed": "free", "replayed_half": "free_half"}
+# Other landing schedules the free bodies and their replay are advanced with once each:
 # the films' spray is chaotic, and each schedule brings their particles to the walls at other steps
 SCHEDULES = (25.0, 60.0, 0.0)  # frames per second; 0: in one call
 FAST = 5.0  # m/s: a step with a particle faster than this (the wave's front runs at 3.7) is counted
@@ -90,16 +87,15 @@ _paths: dict = {}  # the free variants' paths, recorded once in runs of their ow
 
 
 def flood(variant: str, overrides: list, path: dict | None = None) -> Scene:
-    """The flood scene; ``fixed``: its bodies replaced by still box obstacles of the same shapes
-    (then the scene's warm start is the hydrostatic one, the default without free bodies);
-    ``fixed_half``: so, with the half warm start the free bodies' scene runs with;
-    ``free_hydrostatic``: the free bodies from the hydrostatic start (beside a body at least half the
-    last pressure), the still boxes' own; ``replayed``, ``replayed_half``: the same box obstacles
-    moved along the ``path`` the free bodies took from the same start (keyframes,
-    :func:`replay_motions`), so the liquid flows round the bodies as they moved, but pushes
-    nothing: the same flow without the coupling. Every box-obstacle variant but ``fixed`` (the still
-    boxes' scene at its own defaults) takes the free bodies' walls, ``physics.wall_gradient =
-    "completed"``, so that it differs from the free run in the coupling only."""
+    """The flood scene; ``free``: as it is (the hydrostatic warm start, beside a body at least half
+    the last pressure); ``fixed``: its bodies replaced by still box obstacles of the same shapes, at
+    that scene's defaults; ``replayed``: the same box obstacles moved along the ``path`` the free
+    bodies took (keyframes, :func:`replay_motions`), so the liquid flows round the bodies as they
+    moved, but pushes nothing: the same flow without the coupling. ``free_half``, ``fixed_half``,
+    ``replayed_half``: the same from the half warm start (the free bodies' default until
+    2026-12-06), the replay along ``free_half``'s path. Every box-obstacle variant but ``fixed``
+    takes the free bodies' walls, ``physics.wall_gradient = "completed"``, so that it differs from
+    the free run in the coupling only."""
     scene = load_scene("flood", overrides)
     if variant in VARIANT_WARM_STARTS:
         scene.physics.warm_start = VARIANT_WARM_STARTS[variant]
@@ -248,7 +244,7 @@ def run_flood(variant: str, overrides: list, duration, fps: float | None = None)
 
     # the boxes' walls for the last line: a free body's surface, a still box's inner boundary layer
     # h/2 inside its faces (sampled by faces; sph/containment.py)
-    inset = 0.5 * scene.spacing if variant not in ("free", "free_hydrostatic") else 0.0
+    inset = 0.5 * scene.spacing if variant not in ("free", "free_half") else 0.0
     wall, inside, inside_frames, past_walls, left = 0.0, 0, 0, 0, False
     while sim.time < duration - 1e-9:
         t0 = time.perf_counter()
@@ -330,6 +326,7 @@ def run_draft(spacing: float, density: float, settle: float, end: float, method:
         "spacing": spacing,
         "density": density,
         "wall_gradient": scene.physics.wall_gradient_for(True) if method != "dfsph" else "akinci",
+        "warm_start": scene.physics.pressure_start() if method == "iisph" else None,
         "particles": sim.n_particles,
         "draft": draft,
         "target": target,
@@ -410,6 +407,7 @@ def run_heave(scene: Scene, duration: float, **physics) -> dict:
         "width": float(hi[0] - lo[0]),
         "hold": hold,
         "viscosity": scene.physics.viscosity,
+        "warm_start": scene.physics.pressure_start() if scene.physics.method == "iisph" else None,
         "particles": sim.n_particles,
         "liquid_speed_at_release": {"mean": float(speed.mean()), "max": float(speed.max())},
         **fit,
@@ -464,14 +462,13 @@ def summarize(runs: list) -> dict:
             for key in ("steps", "obstacle_corrections", "mean_iterations")
         },
     }
-    if "fixed_half" in per_s:  # against the fixed scene with the free one's warm start
-        out["cost_ratio_same_start"] = per_s["free"] / per_s["fixed_half"]
-        out["cost_ratio_per_step_same_start"] = per_step["free"] / per_step["fixed_half"]
-    if "free_hydrostatic" in per_s:  # the free bodies from the still boxes' start
-        out["cost_ratio_hydrostatic_start"] = per_s["free_hydrostatic"] / per_s["fixed"]
-        out["cost_ratio_per_step_hydrostatic_start"] = per_step["free_hydrostatic"] / per_step["fixed"]
+    if "free_half" in per_s and "fixed_half" in per_s:  # both from the half start
+        out["cost_ratio_half_start"] = per_s["free_half"] / per_s["fixed_half"]
+        out["cost_ratio_per_step_half_start"] = per_step["free_half"] / per_step["fixed_half"]
+    if "free_half" in per_s:  # the free bodies' default until 2026-12-06 against the fixed scene's
+        out["cost_ratio_free_half_to_fixed"] = per_s["free_half"] / per_s["fixed"]
     # the coupling alone: the free bodies against boxes moved along their path, from the same start
-    for free, replayed in (("free", "replayed_half"), ("free_hydrostatic", "replayed")):
+    for free, replayed in (("free", "replayed"), ("free_half", "replayed_half")):
         if free in per_s and replayed in per_s:
             out[f"cost_ratio_{free}_to_{replayed}"] = per_s[free] / per_s[replayed]
             out[f"cost_ratio_per_step_{free}_to_{replayed}"] = per_step[free] / per_step[replayed]
@@ -485,10 +482,10 @@ def chart(record: dict, path) -> None:
     names = {
         "free": "free bodies",
         "fixed": "bodies fixed\n(still obstacles)",
-        "fixed_half": "fixed,\nhalf warm start",
-        "free_hydrostatic": "free,\nhydrostatic start",
-        "replayed": "moved along the free path\n(hydrostatic start)",
-        "replayed_half": "moved along it,\nhalf start",
+        "replayed": "moved along\nthe free path",
+        "free_half": "free,\nhalf warm start",
+        "fixed_half": "fixed,\nhalf start",
+        "replayed_half": "moved along its path,\nhalf start",
     }
     shown = [v for v in FLOOD_VARIANTS if any(r["variant"] == v for r in runs)]
     for i, variant in enumerate(shown):
@@ -502,14 +499,14 @@ def chart(record: dict, path) -> None:
         f"flood, {s['particles']} particles: free / fixed = {s['cost_ratio']:.2f} per simulated s, "
         f"{s['cost_ratio_per_step']:.2f} per step"
         + (
-            f"\n(against the fixed run with the half start: {s['cost_ratio_same_start']:.2f})"
-            if "cost_ratio_same_start" in s
+            f"\nfree / moved along its path: {s['cost_ratio_free_to_replayed']:.2f}"
+            if "cost_ratio_free_to_replayed" in s
             else ""
         )
         + (
-            f"\nfree / moved along its path: {s['cost_ratio_free_to_replayed_half']:.2f} (half start), "
-            f"{s['cost_ratio_free_hydrostatic_to_replayed']:.2f} (hydrostatic start)"
-            if "cost_ratio_free_to_replayed_half" in s
+            f"; from the half start: free / fixed {s['cost_ratio_half_start']:.2f}, "
+            f"free / moved {s['cost_ratio_free_half_to_replayed_half']:.2f}"
+            if "cost_ratio_half_start" in s
             else ""
         ),
         fontsize=9,
@@ -673,7 +670,7 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int, schedul
             )
     scheduled = []
     for fps in schedules:
-        for variant in ("free", "replayed_half"):
+        for variant in ("free", "replayed"):
             r = run_flood(variant, overrides, duration, fps)
             scheduled.append(r)
             print(
@@ -687,11 +684,11 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int, schedul
     print(
         f"flood: free / fixed = {summary['cost_ratio']:.3f} "
         f"(medians {med['free']:.1f} and {med['fixed']:.1f} wall s per s), "
-        f"{summary['cost_ratio_per_step']:.3f} per step; against the fixed run with the half start "
-        f"{summary.get('cost_ratio_same_start', float('nan')):.3f}; free from the hydrostatic start / fixed "
-        f"{summary.get('cost_ratio_hydrostatic_start', float('nan')):.3f}; free / replayed along its path, "
-        f"half start {summary.get('cost_ratio_free_to_replayed_half', float('nan')):.3f}, hydrostatic start "
-        f"{summary.get('cost_ratio_free_hydrostatic_to_replayed', float('nan')):.3f}"
+        f"{summary['cost_ratio_per_step']:.3f} per step; free / replayed along its path "
+        f"{summary.get('cost_ratio_free_to_replayed', float('nan')):.3f}; from the half start: free / fixed "
+        f"{summary.get('cost_ratio_half_start', float('nan')):.3f}, free / replayed "
+        f"{summary.get('cost_ratio_free_half_to_replayed_half', float('nan')):.3f}; free from the half start / "
+        f"fixed {summary.get('cost_ratio_free_half_to_fixed', float('nan')):.3f}"
     )
     record["flood"] = {
         "overrides": overrides,
@@ -708,22 +705,20 @@ def median_per_s(runs: list) -> float:
 
 def schedule_summary(runs: list, schedules: list) -> dict:
     """Per landing schedule (the timed runs' own first), the free bodies' steps and wall time per
-    simulated second over their replay's (half start), and the medians over the schedules."""
+    simulated second over their replay's, and the medians over the schedules."""
     out = {}
     fps_all = sorted({r["fps"] for r in runs + schedules}, key=lambda f: (f == 0, f))
     for fps in fps_all:
-        pick = {
-            v: [r for r in runs + schedules if r["variant"] == v and r["fps"] == fps] for v in ("free", "replayed_half")
-        }
-        if not (pick["free"] and pick["replayed_half"]):
+        pick = {v: [r for r in runs + schedules if r["variant"] == v and r["fps"] == fps] for v in ("free", "replayed")}
+        if not (pick["free"] and pick["replayed"]):
             continue
-        free, replay = pick["free"][0], pick["replayed_half"][0]  # the steps are the same in every repeat
+        free, replay = pick["free"][0], pick["replayed"][0]  # the steps are the same in every repeat
         out[f"{fps:g}"] = {
             "steps": [free["steps"], replay["steps"]],
             "fastest_speed": [free["fastest_speed"], replay["fastest_speed"]],
             "fast_steps": [free["fast_steps"], replay["fast_steps"]],
             "step_ratio": free["steps"] / replay["steps"],
-            "cost_ratio": median_per_s(pick["free"]) / median_per_s(pick["replayed_half"]),
+            "cost_ratio": median_per_s(pick["free"]) / median_per_s(pick["replayed"]),
         }
     if out:
         out["median_step_ratio"] = statistics.median(v["step_ratio"] for v in out.values())

@@ -208,17 +208,16 @@ def test_the_hydrostatic_warm_starts_keep_water_at_rest(warm_start):
         assert np.all(np.abs(slopes / slopes.mean() - 1.0) <= 0.01), slopes
 
 
-def test_the_hydrostatic_warm_start_is_the_default_only_with_gravity_along_an_axis_and_no_free_bodies():
+def test_the_hydrostatic_warm_start_is_the_default_where_gravity_points_along_an_axis():
     """Unset, physics.warm_start resolves to the hydrostatic start (with its floor of 4 iterations)
-    where gravity points along an axis and the scene has no free bodies, and to the half start
-    (floor 2) otherwise; a value set is kept."""
+    where gravity points along an axis, free bodies or not, and to the half start (floor 2)
+    otherwise; a value set is kept."""
     assert Physics().pressure_start() == "hydrostatic" and Physics().iteration_floor() == 4
-    assert Physics().pressure_start(free_bodies=True) == "half" and Physics().iteration_floor(True) == 2
     assert Physics(gravity=(0.0, 0.0, 0.0)).pressure_start() == "half"
     assert Physics(gravity=(1.0, -9.81, 0.0)).pressure_start() == "half"
-    assert Physics(warm_start="hydrostatic").pressure_start(free_bodies=True) == "hydrostatic"
+    assert Physics(warm_start="half").pressure_start() == "half" and Physics(warm_start="half").iteration_floor() == 2
     assert Physics(method="dfsph").iteration_floor() == 2 and Physics(min_iterations=3).iteration_floor() == 3
-    assert Simulation(load_scene("flood"), "cpu").solver.warm_start == "half"  # it has free bodies
+    assert Simulation(load_scene("flood"), "cpu").solver.warm_start == "hydrostatic"  # it has free bodies
     assert Simulation(load_scene("dam_break"), "cpu").solver.warm_start == "hydrostatic"
 
 

@@ -331,11 +331,12 @@ def test_a_box_of_liquid_its_whole_layers_fill_short_is_warned_of():
 
 
 def test_the_choices_a_scene_leaves_unset_resolve_by_method_and_bodies():
-    """``Physics.resolved`` (run.json's ``resolved``): IISPH's warm start and the walls' gradient
-    where unset, by whether the scene has free bodies; DFSPH's walls are Akinci's whatever is set,
-    and so are the ``"fluid"`` wall pressure's."""
+    """``Physics.resolved`` (run.json's ``resolved``): IISPH's warm start where unset by gravity,
+    the walls' gradient by whether the scene has free bodies; DFSPH's walls are Akinci's whatever
+    is set, and so are the ``"fluid"`` wall pressure's."""
     assert Physics().resolved() == {"warm_start": "hydrostatic", "wall_gradient": "akinci"}
-    assert Physics().resolved(free_bodies=True) == {"warm_start": "half", "wall_gradient": "completed"}
+    assert Physics().resolved(free_bodies=True) == {"warm_start": "hydrostatic", "wall_gradient": "completed"}
+    assert Physics(gravity=(0.0, 0.0, 0.0)).resolved(True) == {"warm_start": "half", "wall_gradient": "completed"}
     set_ = Physics(warm_start="half_hydrostatic", wall_gradient="completed").resolved()
     assert set_ == {"warm_start": "half_hydrostatic", "wall_gradient": "completed"}
     assert Physics(method="dfsph", wall_gradient="completed").resolved(True) == {

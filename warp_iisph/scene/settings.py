@@ -178,15 +178,15 @@ class Physics(Record):
       rho0 g, 1 % above the converged solve's), 2 otherwise (see :meth:`iteration_floor`).
     - ``omega``: IISPH's Jacobi relaxation factor.
     - ``warm_start``: the pressure IISPH's solve starts each step from. Unset (the default):
-      ``"hydrostatic"`` where gravity points along an axis and the scene has no free bodies,
-      ``"half"`` otherwise (no gravity, gravity at an angle, or free bodies; see
-      :meth:`pressure_start`). ``"hydrostatic"``: the hydrostatic pressure
+      ``"hydrostatic"`` where gravity points along an axis, ``"half"`` otherwise (no gravity, or
+      gravity at an angle; see :meth:`pressure_start`). ``"hydrostatic"``: the hydrostatic pressure
       under the particle's column, ``rho0 |g| d`` with ``d`` the depth below the highest liquid in it
       (columns one spacing wide across gravity), taken in full where the particle's advected density
       is at least rho0 and not at all where it is 1 % or more below (a particle being pulled
       apart: the solution leaves it free), linearly between; nothing of the last step's, so
       resting water keeps no memory that could make it bounce (4 iterations a step at rest, its
-      slope within 0.2 % from step to step; docs/pressure_solve.md). ``"half"``: half the last
+      slope within 0.2 % from step to step; docs/pressure_solve.md); beside a free body (blind to
+      the body's weight on the liquid under it) at least half the last step's. ``"half"``: half the last
       step's, ``0.5 p(t - dt)``; resting water's pressure holds still too, at about 22 iterations a
       step in a 0.6 m column. ``"half_hydrostatic"``: ``0.5 p(t - dt)`` plus half the hydrostatic
       pressure (ungated): the fewest iterations at tight tolerances in flows, but resting water's
@@ -230,15 +230,15 @@ class Physics(Record):
     dt_max: float = 5.0e-3
     max_velocity: Optional[float] = None
 
-    def pressure_start(self, free_bodies: bool = False) -> str:
+    def pressure_start(self) -> str:
         """The warm start IISPH's solve uses: ``warm_start`` where set, else ``"hydrostatic"`` where
-        gravity points along an axis and the scene has no free bodies, ``"half"`` otherwise (a
-        column's estimate counts only the liquid above a particle, not a body's weight on it; in
-        the flood the film under the block then shot particles at 14 m/s, 4.5 from the half
-        start: docs/physics.md 4.14)."""
+        gravity points along an axis (the columns it is estimated over) and ``"half"`` otherwise.
+        With free bodies as without since 2026-12-06: with the completed walls the bodies float at
+        their drafts from it as from the half start, heave alike, and cost about half as much
+        (docs/physics.md 4.14)."""
         if self.warm_start is not None:
             return self.warm_start
-        return "hydrostatic" if self.gravity_along_an_axis() and not free_bodies else "half"
+        return "hydrostatic" if self.gravity_along_an_axis() else "half"
 
     def wall_gradient_for(self, free_bodies: bool = False) -> str:
         """The walls' gradient the pressure force uses: ``wall_gradient`` where set, else
@@ -258,7 +258,7 @@ class Physics(Record):
         DFSPH's and the ``"fluid"`` wall pressure's walls are Akinci's)."""
         completes = self.method != "dfsph" and self.wall_pressure == "extrapolated"
         return {
-            "warm_start": self.pressure_start(free_bodies) if self.method == "iisph" else None,
+            "warm_start": self.pressure_start() if self.method == "iisph" else None,
             "wall_gradient": self.wall_gradient_for(free_bodies) if completes else "akinci",
         }
 
@@ -266,12 +266,12 @@ class Physics(Record):
         """Whether gravity has exactly one non-zero component (the hydrostatic starts' columns)."""
         return sum(1 for g in self.gravity if g != 0.0) == 1
 
-    def iteration_floor(self, free_bodies: bool = False) -> int:
+    def iteration_floor(self) -> int:
         """The fewest iterations of the pressure solve: ``min_iterations`` where set, else 4 for
         IISPH from the hydrostatic start and 2 otherwise (never above ``max_iterations``)."""
         if self.min_iterations is not None:
             return int(self.min_iterations)
-        hydrostatic = self.method == "iisph" and self.pressure_start(free_bodies) == "hydrostatic"
+        hydrostatic = self.method == "iisph" and self.pressure_start() == "hydrostatic"
         return min(4 if hydrostatic else 2, int(self.max_iterations))
 
     def validate(self) -> None:

@@ -396,8 +396,7 @@ class IISPHSolver(SPHSolver):
         self.a_bulk = h**6 * lattice_grad_W_squared(h, model.support_radius)
         self.a_least = DIAGONAL_FLOOR * self.a_bulk
         self.solve = IterativeSolve(n, dev)  # the pressure solve: relaxed Jacobi, ending where its error reaches eta
-        self.free_bodies = model.rigid is not None
-        self.warm_start = self.physics.pressure_start(self.free_bodies)  # physics.warm_start, resolved
+        self.warm_start = self.physics.pressure_start()  # physics.warm_start, resolved
         self.hydrostatic = HydrostaticPressure(model) if self.warm_start != "half" else None
 
     def launch_step(self, model, state, timer=None, sync: bool = True) -> None:
@@ -415,7 +414,7 @@ class IISPHSolver(SPHSolver):
             self.solve.run(
                 state.n,
                 ph.eta,
-                ph.iteration_floor(self.free_bodies),
+                ph.iteration_floor(),
                 ph.max_iterations,
                 lambda: self.jacobi_iteration(model, state),
                 lambda blend: launch_particles(jacobi_advance, state.n, [blend, self.p_next, state.p], model.device),
