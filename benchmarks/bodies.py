@@ -506,7 +506,7 @@ def chart(record: dict, path) -> None:
         + (
             f"; from the half start: free / fixed {s['cost_ratio_half_start']:.2f}, "
             f"free / moved {s['cost_ratio_free_half_to_replayed_half']:.2f}"
-            if "cost_ratio_half_start" in s
+            if "cost_ratio_half_start" in s and "cost_ratio_free_half_to_replayed_half" in s
             else ""
         ),
         fontsize=9,

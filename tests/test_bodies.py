@@ -418,7 +418,8 @@ def settled_draft(density: float) -> tuple:
     """The draft of ``pool``'s box (h = 0.02) over t = 1.0 .. 1.6 s, against the liquid's level by
     its rest volume (particles times h^3; the tank's walls lie h/2 outside its faces, so the liquid
     fills it from y = 0) with the box's submerged volume; the mean horizontal speed of the box and
-    of the liquid within 4 cm of its sides over the same time; and the simulation at its end."""
+    of the liquid within 4 cm of its sides (and under it) over the same time; and the simulation
+    at its end."""
     scene = pool(spacing=0.02, density=density)
     sim = Simulation(scene, "cpu")
     area, a_box, drafts, heights, box_speed, water_speed = 0.4 * 0.4, 0.16 * 0.16, [], [], [], []
@@ -496,8 +497,8 @@ def test_a_heavy_box_sinks_and_comes_to_rest_on_the_floor(warm_start):
     """A box of density 2,000 released in the liquid sinks onto the floor and rests there: upright,
     still, with no particle inside it, from the default warm start, the hydrostatic one (which
     keeps at least half the last pressure beside a body: from the column's estimate alone the film
-    under it kept the box jittering at 0.10 m/s), and from the half start. Its bottom rests on one
-    trapped layer of liquid (measured 0.012 m, 0.6 h: a film thinner than a spacing does not drain
+    under it kept the box jittering at 0.10 m/s), and from the half start (the two cases). Its
+    bottom rests on one trapped layer of liquid (measured 0.012 m, 0.6 h: a film thinner than a spacing does not drain
     at this resolution), and its velocity keeps a jitter of a few cm/s from that film (measured at
     most 0.039 m/s with Akinci's walls, mean -0.002 m/s over 1.0 .. 1.3 s; 0.083 m/s from the
     hydrostatic start with the walls completing the kernel gradient, the free bodies' default

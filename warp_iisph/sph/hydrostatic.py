@@ -2,7 +2,7 @@
 its depth below the highest particle of its column (columns one spacing wide across gravity,
 which points along an axis), half a spacing added for the top particle's own layer.
 
-IISPH's ``physics.warm_start = "hydrostatic"`` (the default without free bodies) starts each
+IISPH's ``physics.warm_start = "hydrostatic"`` (the default where gravity points along an axis) starts each
 step's solve from it alone (:meth:`HydrostaticPressure.start`): a state function, the pressure of
 resting water, with no memory of the last step's pressure that could integrate resting water's
 small errors into a bounce. A particle whose advected density is below rho0 is being pulled apart
