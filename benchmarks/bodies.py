@@ -325,8 +325,7 @@ def run_draft(spacing: float, density: float, settle: float, end: float, method:
         "method": method,
         "spacing": spacing,
         "density": density,
-        "wall_gradient": scene.physics.wall_gradient_for(True) if method != "dfsph" else "akinci",
-        "warm_start": scene.physics.pressure_start() if method == "iisph" else None,
+        **scene.physics.resolved(free_bodies=True),  # its walls' gradient and warm start, as the run took them
         "particles": sim.n_particles,
         "draft": draft,
         "target": target,
@@ -407,7 +406,7 @@ def run_heave(scene: Scene, duration: float, **physics) -> dict:
         "width": float(hi[0] - lo[0]),
         "hold": hold,
         "viscosity": scene.physics.viscosity,
-        "warm_start": scene.physics.pressure_start() if scene.physics.method == "iisph" else None,
+        "warm_start": scene.physics.resolved(free_bodies=True)["warm_start"],
         "particles": sim.n_particles,
         "liquid_speed_at_release": {"mean": float(speed.mean()), "max": float(speed.max())},
         **fit,
@@ -720,10 +719,10 @@ def schedule_summary(runs: list, schedules: list) -> dict:
             "step_ratio": free["steps"] / replay["steps"],
             "cost_ratio": median_per_s(pick["free"]) / median_per_s(pick["replayed"]),
         }
-    if out:
-        out["median_step_ratio"] = statistics.median(v["step_ratio"] for v in out.values())
-        ratios = [v["cost_ratio"] for k, v in out.items() if k != "median_step_ratio"]
-        out["median_cost_ratio"] = statistics.median(ratios)
+    rows = list(out.values())
+    if rows:
+        out["median_step_ratio"] = statistics.median(r["step_ratio"] for r in rows)
+        out["median_cost_ratio"] = statistics.median(r["cost_ratio"] for r in rows)
     return out
 
 
