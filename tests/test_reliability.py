@@ -343,13 +343,15 @@ argparse.ArgumentParser.parse_args = parse_args
 """
 
 
-def test_python_m_exits_with_the_status_main_returns_after_a_ctrl_c_caught_in_a_string_exec(tmp_path):
+@pytest.mark.parametrize("module", ["warp_iisph", "warp_iisph.cli"])
+def test_python_m_exits_with_the_status_main_returns_after_a_ctrl_c_caught_in_a_string_exec(tmp_path, module):
     """CPython ends a ``python -m`` run by SIGINT (status -2, not 130 or 0) once a KeyboardInterrupt
-    has left a string exec, even a caught one; it failed the start-up Ctrl-C test 1 time in 25."""
+    has left a string exec, even a caught one; it failed the start-up Ctrl-C test about 1 time in
+    25 under load (7 of 170 tries, none of 200 since)."""
     (tmp_path / "sitecustomize.py").write_text(CAUGHT_IN_EXEC)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
     proc = subprocess.run(
-        [sys.executable, "-m", "warp_iisph.cli", "scenes"], capture_output=True, text=True, env=env, timeout=120
+        [sys.executable, "-m", module, "scenes"], capture_output=True, text=True, env=env, timeout=120
     )
     assert proc.returncode == 0 and "dam_break" in proc.stdout, (proc.returncode, proc.stderr)
 

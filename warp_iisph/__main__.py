@@ -1,7 +1,5 @@
 """``python -m warp_iisph``: the command line, as ``warp-iisph`` and ``python -m warp_iisph.cli``."""
 
-import sys
+from .cli import exit_module, main
 
-from .cli import main
-
-sys.exit(main())
+exit_module(main())

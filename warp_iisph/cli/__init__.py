@@ -48,6 +48,17 @@ def main(argv=None) -> int:
     return code
 
 
+def exit_module(code: int):
+    """Exit a ``python -m`` run (of this package or of :mod:`warp_iisph.cli`) with status ``code``.
+
+    CPython (3.8 on) ends a ``-m`` run by SIGINT, whatever status it exits with, once a
+    KeyboardInterrupt has left a string ``exec``, even one caught afterwards (dataclasses and
+    namedtuple build their methods so, and a Ctrl-C at start-up lands there); a string exec that
+    completes clears that mark."""
+    exec("pass")
+    sys.exit(code)
+
+
 def signal_of(e: KeyboardInterrupt):
     import signal
 
