@@ -7,7 +7,9 @@ defaults), and against the same boxes moved along the path the free bodies took 
 10 ms from a free run of its own, untimed: the same flow round them, with nothing pushed back),
 which sets the coupling's own cost apart from the different flow that bodies held still make; the
 three once more from the half warm start (the free bodies' default until 2026-12-06): wall
-seconds per simulated second, the median of interleaved repeats (free, fixed, ..., then backwards). Each
+seconds per simulated second, the median over repeats, each repeat's six runs taking turns frame by
+frame in one process (free, fixed, ..., then backwards: since 2026-12-06, when runs one after the
+other put 1.36 where the turns put 1.19, the machine's speed drifting between runs). Each
 run also reports the containment's last-line corrections (``obstacle_corrections``: particles it
 put back out of an obstacle or a body; ``wall_corrections``: out of the tank), the fluid
 particles found inside a body at every frame (checked outside the timing, in each body's frame:
@@ -15,7 +17,7 @@ centres inside its surface, and past its wall, the last line's, which is a free 
 a still faces-sampled box's inner boundary layer h/2 inside its faces), and whether any body left
 the tank (a corner of its box beyond a face by more than a spacing). The timed runs advance frame
 by frame at the scene's 30 fps; the free bodies and their replay are then advanced
-once each at 25 and 60 fps and in one call (``schedule_runs``; the replay on the same 30 fps path):
+once each at 25 and 60 fps, taking turns, and in one call each (``schedule_runs``; the replay on the 30 fps path):
 the spray the films shoot out is chaotic, a particle faster than 5 m/s cuts the CFL step for as
 long as it flies, and each landing schedule brings the films' particles to the walls at other
 steps, so the steps one schedule takes are one sample (``summary.schedules``: steps and cost per
@@ -218,66 +220,97 @@ def free_path(variant: str, overrides: list, duration) -> dict:
     return {key: np.array(v) for key, v in path.items()}
 
 
-def run_flood(variant: str, overrides: list, duration, fps: float | None = None) -> dict:
+class FloodRun:
     """One timed run of ``variant``, advanced frame by frame at ``fps`` (None: the scene's; 0: in
-    one call, its steps landing on no frame)."""
-    load = load_scene("flood", overrides)
-    boxes = [(b.shape.lower, b.shape.upper) for b in load.bodies]
-    replay = variant in REPLAYS
-    if replay and REPLAYS[variant] not in _paths:
-        _paths[REPLAYS[variant]] = free_path(REPLAYS[variant], overrides, duration)
-    scene = flood(variant, overrides, _paths[REPLAYS[variant]] if replay else None)
-    duration = duration or scene.output.duration
-    sim = Simulation(scene, "cpu", history=1)
-    fps = scene.output.fps if fps is None else fps
-    frame = 1.0 / fps if fps else duration
-    counts = {"steps": 0, "obstacle_corrections": 0, "wall_corrections": 0, "corrected_steps": 0, "iterations": 0}
-    speeds = []
+    one call, its steps landing on no frame) by :meth:`frame`, one frame a call, so that several
+    runs can take turns in one process (:func:`run_floods`)."""
 
-    def on_step(r):
-        counts["steps"] += 1
-        counts["obstacle_corrections"] += r["obstacle_corrections"]
-        counts["wall_corrections"] += r["wall_corrections"]
-        counts["corrected_steps"] += bool(r["obstacle_corrections"] or r["wall_corrections"])
-        counts["iterations"] += r["iterations"]
-        speeds.append(r["max_velocity"])
+    def __init__(self, variant: str, overrides: list, duration, fps: float | None = None):
+        load = load_scene("flood", overrides)
+        self.boxes = [(b.shape.lower, b.shape.upper) for b in load.bodies]
+        self.variant = variant
+        self.replay = variant in REPLAYS
+        if self.replay and REPLAYS[variant] not in _paths:
+            _paths[REPLAYS[variant]] = free_path(REPLAYS[variant], overrides, duration)
+        self.scene = scene = flood(variant, overrides, _paths[REPLAYS[variant]] if self.replay else None)
+        self.duration = duration or scene.output.duration
+        self.sim = Simulation(scene, "cpu", history=1)
+        self.fps = scene.output.fps if fps is None else fps
+        self.interval = 1.0 / self.fps if self.fps else self.duration
+        self.counts = {"steps": 0, "obstacle_corrections": 0, "wall_corrections": 0, "corrected_steps": 0}
+        self.counts["iterations"] = 0
+        self.speeds = []
+        # the boxes' walls for the last line: a free body's surface, a still box's inner boundary
+        # layer h/2 inside its faces (sampled by faces; sph/containment.py)
+        self.inset = 0.5 * scene.spacing if variant not in ("free", "free_half") else 0.0
+        self.wall, self.inside, self.inside_frames, self.past_walls, self.left = 0.0, 0, 0, 0, False
 
-    # the boxes' walls for the last line: a free body's surface, a still box's inner boundary layer
-    # h/2 inside its faces (sampled by faces; sph/containment.py)
-    inset = 0.5 * scene.spacing if variant not in ("free", "free_half") else 0.0
-    wall, inside, inside_frames, past_walls, left = 0.0, 0, 0, 0, False
-    while sim.time < duration - 1e-9:
+    def _on_step(self, r) -> None:
+        c = self.counts
+        c["steps"] += 1
+        c["obstacle_corrections"] += r["obstacle_corrections"]
+        c["wall_corrections"] += r["wall_corrections"]
+        c["corrected_steps"] += bool(r["obstacle_corrections"] or r["wall_corrections"])
+        c["iterations"] += r["iterations"]
+        self.speeds.append(r["max_velocity"])
+
+    @property
+    def done(self) -> bool:
+        return self.sim.time >= self.duration - 1e-9
+
+    def poses(self):
+        return replay_poses(self.scene, self.sim.time) if self.replay else self.sim.bodies
+
+    def frame(self) -> None:
+        """The next frame, timed; the checks after it, untimed."""
+        sim, scene = self.sim, self.scene
         t0 = time.perf_counter()
-        sim.advance(min(frame, duration - sim.time), callback=on_step)
-        wall += time.perf_counter() - t0
-        poses = replay_poses(scene, sim.time) if replay else sim.bodies
-        k = inside_count(sim.positions, boxes, poses)
-        inside += k
-        inside_frames += bool(k)
-        past_walls += inside_count(sim.positions, boxes, poses, inset) if inset else k
+        sim.advance(min(self.interval, self.duration - sim.time), callback=self._on_step)
+        self.wall += time.perf_counter() - t0
+        poses = self.poses()
+        k = inside_count(sim.positions, self.boxes, poses)
+        self.inside += k
+        self.inside_frames += bool(k)
+        self.past_walls += inside_count(sim.positions, self.boxes, poses, self.inset) if self.inset else k
         if poses:
-            left |= outside_tank(boxes, poses, scene.tank.lower, scene.tank.upper, scene.spacing)
-    poses = replay_poses(scene, sim.time) if replay else sim.bodies
-    return {
-        "variant": variant,
-        "fps": fps,
-        "particles": sim.n_particles,
-        "boundary_particles": sim.model.n_boundary,
-        "spacing": scene.spacing,
-        "simulated_seconds": sim.time,
-        "wall_seconds": wall,
-        "wall_seconds_per_simulated_second": wall / sim.time,
-        **counts,
-        "mean_iterations": counts["iterations"] / counts["steps"],
-        "median_fastest_speed": float(np.median(speeds)),  # the fastest particle's, over the steps (m/s)
-        "fastest_speed": float(np.max(speeds)),
-        "fast_steps": int(np.sum(np.asarray(speeds) > FAST)),
-        "inside_bodies_at_frames": inside,  # centres inside the boxes' surfaces, summed over frames
-        "past_walls_at_frames": past_walls,  # centres past their walls (module docstring), summed over frames
-        "frames_with_particles_inside": inside_frames,
-        "body_left_tank": left,
-        "final_positions": poses["position"].tolist() if poses else None,
-    }
+            self.left |= outside_tank(self.boxes, poses, scene.tank.lower, scene.tank.upper, scene.spacing)
+
+    def result(self) -> dict:
+        sim, counts, speeds, poses = self.sim, self.counts, self.speeds, self.poses()
+        return {
+            "variant": self.variant,
+            "fps": self.fps,
+            "particles": sim.n_particles,
+            "boundary_particles": sim.model.n_boundary,
+            "spacing": self.scene.spacing,
+            "simulated_seconds": sim.time,
+            "wall_seconds": self.wall,
+            "wall_seconds_per_simulated_second": self.wall / sim.time,
+            **counts,
+            "mean_iterations": counts["iterations"] / counts["steps"],
+            "median_fastest_speed": float(np.median(speeds)),  # the fastest particle's, over the steps (m/s)
+            "fastest_speed": float(np.max(speeds)),
+            "fast_steps": int(np.sum(np.asarray(speeds) > FAST)),
+            "inside_bodies_at_frames": self.inside,  # centres inside the boxes' surfaces, summed over frames
+            "past_walls_at_frames": self.past_walls,  # centres past their walls (module docstring), summed over frames
+            "frames_with_particles_inside": self.inside_frames,
+            "body_left_tank": self.left,
+            "final_positions": poses["position"].tolist() if poses else None,
+        }
+
+
+def run_floods(variants, overrides: list, duration, fps: float | None = None) -> list:
+    """Timed runs of ``variants`` taking turns frame by frame in one process, in the given order
+    and then backwards (ABBA): a drift of the machine's speed over minutes (up to 30 % here) falls
+    on every variant alike. Their results in the order of ``variants``."""
+    runs = [FloodRun(v, overrides, duration, fps) for v in variants]
+    turn = 0
+    while not all(r.done for r in runs):
+        for r in runs if turn % 2 == 0 else runs[::-1]:
+            if not r.done:
+                r.frame()
+        turn += 1
+    return [r.result() for r in runs]
 
 
 def pool(spacing: float, density: float, width: float = 0.4) -> Scene:
@@ -656,11 +689,10 @@ def main():
 def measure_flood(record: dict, overrides: list, duration, repeats: int, schedules: tuple = SCHEDULES) -> None:
     runs = []
     for i in range(repeats):
-        for variant in FLOOD_VARIANTS if i % 2 == 0 else FLOOD_VARIANTS[::-1]:
-            r = run_flood(variant, overrides, duration)
+        for r in run_floods(FLOOD_VARIANTS, overrides, duration):
             runs.append(r)
             print(
-                f"flood {variant:10s} #{i}: {r['particles']} particles, {r['steps']} steps, "
+                f"flood {r['variant']:10s} #{i}: {r['particles']} particles, {r['steps']} steps, "
                 f"{r['wall_seconds_per_simulated_second']:.1f} wall s per s, corrections {r['obstacle_corrections']} "
                 f"(walls {r['wall_corrections']}), inside at frames {r['inside_bodies_at_frames']} "
                 f"(past the walls {r['past_walls_at_frames']}), "
@@ -669,12 +701,12 @@ def measure_flood(record: dict, overrides: list, duration, repeats: int, schedul
             )
     scheduled = []
     for fps in schedules:
-        for variant in ("free", "replayed"):
-            r = run_flood(variant, overrides, duration, fps)
+        for r in run_floods(("free", "replayed"), overrides, duration, fps):
             scheduled.append(r)
             print(
-                f"flood {variant:10s} at {fps:g} fps: {r['steps']} steps, {r['wall_seconds_per_simulated_second']:.1f} "
-                f"wall s per s, fastest {r['fastest_speed']:.2f} m/s, {r['fast_steps']} steps over {FAST:g} m/s",
+                f"flood {r['variant']:10s} at {fps:g} fps: {r['steps']} steps, "
+                f"{r['wall_seconds_per_simulated_second']:.1f} wall s per s, fastest {r['fastest_speed']:.2f} m/s, "
+                f"{r['fast_steps']} steps over {FAST:g} m/s",
                 flush=True,
             )
     summary = summarize(runs)
