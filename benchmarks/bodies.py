@@ -220,6 +220,10 @@ def free_path(variant: str, overrides: list, duration) -> dict:
     return {key: np.array(v) for key, v in path.items()}
 
 
+# what a timed flood run counts over its steps
+COUNTED = ("steps", "obstacle_corrections", "wall_corrections", "corrected_steps", "iterations")
+
+
 class FloodRun:
     """One timed run of ``variant``, advanced frame by frame at ``fps`` (None: the scene's; 0: in
     one call, its steps landing on no frame) by :meth:`frame`, one frame a call, so that several
@@ -237,8 +241,7 @@ class FloodRun:
         self.sim = Simulation(scene, "cpu", history=1)
         self.fps = scene.output.fps if fps is None else fps
         self.interval = 1.0 / self.fps if self.fps else self.duration
-        self.counts = {"steps": 0, "obstacle_corrections": 0, "wall_corrections": 0, "corrected_steps": 0}
-        self.counts["iterations"] = 0
+        self.counts = dict.fromkeys(COUNTED, 0)
         self.speeds = []
         # the boxes' walls for the last line: a free body's surface, a still box's inner boundary
         # layer h/2 inside its faces (sampled by faces; sph/containment.py)
