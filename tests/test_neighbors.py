@@ -94,6 +94,41 @@ def test_wall_mask_skips_far_particles_and_keeps_every_wall_neighbour():
     assert (~near).mean() > 0.3
 
 
+def test_moving_walls_mask_follows_them_and_keeps_every_neighbour():
+    """Still walls and a moving body's samples (the last ones): the moving mask is marked again at
+    every build, so lists equal brute force where the body has gone, and particles far from it
+    skip its grid; a body that leaves the mask's box makes every particle query (still exact)."""
+    from warp_iisph.scene import Box
+    from warp_iisph.setup.sampling import sample_tank_walls
+
+    H, h = 0.04, 0.02
+    walls = sample_tank_walls(Box((0.0, 0.0, 0.0), (0.6, 0.4, 0.4)), h)
+    g = np.arange(0.0, 0.1, h)
+    body = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    rng = np.random.default_rng(6)
+    x = rng.uniform(-0.05, 0.65, size=(4000, 3))
+    xb = np.concatenate([walls, body + 0.1])
+    xb_wp = wp.array(xb.astype(np.float32), dtype=wp.vec3, device="cpu")
+    search = NeighborSearch(len(x), xb_wp, H, "cpu", n_still=len(walls))
+    x_wp = wp.array(x.astype(np.float32), dtype=wp.vec3, device="cpu")
+    mask = search.moving_mask.mask
+    for shift in (0.1, 0.4, 0.62, 2.0):  # the last two: in the mask's border cells, then far outside it
+        xb[len(walls) :] = body + (shift, 0.1, 0.1)
+        xb_wp.assign(xb.astype(np.float32))
+        search.build(x_wp)
+        assert search.boundary.to_sets(len(x)) == _brute(xb, x, H, same=False)
+        outside = int(mask.outside.numpy()[0])
+        assert outside == (shift > 0.5)
+        if not outside:
+            dims, lower, cell = np.array(mask.cells.dims), np.array(mask.cells.lower), mask.cells.cell
+            c = np.floor((x - lower) / cell).astype(int)
+            inside = np.all((c >= 0) & (c < dims), axis=1)
+            near = np.zeros(len(x), bool)
+            near[inside] = mask.cells.near.numpy().reshape(dims)[tuple(c[inside].T)] != 0
+            has_body = np.array([len(s) > 0 for s in _brute(xb[len(walls) :], x, H, same=False)])
+            assert near.mean() < 0.1 and has_body.sum() > 10 and np.all(near[has_body])
+
+
 def test_list_layouts_hold_the_same_entries_and_give_the_same_run():
     """Slot-major storage (slot m of particle i at m * n + i, CUDA's default) and warp-blocked
     storage (32 particles interleaved slot by slot) against particle-major (the CPU's): the same

@@ -11,12 +11,13 @@ Fluid particles are periodically reordered by grid cell so that neighbours are c
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from ..engine.launch import launch_particles
 from .grid import CellGrid, ParticleGrid, cell_first, cell_hash, cell_range
 from .kernel import cubic_grad_W, cubic_W
-from .wall_mask import NearMask, may_have_neighbors, near_mask
+from .wall_mask import MovingMask, MovingNearMask, NearMask, may_have_moving_neighbors, may_have_neighbors, near_mask
 
 
 @wp.struct
@@ -96,11 +97,13 @@ def count_neighbors(
     radius: float,
     mask: NearMask,
     moving: CellGrid,
+    moving_mask: MovingMask,
     moving_first: int,
     nbrs: NeighborList,
 ):
     """Neighbours among the still points (their ``wp.HashGrid``, skipped where ``mask`` clears
-    the cell) and the moving ones (``moving``, over the points from ``moving_first``)."""
+    the cell) and the moving ones (``moving``, over the points from ``moving_first``, skipped
+    where ``moving_mask`` clears the cell)."""
     i = wp.tid() + offset
     x_i = queries[i]
     n = int(0)
@@ -112,7 +115,9 @@ def count_neighbors(
             d = x_i - points[j]
             if wp.dot(d, d) < r2:
                 n += 1
-    nbrs.count[i] = n + walk_cells(moving, x_i, radius, -1, moving_first, nbrs, 0, 1, 0, 0)
+    if may_have_moving_neighbors(moving_mask, x_i):
+        n += walk_cells(moving, x_i, radius, -1, moving_first, nbrs, 0, 1, 0, 0)
+    nbrs.count[i] = n
 
 
 @wp.kernel
@@ -124,6 +129,7 @@ def fill_neighbors(
     radius: float,
     mask: NearMask,
     moving: CellGrid,
+    moving_mask: MovingMask,
     moving_first: int,
     nbrs: NeighborList,
 ):
@@ -148,7 +154,8 @@ def fill_neighbors(
                     nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
                     nbrs.W[k] = cubic_W(wp.length(x_ij), radius)
                 k += 1
-    k += walk_cells(moving, x_i, radius, -1, moving_first, nbrs, k, 1, capacity - k, 1)
+    if may_have_moving_neighbors(moving_mask, x_i):
+        k += walk_cells(moving, x_i, radius, -1, moving_first, nbrs, k, 1, capacity - k, 1)
     if k > capacity:  # keep every later loop inside the storage
         nbrs.count[i] = wp.max(capacity - nbrs.start[i], 0)
 
@@ -252,18 +259,20 @@ class NeighborListBuffer:
         radius: float,
         mask: NearMask,
         moving: ParticleGrid,
+        moving_mask: MovingNearMask,
         moving_first: int,
         sync: bool = True,
     ):
         """Neighbours among ``points`` (another set: the walls) of each of the ``n`` ``queries``:
         count, starts, fill. The still points are in ``grid`` (queries in cells that ``mask``, see
-        :func:`near_mask`, clears skip it), the moving ones from ``moving_first`` in ``moving``.
+        :func:`near_mask`, clears skip it), the moving ones from ``moving_first`` in ``moving``
+        (skipped where ``moving_mask`` clears the cell).
         With ``sync`` the storage grows first when too small; without it (inside a captured
         graph) nothing is read back and ``needed`` tells afterwards."""
         if n == 0:
             return
         lists = self.lists
-        common = [grid.id, points, queries, radius, mask, moving.grid, moving_first]
+        common = [grid.id, points, queries, radius, mask, moving.grid, moving_mask.mask, moving_first]
         launch_particles(count_neighbors, n, [*common, lists], self.device)
         self.needed.zero_()
         wp.launch(list_starts, dim=n, inputs=[lists, self.needed], device=self.device)
@@ -344,7 +353,7 @@ def make_grid(device, dim: int = 128) -> wp.HashGrid:
 class NeighborSearch:
     """Fluid-fluid and fluid-boundary neighbour lists within the support radius ``H``. The first
     ``n_still`` boundary particles never move (one grid, built once, and a mask of the cells near
-    them); the rest belong to moving obstacles, whose grid is rebuilt every step."""
+    them); the rest belong to moving obstacles, whose grid and mask are rebuilt every step."""
 
     def __init__(self, n_fluid: int, boundary_x: wp.array, radius: float, device, n_still: int | None = None):
         """``n_fluid``: the most fluid particles the lists serve (the state's capacity)."""
@@ -362,6 +371,9 @@ class NeighborSearch:
             self.boundary_grid.build(still, self.radius)
             self.boundary_mask = near_mask(still, self.radius, device)  # most particles are far from walls
         self.moving_grid = ParticleGrid(n_boundary - self.n_still, device)
+        # the moving bodies' mask spans the walls and where the bodies start
+        extent = boundary_x.numpy() if n_boundary > self.n_still else np.zeros((0, 3))
+        self.moving_mask = MovingNearMask(extent, self.radius, device)
         self.fluid = StridedListBuffer(n_fluid, device)
         self.boundary = NeighborListBuffer(n_fluid, device, heads=True)
         self._order = wp.zeros(max(n_fluid, 1), dtype=wp.int32, device=device)
@@ -385,6 +397,7 @@ class NeighborSearch:
         if self.boundary_grid is not None:
             if self.moving_grid.n:  # moving obstacles: where they are this step
                 self.moving_grid.build(self.boundary_x[self.n_still :], self.radius)
+                self.moving_mask.mark(self.boundary_x[self.n_still :])
             self.boundary.build(
                 self.boundary_grid,
                 self.boundary_x,
@@ -393,6 +406,7 @@ class NeighborSearch:
                 self.radius,
                 self.boundary_mask,
                 self.moving_grid,
+                self.moving_mask,
                 self.n_still,
                 sync=sync,
             )

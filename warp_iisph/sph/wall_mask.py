@@ -1,5 +1,6 @@
-"""Where a query may have a neighbour among static points (the walls): a mask of cells built once,
-so that particles far from every wall skip the walls' grid."""
+"""Where a query may have a neighbour among the walls: a mask of cells, so that particles far from
+every wall skip the walls' grids. The still walls' mask is built once; the moving bodies' is
+marked again every step (a few thousand points, no allocation: graph-safe)."""
 
 from __future__ import annotations
 
@@ -99,3 +100,67 @@ def near_mask(points: wp.array, radius: float, device) -> NearMask:
     wp.launch(occupy_cells, dim=len(xs), inputs=[m, points, occupied], device=device)
     launch_particles(dilate_cells, cells, [m, occupied], device)
     return m
+
+
+@wp.struct
+class MovingMask:
+    """Cells near the moving points of this step (:class:`NearMask` layout, marked by
+    :func:`mark_moving`); ``outside[0]`` is 1 when a moving point lay where the mask cannot
+    vouch for all of its neighbours (outside the box or in its border cells): every point queries."""
+
+    cells: NearMask
+    outside: wp.array(dtype=wp.int32)
+
+
+@wp.func
+def may_have_moving_neighbors(m: MovingMask, p: wp.vec3) -> bool:
+    if m.outside[0] != 0:
+        return True
+    return may_have_neighbors(m.cells, p)
+
+
+@wp.kernel
+def mark_moving(m: MovingMask, points: wp.array(dtype=wp.vec3)):
+    # every writer writes the same value: no atomic needed; a point in the box's border cells or
+    # beyond could have neighbours where the mask has no cell
+    c = mask_cell(m.cells, points[wp.tid()])
+    d = m.cells.dims
+    if c[0] < 1 or c[1] < 1 or c[2] < 1 or c[0] >= d[0] - 1 or c[1] >= d[1] - 1 or c[2] >= d[2] - 1:
+        m.outside[0] = 1
+        return
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for e in range(-1, 2):
+                m.cells.near[mask_flat(m.cells, c + wp.vec3i(a, b, e))] = wp.uint8(1)
+
+
+class MovingNearMask:
+    """The moving points' :class:`MovingMask`, over the box of ``extent`` (points: where the walls
+    and the bodies start) grown by two cells, so that bodies may drift a cell beyond it before every
+    point has to query."""
+
+    def __init__(self, extent: np.ndarray, radius: float, device):
+        self.device = device
+        self.mask = MovingMask()
+        self.mask.outside = wp.ones(1, dtype=wp.int32, device=device)
+        self.mask.cells = _no_mask(device)
+        if len(extent) == 0:
+            return
+        cell = 1.001 * float(radius)
+        lower = extent.min(axis=0) - 2 * cell
+        dims = np.floor((extent.max(axis=0) + 2 * cell - lower) / cell).astype(np.int64) + 1
+        if int(np.prod(dims)) > MAX_MASK_CELLS:
+            return  # outside stays 1: every point queries
+        m = NearMask()
+        m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
+        m.near = wp.zeros(int(np.prod(dims)), dtype=wp.uint8, device=device)
+        self.mask.cells = m
+
+    def mark(self, points: wp.array) -> None:
+        """Mark the cells near ``points`` (where the moving bodies are this step)."""
+        if self.mask.cells.dims[0] == 0:
+            return
+        self.mask.cells.near.zero_()
+        self.mask.outside.zero_()
+        if points.shape[0]:
+            wp.launch(mark_moving, dim=points.shape[0], inputs=[self.mask, points], device=self.device)
