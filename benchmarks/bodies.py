@@ -52,11 +52,20 @@ released from rest as far from rest as the box, and fitted the same way; skipped
 Capytaine); the period of the first swing (twice the time between the first two crossings of
 rest) beside the fit.
 
+(d) What sets the flood's step (part ``step_setters``, untimed): the free bodies, their replay and
+the still boxes over the first second, where the free bodies' extra steps build up; at every step
+whose fastest particle is over 4 m/s (the wave's front runs at 3.7), whether it is a lone droplet
+(no fluid particle within the kernel's support; summed over those steps, 1 - the fastest other
+particle's speed / the droplet's: about the steps the droplets added where the CFL rule set the
+step, whose length goes as 1 / the fastest speed), and where each such flight began: the two solids
+nearest the particle then (a droplet squeezed out between two crates closing on each other is
+nearest both).
+
 Writes benchmarks/results/bodies.json (a part not run this time kept from the file there, with the
 day it was measured: ``part_dates``) and .png.
 
     python benchmarks/bodies.py [--repeats 3] [--spacings 0.02,0.01]
-        [--parts flood,drafts,heave,dfsph_drafts,dfsph_heave] [--quick] [--replot]
+        [--parts flood,drafts,heave,dfsph_drafts,dfsph_heave,step_setters] [--quick] [--replot]
 """
 
 import argparse
@@ -316,6 +325,117 @@ def run_floods(variants, overrides: list, duration, fps: float | None = None) ->
     return [r.result() for r in runs]
 
 
+# m/s: above the wave's front (3.7 m/s), a step whose fastest particle is this fast is counted
+SETTER_SPEED = 4.0
+SETTER_VARIANTS = ("free", "replayed", "fixed")
+
+
+def box_distance(p: np.ndarray, half: np.ndarray) -> float:
+    """Signed distance from ``p`` (in the box's frame, from its centre) to a box of ``half`` sides."""
+    q = np.abs(p) - half
+    return float(np.linalg.norm(np.maximum(q, 0.0)) + min(q.max(), 0.0))
+
+
+class StepSetters:
+    """What sets the step in a flood run (untimed, the scene's 30 fps frames): at every step whose
+    fastest particle is over ``speed``, whether it is a lone droplet (no fluid particle within the
+    kernel's support: then how much shorter than the fastest other particle's its step was) and,
+    where its flight began (an episode: a fastest particle not where the last one was heading),
+    the two solids nearest it: the boxes (bodies or their still or moved
+    stand-ins, in their frames), the post, the floor and the side and end walls."""
+
+    def __init__(self, variant: str, overrides: list, duration: float, speed: float = SETTER_SPEED):
+        self.run = FloodRun(variant, overrides, duration)
+        self.speed = speed
+        load = load_scene("flood", overrides)
+        self.names = [b.name for b in load.bodies]
+        self.half = [0.5 * np.subtract(b.shape.upper, b.shape.lower) for b in load.bodies]
+        post = load.obstacles[0]
+        self.post = (0.5 * np.add(post.lower, post.upper), 0.5 * np.subtract(post.upper, post.lower))
+        self.tank = np.asarray(load.tank.upper)
+        self.radius = self.run.sim.model.support_radius
+        self.steps, self.fast, self.lone, self.lone_share, self.episodes = 0, 0, 0, 0.0, []
+        self._heading = None
+
+    def solids(self, p: np.ndarray) -> list:
+        """(name, distance) of every solid to ``p``, nearest first."""
+        run = self.run
+        poses = run.poses()
+        out = []
+        for k, name in enumerate(self.names):
+            if poses:
+                local = (p - poses["position"][k]) @ quaternion_matrix(poses["orientation"][k])
+            else:
+                lo, hi = run.boxes[k]
+                local = p - 0.5 * (np.asarray(lo) + np.asarray(hi))
+            out.append((name, box_distance(local, self.half[k])))
+        out.append(("post", box_distance(p - self.post[0], self.post[1])))
+        out += [("floor", float(p[1])), ("end walls", float(min(p[0], self.tank[0] - p[0])))]
+        out.append(("side walls", float(min(p[2], self.tank[2] - p[2]))))
+        return sorted(out, key=lambda s: s[1])
+
+    def on_step(self, r) -> None:
+        self.steps += 1
+        sim = self.run.sim
+        v = sim.velocities
+        speed = np.linalg.norm(v, axis=1)
+        i = int(np.argmax(speed))
+        if speed[i] <= self.speed:
+            self._heading = None
+            return
+        x = sim.positions
+        p = x[i]
+        self.fast += 1
+        from scipy.spatial import cKDTree
+
+        near = cKDTree(x).query_ball_point(x, self.radius, return_length=True)  # each counts itself
+        lone = bool(near[i] == 1)
+        self.lone += lone
+        if lone:  # the share of this step's length the droplet took: the CFL step goes as 1 / fastest speed
+            self.lone_share += 1.0 - float(speed[near > 1].max()) / float(speed[i])
+        h = self.run.scene.spacing
+        if self._heading is None or np.linalg.norm(p - self._heading) > h:
+            (a, da), (b, db) = self.solids(p)[:2]
+            nearest = [a, da, b, db]
+            self.episodes.append({"t": r["t"], "speed": float(speed[i]), "lone": lone, "nearest": nearest, "steps": 0})
+        self.episodes[-1]["steps"] += 1
+        self._heading = p + v[i] * r["dt"]  # where it is headed at the next step
+
+    def result(self) -> dict:
+        run = self.run
+        while not run.done:
+            run.sim.advance(min(run.interval, run.duration - run.sim.time), callback=self.on_step)
+        between = [e for e in self.episodes if e["nearest"][0] in self.names and e["nearest"][2] in self.names]
+        return {
+            "variant": run.variant,
+            "duration": run.duration,
+            "steps": self.steps,
+            "fast_steps": self.fast,  # the fastest particle over the speed
+            "lone_fast_steps": self.lone,  # ... and no fluid particle within the support
+            # sum over those of 1 - (fastest speed with a neighbour) / (the droplet's): about the steps
+            # the droplets added where the CFL rule set the step
+            "steps_lone_droplets_added": self.lone_share,
+            "episodes": self.episodes,
+            "steps_of_flights_from_between_two_boxes": sum(e["steps"] for e in between),
+        }
+
+
+def measure_step_setters(record: dict, overrides: list, duration: float, speed: float = SETTER_SPEED) -> None:
+    """Part ``step_setters``: :class:`StepSetters` for SETTER_VARIANTS over ``duration``."""
+    out = {}
+    for variant in SETTER_VARIANTS:
+        r = StepSetters(variant, overrides, duration, speed).result()
+        out[variant] = r
+        print(
+            f"step setters, {variant:8s}: {r['steps']} steps to {duration:g} s, {r['fast_steps']} with a particle "
+            f"over {speed:g} m/s ({r['lone_fast_steps']} a lone droplet), "
+            f"{r['steps_of_flights_from_between_two_boxes']} from flights that began between two boxes; "
+            f"the droplets added about {r['steps_lone_droplets_added']:.0f} steps",
+            flush=True,
+        )
+    record["step_setters"] = {"speed": speed, "runs": out}
+
+
 def pool(spacing: float, density: float, width: float = 0.4) -> Scene:
     """tests/test_bodies.py's pool: a 0.16 x 0.08 x 0.16 m box placed at its draft in the middle of
     a square pool ``width`` wide (0.4 m there) and 0.2 m deep."""
@@ -383,6 +503,7 @@ PARTS = {
     "heave": ("heave",),
     "dfsph_drafts": ("dfsph_drafts", "settle"),
     "dfsph_heave": ("dfsph_heave",),
+    "step_setters": ("step_setters",),
 }
 HEAVE_DROP = 0.02  # m below the placed draft
 HEAVE_HOLD = 0.5  # s the box is held there while the liquid settles around it, then released
@@ -673,6 +794,9 @@ def main():
     keep_parts(record, args.out, "bodies", PARTS, parts, args.quick)
     if "flood" in parts:
         measure_flood(record, overrides, duration, repeats, (0.0,) if args.quick else SCHEDULES)
+    if "step_setters" in parts:
+        # quick: a coarse, short run whose front is slower, a lower speed to count
+        measure_step_setters(record, overrides, duration or 1.0, 1.0 if args.quick else SETTER_SPEED)
 
     def checkpoint():
         save(record, args.out, "bodies", args.quick)

@@ -594,8 +594,8 @@ def test_momentum_balances_in_a_closed_tank():
 def test_bodies_benchmark_quick_mode(tmp_path):
     """benchmarks/bodies.py --quick: the flood (coarse, short) with free and with fixed bodies (from
     the default and from the half warm start) and with the boxes moved along the free bodies'
-    paths, the drafts (IISPH's and DFSPH's) and DFSPH's heave, into its JSON and chart; the liquid
-    is never found past a wall."""
+    paths, the drafts (IISPH's and DFSPH's) and DFSPH's heave, and what sets the flood's step,
+    into its JSON and chart; the liquid is never found past a wall."""
     import json
     import subprocess
     import sys
@@ -637,7 +637,16 @@ def test_bodies_benchmark_quick_mode(tmp_path):
         assert 0.0 < d["draft"] < 0.08 and 0.0 < d["draft_gauges"] < 0.08 and len(d["gauge_levels"]) == 6
     dfsph_heave = record["dfsph_heave"]  # DFSPH in the heave scene (coarse): a swing, fitted
     assert dfsph_heave["spacing"] == 0.04 and 0.2 < dfsph_heave["damped_period"] < 2.0
-    assert set(record["part_dates"]) == {"flood", "drafts", "heave", "dfsph_drafts", "dfsph_heave"}
+    # what sets the step: each flight over the threshold counted once, its steps adding up
+    setters = record["step_setters"]["runs"]
+    assert list(setters) == ["free", "replayed", "fixed"] and record["step_setters"]["speed"] == 1.0
+    assert setters["free"]["fast_steps"] > 0 and setters["free"]["episodes"]
+    for r in setters.values():
+        assert r["steps"] > 0 and 0 <= r["lone_fast_steps"] <= r["fast_steps"] < r["steps"]
+        assert sum(e["steps"] for e in r["episodes"]) == r["fast_steps"]
+        assert r["steps_of_flights_from_between_two_boxes"] <= r["fast_steps"]
+        assert 0.0 <= r["steps_lone_droplets_added"] <= r["lone_fast_steps"]
+    assert set(record["part_dates"]) == {"flood", "drafts", "heave", "dfsph_drafts", "dfsph_heave", "step_setters"}
 
 
 def plate_at_rest(box, n: int):
