@@ -339,7 +339,9 @@ def box_distance(p: np.ndarray, half: np.ndarray) -> float:
 class StepSetters:
     """What sets the step in a flood run (untimed, the scene's 30 fps frames): at every step whose
     fastest particle is over ``speed``, whether it is a lone droplet (no fluid particle within the
-    kernel's support: then how much shorter than the fastest other particle's its step was) and,
+    kernel's support: then how much shorter its step was than the fastest other particle's would
+    be, by the CFL rule's ``cfl h / (max(v, v_floor) + c)``, from the speeds at the step's end, a
+    step late, and leaving out the steps fitted to land on a frame) and,
     where its flight began (an episode: a fastest particle not where the last one was heading),
     the two solids nearest it: the boxes (bodies or their still or moved
     stand-ins, in their frames), the post, the floor and the side and end walls."""
@@ -391,8 +393,10 @@ class StepSetters:
         near = cKDTree(x).query_ball_point(x, self.radius, return_length=True)  # each counts itself
         lone = bool(near[i] == 1)
         self.lone += lone
-        if lone:  # the share of this step's length the droplet took: the CFL step goes as 1 / fastest speed
-            self.lone_share += 1.0 - float(speed[near > 1].max()) / float(speed[i])
+        if lone and np.any(near > 1):  # the share of its step the droplet took (docstring)
+            floor, c = self.run.sim.loop.velocity_scale, self.run.sim.solver.signal_speed
+            others = max(float(speed[near > 1].max()), floor) + c
+            self.lone_share += 1.0 - others / (max(float(speed[i]), floor) + c)
         h = self.run.scene.spacing
         if self._heading is None or np.linalg.norm(p - self._heading) > h:
             (a, da), (b, db) = self.solids(p)[:2]

@@ -575,3 +575,27 @@ def test_a_replayed_body_follows_the_path_it_was_given():
             m = motion.matrix(0.5 * (times[i] + times[i + 1]), np.asarray(motion.pivot))
             half = Rotation.from_quat(orientation[i : i + 2, j]).mean().as_matrix()
             assert np.degrees(np.arccos(np.clip((np.trace(m[:3, :3].T @ half) - 1.0) / 2.0, -1, 1))) < 2.0
+
+
+def test_step_setters_distances_are_taken_in_each_box_frame():
+    """benchmarks/bodies.py's box_distance, as StepSetters and inside_count use it: a point's
+    offset from a box's centre taken into its frame (``(p - centre) @ R``, R the body-to-world
+    rotation of its quaternion), then the signed distance to the box (negative inside)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        from bodies import box_distance
+    finally:
+        sys.path.pop(0)
+    from warp_iisph.scene.bodies import quaternion_matrix
+
+    half = np.array([0.06, 0.04, 0.06])
+    assert box_distance(np.zeros(3), half) == pytest.approx(-0.04)
+    assert box_distance(np.array([0.1, 0.0, 0.0]), half) == pytest.approx(0.04)
+    assert box_distance(np.array([0.09, 0.07, 0.0]), half) == pytest.approx(np.hypot(0.03, 0.03))
+    # turned 30 degrees about y (x y z w): 8 cm along the box's own x axis is 2 cm beyond its x face
+    # (the other way round, R d, turns the offset by 60 degrees: 0.9 cm beyond its z face)
+    R = quaternion_matrix(np.array([0.0, np.sin(np.pi / 12), 0.0, np.cos(np.pi / 12)]))
+    centre = np.array([1.0, 0.5, 0.2])
+    p = centre + 0.08 * R[:, 0]
+    assert box_distance((p - centre) @ R, half) == pytest.approx(0.02)
+    assert box_distance(R @ (p - centre), half) == pytest.approx(0.08 * np.sin(np.pi / 3) - 0.06, abs=1e-9)

@@ -117,10 +117,12 @@ def test_moving_walls_mask_follows_them_and_keeps_every_neighbour():
         xb_wp.assign(xb.astype(np.float32))
         search.build(x_wp)
         assert search.boundary.to_sets(len(x)) == _brute(xb, x, H, same=False)
+        dims, lower, cell = np.array(mask.cells.dims), np.array(mask.cells.lower), mask.cells.cell
+        cb = np.floor((xb[len(walls) :] - lower) / cell).astype(int)  # the body's cells: all inside the border?
+        inner = np.all((cb >= 1) & (cb <= dims - 2))
         outside = int(mask.outside.numpy()[0])
-        assert outside == (shift > 0.5)
+        assert outside == (not inner) and outside == (shift > 0.5)
         if not outside:
-            dims, lower, cell = np.array(mask.cells.dims), np.array(mask.cells.lower), mask.cells.cell
             c = np.floor((x - lower) / cell).astype(int)
             inside = np.all((c >= 0) & (c < dims), axis=1)
             near = np.zeros(len(x), bool)

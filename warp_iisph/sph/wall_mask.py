@@ -70,6 +70,22 @@ def dilate_cells(offset: int, m: NearMask, occupied: wp.array(dtype=wp.int32)):
 
 # Above this many mask cells (bytes) the walls' bounding box is too fine to mask; every point queries.
 MAX_MASK_CELLS = 1 << 27
+# Nor beyond this many cells from the origin along an axis: float32 rounds a point's cell
+# coordinate by up to a few ulps of it, and the cells' 0.1 % margin over the radius must cover that.
+MAX_MASK_REACH = 2048
+
+
+def mask_box(lo: np.ndarray, hi: np.ndarray, radius: float, grow: int):
+    """Cells of 1.001 ``radius`` over [lo, hi] grown by ``grow`` cells: (lower, cell, dims), or
+    None where the mask would be too large or too far from the origin to be exact."""
+    cell = 1.001 * float(radius)
+    lower = lo - grow * cell
+    upper = hi + grow * cell
+    dims = np.floor((upper - lower) / cell).astype(np.int64) + 1
+    reach = np.maximum(np.abs(lower), np.abs(upper)).max() / cell
+    if int(np.prod(dims)) > MAX_MASK_CELLS or reach > MAX_MASK_REACH:
+        return None
+    return lower, cell, dims
 
 
 def _no_mask(device) -> NearMask:
@@ -85,13 +101,10 @@ def near_mask(points: wp.array, radius: float, device) -> NearMask:
     float rounding) over their bounding box grown by a cell, each marked when it or a neighbour
     holds one of them. Built once; a point elsewhere has no neighbour there."""
     xs = points.numpy()
-    if len(xs) == 0:
+    box = mask_box(xs.min(axis=0), xs.max(axis=0), radius, 1) if len(xs) else None
+    if box is None:
         return _no_mask(device)
-    cell = 1.001 * float(radius)
-    lower = xs.min(axis=0) - cell
-    dims = np.floor((xs.max(axis=0) + cell - lower) / cell).astype(np.int64) + 1
-    if int(np.prod(dims)) > MAX_MASK_CELLS:
-        return _no_mask(device)
+    lower, cell, dims = box
     m = NearMask()
     m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
     cells = int(np.prod(dims))
@@ -144,20 +157,18 @@ class MovingNearMask:
         self.mask = MovingMask()
         self.mask.outside = wp.ones(1, dtype=wp.int32, device=device)
         self.mask.cells = _no_mask(device)
-        if len(extent) == 0:
-            return
-        cell = 1.001 * float(radius)
-        lower = extent.min(axis=0) - 2 * cell
-        dims = np.floor((extent.max(axis=0) + 2 * cell - lower) / cell).astype(np.int64) + 1
-        if int(np.prod(dims)) > MAX_MASK_CELLS:
+        box = mask_box(extent.min(axis=0), extent.max(axis=0), radius, 2) if len(extent) else None
+        if box is None:
             return  # outside stays 1: every point queries
+        lower, cell, dims = box
         m = NearMask()
         m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
         m.near = wp.zeros(int(np.prod(dims)), dtype=wp.uint8, device=device)
         self.mask.cells = m
 
     def mark(self, points: wp.array) -> None:
-        """Mark the cells near ``points`` (where the moving bodies are this step)."""
+        """Mark the cells near ``points`` (where the moving bodies are this step): the whole mask
+        is cleared first (one byte a cell of the walls' box: 26k for the flood)."""
         if self.mask.cells.dims[0] == 0:
             return
         self.mask.cells.near.zero_()
