@@ -357,6 +357,7 @@ class StepSetters:
         self.tank = np.asarray(load.tank.upper)
         self.radius = self.run.sim.model.support_radius
         self.steps, self.fast, self.lone, self.lone_share, self.episodes = 0, 0, 0, 0.0, []
+        self.series = {"t": [], "fastest": [], "dt": []}  # every step's end, fastest speed, length
         self._heading = None
 
     def solids(self, p: np.ndarray) -> list:
@@ -382,6 +383,9 @@ class StepSetters:
         v = sim.velocities
         speed = np.linalg.norm(v, axis=1)
         i = int(np.argmax(speed))
+        self.series["t"].append(r["t"])
+        self.series["fastest"].append(float(speed[i]))
+        self.series["dt"].append(r["dt"])
         if speed[i] <= self.speed:
             self._heading = None
             return
@@ -421,6 +425,7 @@ class StepSetters:
             "steps_lone_droplets_added": self.lone_share,
             "episodes": self.episodes,
             "steps_of_flights_from_between_two_boxes": sum(e["steps"] for e in between),
+            **self.series,
         }
 
 
@@ -635,9 +640,44 @@ def summarize(runs: list) -> dict:
     return out
 
 
+def step_setters_chart(ax, setters: dict) -> None:
+    """Each variant's fastest particle over its steps (part ``step_setters``), the flights that
+    began between two boxes marked where they began."""
+    labels = {"free": "free bodies", "replayed": "moved along the free path", "fixed": "held still"}
+    for (variant, r), color in zip(setters["runs"].items(), ("C0", "C2", "C1")):
+        if "fastest" not in r:
+            continue
+        ax.plot(
+            r["t"],
+            r["fastest"],
+            color=color,
+            lw=1.0,
+            label=f"{labels.get(variant, variant)}: {r['steps']} steps, droplets ~{r['steps_lone_droplets_added']:.0f}",
+        )
+        for e in r["episodes"]:
+            if e["steps"] >= 10:
+                ax.annotate(f"{e['nearest'][0]} / {e['nearest'][2]}", (e["t"], e["speed"]), fontsize=7, color=color)
+    ax.axhline(setters["speed"], color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("fastest particle (m/s)")
+    ax.set_title(
+        f"What sets the step: the fastest particle (over {setters['speed']:g} m/s dotted);\n"
+        "flights of 10 steps or more labelled with the two solids they began between",
+        fontsize=9,
+    )
+    ax.legend(fontsize=8)
+
+
 def chart(record: dict, path) -> None:
     plt = pyplot()
-    fig, (a, b, c) = plt.subplots(1, 3, figsize=(20, 4.8), gridspec_kw={"width_ratios": [1.6, 1, 1]})
+    setters = record.get("step_setters")
+    panels = 4 if setters else 3
+    fig, axes = plt.subplots(
+        1, panels, figsize=(20 + 5 * (panels - 3), 4.8), gridspec_kw={"width_ratios": [1.6, 1, 1, 1][:panels]}
+    )
+    a, b, c = axes[:3]
+    if setters:
+        step_setters_chart(axes[3], setters)
     runs = record["flood"]["runs"]
     names = {
         "free": "free bodies",

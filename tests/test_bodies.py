@@ -644,6 +644,8 @@ def test_bodies_benchmark_quick_mode(tmp_path):
     for r in setters.values():
         assert r["steps"] > 0 and 0 <= r["lone_fast_steps"] <= r["fast_steps"] < r["steps"]
         assert sum(e["steps"] for e in r["episodes"]) == r["fast_steps"]
+        assert len(r["t"]) == len(r["fastest"]) == r["steps"] and np.all(np.diff(r["t"]) > 0)
+        assert r["fast_steps"] == sum(v > record["step_setters"]["speed"] for v in r["fastest"])
         assert r["steps_of_flights_from_between_two_boxes"] <= r["fast_steps"]
         assert 0.0 <= r["steps_lone_droplets_added"] <= r["lone_fast_steps"]
     assert set(record["part_dates"]) == {"flood", "drafts", "heave", "dfsph_drafts", "dfsph_heave", "step_setters"}
