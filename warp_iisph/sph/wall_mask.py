@@ -88,6 +88,15 @@ def mask_box(lo: np.ndarray, hi: np.ndarray, radius: float, grow: int):
     return lower, cell, dims
 
 
+def _mask_over(box, device) -> NearMask:
+    """An unmarked :class:`NearMask` over ``box`` (:func:`mask_box`'s lower, cell, dims)."""
+    lower, cell, dims = box
+    m = NearMask()
+    m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
+    m.near = wp.zeros(int(np.prod(dims)), dtype=wp.uint8, device=device)
+    return m
+
+
 def _no_mask(device) -> NearMask:
     m = NearMask()
     m.lower, m.cell, m.dims = wp.vec3(0.0), 1.0, wp.vec3i(0, 0, 0)
@@ -104,11 +113,8 @@ def near_mask(points: wp.array, radius: float, device) -> NearMask:
     box = mask_box(xs.min(axis=0), xs.max(axis=0), radius, 1) if len(xs) else None
     if box is None:
         return _no_mask(device)
-    lower, cell, dims = box
-    m = NearMask()
-    m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
-    cells = int(np.prod(dims))
-    m.near = wp.zeros(cells, dtype=wp.uint8, device=device)
+    m = _mask_over(box, device)
+    cells = m.near.shape[0]
     occupied = wp.zeros(cells, dtype=wp.int32, device=device)
     wp.launch(occupy_cells, dim=len(xs), inputs=[m, points, occupied], device=device)
     launch_particles(dilate_cells, cells, [m, occupied], device)
@@ -158,13 +164,8 @@ class MovingNearMask:
         self.mask.outside = wp.ones(1, dtype=wp.int32, device=device)
         self.mask.cells = _no_mask(device)
         box = mask_box(extent.min(axis=0), extent.max(axis=0), radius, 2) if len(extent) else None
-        if box is None:
-            return  # outside stays 1: every point queries
-        lower, cell, dims = box
-        m = NearMask()
-        m.lower, m.cell, m.dims = wp.vec3(*lower.tolist()), cell, wp.vec3i(*[int(d) for d in dims])
-        m.near = wp.zeros(int(np.prod(dims)), dtype=wp.uint8, device=device)
-        self.mask.cells = m
+        if box is not None:  # else outside stays 1: every point queries
+            self.mask.cells = _mask_over(box, device)
 
     def mark(self, points: wp.array) -> None:
         """Mark the cells near ``points`` (where the moving bodies are this step): the whole mask
