@@ -181,17 +181,24 @@ def replay_poses(scene: Scene, t: float) -> dict:
     return {"position": np.array(position), "orientation": np.array(orientation)}
 
 
+def box_frame(x: np.ndarray, boxes: list, poses: dict, k: int) -> np.ndarray:
+    """``x`` in box k's frame, from its centre (``poses``: Simulation.bodies; none for boxes that do
+    not move, which stand where ``boxes`` puts them)."""
+    lo, hi = boxes[k]
+    if poses:
+        centre, rot = poses["position"][k], quaternion_matrix(poses["orientation"][k])
+    else:
+        centre, rot = 0.5 * (np.asarray(hi) + np.asarray(lo)), np.eye(3)
+    return (x - centre) @ rot
+
+
 def inside_count(x: np.ndarray, boxes: list, poses: dict, inset: float = 0.0) -> int:
     """Fluid particles strictly inside any of the boxes at their poses (``poses``: Simulation.bodies;
     none for boxes that do not move), each box shrunk by ``inset`` on every side."""
     n = 0
     for k, (lo, hi) in enumerate(boxes):
         half = 0.5 * (np.asarray(hi) - np.asarray(lo)) - inset
-        if poses:
-            centre, rot = poses["position"][k], quaternion_matrix(poses["orientation"][k])
-        else:
-            centre, rot = 0.5 * (np.asarray(hi) + np.asarray(lo)), np.eye(3)
-        local = (x - centre) @ rot
+        local = box_frame(x, boxes, poses, k)
         n += int(np.count_nonzero(np.all(np.abs(local) < half, axis=1)))
     return n
 
@@ -240,6 +247,7 @@ class FloodRun:
 
     def __init__(self, variant: str, overrides: list, duration, fps: float | None = None):
         load = load_scene("flood", overrides)
+        self.names = [b.name for b in load.bodies]
         self.boxes = [(b.shape.lower, b.shape.upper) for b in load.bodies]
         self.variant = variant
         self.replay = variant in REPLAYS
@@ -347,31 +355,21 @@ class StepSetters:
     stand-ins, in their frames), the post, the floor and the side and end walls."""
 
     def __init__(self, variant: str, overrides: list, duration: float, speed: float = SETTER_SPEED):
-        self.run = FloodRun(variant, overrides, duration)
+        self.run = run = FloodRun(variant, overrides, duration)
         self.speed = speed
-        load = load_scene("flood", overrides)
-        self.names = [b.name for b in load.bodies]
-        self.half = [0.5 * np.subtract(b.shape.upper, b.shape.lower) for b in load.bodies]
-        post = load.obstacles[0]
+        self.half = [0.5 * np.subtract(hi, lo) for lo, hi in run.boxes]
+        post = run.scene.obstacles[0]  # the scene's own; a fixed or replayed variant's boxes come after it
         self.post = (0.5 * np.add(post.lower, post.upper), 0.5 * np.subtract(post.upper, post.lower))
-        self.tank = np.asarray(load.tank.upper)
-        self.radius = self.run.sim.model.support_radius
+        self.tank = np.asarray(run.scene.tank.upper)
+        self.radius = run.sim.model.support_radius
         self.steps, self.fast, self.lone, self.lone_share, self.episodes = 0, 0, 0, 0.0, []
         self.series = {"t": [], "fastest": [], "dt": []}  # every step's end, fastest speed, length
         self._heading = None
 
     def solids(self, p: np.ndarray) -> list:
         """(name, distance) of every solid to ``p``, nearest first."""
-        run = self.run
-        poses = run.poses()
-        out = []
-        for k, name in enumerate(self.names):
-            if poses:
-                local = (p - poses["position"][k]) @ quaternion_matrix(poses["orientation"][k])
-            else:
-                lo, hi = run.boxes[k]
-                local = p - 0.5 * (np.asarray(lo) + np.asarray(hi))
-            out.append((name, box_distance(local, self.half[k])))
+        run, poses = self.run, self.run.poses()
+        out = [(n, box_distance(box_frame(p, run.boxes, poses, k), self.half[k])) for k, n in enumerate(run.names)]
         out.append(("post", box_distance(p - self.post[0], self.post[1])))
         out += [("floor", float(p[1])), ("end walls", float(min(p[0], self.tank[0] - p[0])))]
         out.append(("side walls", float(min(p[2], self.tank[2] - p[2]))))
@@ -398,7 +396,7 @@ class StepSetters:
         lone = bool(near[i] == 1)
         self.lone += lone
         if lone and np.any(near > 1):  # the share of its step the droplet took (docstring)
-            floor, c = self.run.sim.loop.velocity_scale, self.run.sim.solver.signal_speed
+            floor, c = sim.loop.velocity_scale, sim.solver.signal_speed
             others = max(float(speed[near > 1].max()), floor) + c
             self.lone_share += 1.0 - others / (max(float(speed[i]), floor) + c)
         h = self.run.scene.spacing
@@ -413,7 +411,7 @@ class StepSetters:
         run = self.run
         while not run.done:
             run.sim.advance(min(run.interval, run.duration - run.sim.time), callback=self.on_step)
-        between = [e for e in self.episodes if e["nearest"][0] in self.names and e["nearest"][2] in self.names]
+        between = [e for e in self.episodes if e["nearest"][0] in run.names and e["nearest"][2] in run.names]
         return {
             "variant": run.variant,
             "duration": run.duration,
@@ -645,8 +643,6 @@ def step_setters_chart(ax, setters: dict) -> None:
     began between two boxes marked where they began."""
     labels = {"free": "free bodies", "replayed": "moved along the free path", "fixed": "held still"}
     for (variant, r), color in zip(setters["runs"].items(), ("C0", "C2", "C1")):
-        if "fastest" not in r:
-            continue
         ax.plot(
             r["t"],
             r["fastest"],
