@@ -53,7 +53,17 @@ def test_body_keys_are_validated(tmp_path):
         ({"release_time": 0.5, "velocity": [0.1, 0, 0]}, "bodies[0].release_time = 0.5: a held body starts from rest"),
         ({"motion": {"times": [0.0]}}, "bodies[0].motion: unknown key"),
         ({"upper": [0.2, 0.5, 0.2]}, "must lie inside the tank"),
-        ({"lower": [0.1, 0.1, 0.1], "upper": [0.11, 0.11, 0.11]}, "smaller than two spacings"),
+        ({"lower": [0.1, 0.1, 0.1], "upper": [0.11, 0.11, 0.11]}, "bodies[0]: 0.01 m thin, under two spacings"),
+        # a plate: long enough, too thin for two layers of samples (it floated at 5,000 kg/m^3)
+        ({"lower": [0.1, 0.17, 0.1], "upper": [0.3, 0.172, 0.3], "density": 5000.0}, "0.002 m thin"),
+        ({"density": None, "mass": 1e-6}, "bodies[0].mass = 1e-06: gives the body a mean density of 0.001 kg/m^3"),
+        ({"density": None, "mass": 1e8}, "outside [1, 100000] kg/m^3"),
+        # a box of 0.1 m at 500 kg/m^3: 0.5 kg, moments 8.3e-4 kg m^2 (the least allowed 1.7e-6, the most 0.015)
+        ({"inertia": [1e-9, 1e-9, 1e-9]}, "the shape at a uniform 1 kg/m^3"),
+        ({"inertia": [1.0, 1.0, 1.0]}, "at most 0.015 (its mass 0.5 kg at its bounds' diagonal)"),
+        ({"inertia": [True, True, True]}, "bodies[0].inertia"),
+        ({"shape": "mesh", **NO_BOX, "path": 5}, "bodies[0].path = 5: must be a mesh file path"),
+        ({"shape": "mesh", **NO_BOX, "path": "box.obj", "rotate": [1e300, 0, 0]}, "angles must stay within"),
         ({"name": "a b"}, "bodies[0].name"),
         ({"name": "caf\u00e9"}, "bodies[0].name"),  # bodies.csv's columns are ASCII
         (

@@ -119,6 +119,23 @@ def _probe(*lines):
             _probe('kind = "level"', "position = [0.2, 0.1]", "bottom = 0.6"),
             r"probes\[4\]\.bottom = 0\.6: must be in \[0, 0\.5\]",
         ),
+        (_probe('kind = "level"', "position = [[0.1], [0.2]]"), r"probes\[4\]\.position = .*two finite numbers"),
+        (
+            '[[probes]]\nname = "t"\nkind = "level"\nposition = [0.2, 0.1]',  # probes.csv's time column
+            r"probes\[4\]\.name = 't': the time's column has that name",
+        ),
+        (  # buried in the block: it would read nothing, ever
+            _probe('kind = "pressure"', "position = [0.58, 0.04, 0.1]", "normal = [-1, 0, 0]"),
+            r"probes\[4\]\.position = \[0\.58, 0\.04, 0\.1\]: half a spacing along its normal .* inside obstacles\[0\]",
+        ),
+        (  # on the block's face, its normal turned into the block
+            _probe('kind = "pressure"', "position = [0.52, 0.04, 0.1]", "normal = [1, 0, 0]"),
+            r"probes\[4\]\.position = \[0\.52, 0\.04, 0\.1\]: .* inside obstacles\[0\]; a sensor sits on a wall's face",
+        ),
+        (  # on the tank's wall, its normal out of the tank
+            _probe('kind = "pressure"', "position = [0.0, 0.05, 0.1]", "normal = [-1, 0, 0]"),
+            r"probes\[4\]\.position = \[0\.0, 0\.05, 0\.1\]: .* reads at \[-0\.02, 0\.05, 0\.1\], outside the tank",
+        ),
     ],
 )
 def test_probe_keys_are_checked(tmp_path, extra, message):
@@ -242,11 +259,13 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert main(["run", str(path), "--out", str(whole), "--no-progress"]) == 0
     assert main(["run", str(path), "--out", str(cut), "--duration", "0.15", "--no-progress"]) == 0
+    assert main(["plot", str(cut)]) == 0  # its chart of the first 0.15 s: a resume makes it stale
     with open(cut / "probes.csv", "a") as f:  # what a run killed after its last checkpoint had written
         f.write("0.2," + ",".join(["1"] * 15) + "\n0.21,1,2")
     capsys.readouterr()
     assert main(["run", "--resume", str(cut), "--duration", "0.3", "--no-progress"]) == 0
     assert (cut / "probes.csv").read_text() == (whole / "probes.csv").read_text()
+    assert not (cut / "probes.png").exists()  # gone with the other views made of the whole run
     names, units, rows = read_probes(whole / "probes.csv")
     assert names[:4] == ["wall", "face", "gauge", "load.Fp_x"] and units[:4] == ["Pa", "Pa", "m", "N"]
     assert units[-1] == "N m" and len(names) == 3 + 12 and rows.shape[1] == 16
@@ -257,6 +276,9 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
     assert "no such run folder" in capsys.readouterr().err
     assert main(["plot", str(path)]) == 2  # the scene file, not its run
     assert "a file, not a run folder" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    assert main(["plot", str(tmp_path / "empty")]) == 2
+    assert "empty: not a run folder (it holds no run.json)" in capsys.readouterr().err
     (tmp_path / "folder").mkdir()
     for out, message in [("folder", "is a folder"), ("chart", "must end in .png"), ("chart.txt", "must end in .png")]:
         assert main(["plot", str(whole), "--out", str(tmp_path / out)]) == 2
@@ -464,3 +486,26 @@ def test_spheric_scores_locate_a_delay_between_the_release_and_the_run_out():
     t = np.arange(0.0, 0.3, 0.001)
     exact = 0.55 - 0.5 * 2.0269 * t**2  # the exact release's top there, 2.03 m/s^2 down
     assert abs(spheric.column_lead(t, exact)) <= 1e-4 and abs(spheric.column_lead(t - 0.02, exact) - 0.02) <= 1e-4
+
+
+def test_probes_outside_a_mesh_tank_are_refused(tmp_path):
+    """A mesh tank's box holds corners beside its walls: a sensor reading there, or a gauge whose
+    column misses the mesh, would read nothing, ever (they were accepted, read 0 throughout)."""
+    import trimesh
+
+    trimesh.creation.icosphere(subdivisions=3, radius=0.3).export(tmp_path / "ball.obj")
+    base = {
+        "spacing": 0.04,
+        "tank": {"shape": "mesh", "path": "ball.obj", "translate": [0.3, 0.3, 0.3]},
+        "fluids": [{"lower": [0.2, 0.05, 0.2], "upper": [0.4, 0.2, 0.4]}],
+    }
+    inside = [
+        {"name": "floor", "kind": "pressure", "position": [0.3, 0.0, 0.3], "normal": [0, 1, 0]},
+        {"name": "middle", "kind": "level", "position": [0.3, 0.3]},
+    ]
+    assert len(scene_from_dict({**base, "probes": inside}, tmp_path).probes) == 2
+    corner = {"name": "c", "kind": "pressure", "position": [0.01, 0.01, 0.01], "normal": [1, 0, 0]}
+    with pytest.raises(ValueError, match=r"probes\[0\]\.position = \[0\.01, 0\.01, 0\.01\]: .* outside the tank"):
+        scene_from_dict({**base, "probes": [corner]}, tmp_path)
+    with pytest.raises(ValueError, match=r"probes\[0\]\.position = \[0\.01, 0\.01\]: the column at \[x, z\] misses"):
+        scene_from_dict({**base, "probes": [{"name": "g", "kind": "level", "position": [0.01, 0.01]}]}, tmp_path)

@@ -6,6 +6,7 @@ Subprocess tests read the real stderr and count its lines; every refusal is chec
 snapshot of the disk taken before it.
 """
 
+import copy
 import json
 import math
 import os
@@ -739,9 +740,13 @@ def test_the_simulation_keeps_its_own_validated_copy():
         lambda: setattr(sim.scene.emitters[0], "speed", -5.0),
         lambda: setattr(sim.scene.tank, "upper", (9, 9, 9)),
         lambda: setattr(sim.scene, "spacing", 1.0),
+        lambda: sim.scene.emitters.append(sim.scene.emitters[0]),  # its lists too (append was a silent no-op)
+        lambda: sim.scene.probes.extend([]),
+        lambda: sim.scene.sinks.clear(),
     ):
         with pytest.raises(AttributeError, match="read-only"):
             change()
+    assert copy.deepcopy(sim.scene).emitters == sim.scene.emitters  # copies rebuild the list whole
     scene.physics.eta = -1.0  # the scene it was built from may change: the simulation does not see it
     scene.emitters[0].speed = 50.0
     assert sim.physics.eta == 1e-3 and sim.scene.emitters[0].speed == 1.0

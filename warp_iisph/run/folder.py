@@ -33,6 +33,7 @@ MESHES = "mesh"
 FRAMES = "frames"  # rendered images (warp-iisph render)
 STATS = "stats.jsonl"
 PROBES = "probes.csv"  # the probes' samples (time, one column per probe)
+PROBES_CHART = "probes.png"  # warp-iisph plot's default: every probe over time
 RECORD = "run.json"
 OBSTACLES = "obstacles.obj"
 OBSTACLE_FRAMES = "obstacles"  # with moving obstacles or bodies: obstacles/frame_00000.obj, all of them at each frame
@@ -41,9 +42,9 @@ CHECKPOINT = "checkpoint.npz"  # the full state at the last frame it was taken, 
 SOURCE = "source.json"  # in a folder of derived files (mesh/, frames/): what they were made from
 USD = "run.usdc"  # warp-iisph usd's default; a run.usda or run.usd is found too
 USD_NAMES = (USD, "run.usda", "run.usd")
-# the views a run folder holds by default, each made of all its frames (a resume that makes frames
-# again leaves them stale)
-VIEW_FILES = ("video.mp4", "video.gif", "preview.mp4", "preview.gif", *USD_NAMES)
+# the views a run folder holds by default, each made of all its frames or samples (a resume that
+# makes frames and samples again leaves them stale)
+VIEW_FILES = ("video.mp4", "video.gif", "preview.mp4", "preview.gif", PROBES_CHART, *USD_NAMES)
 DATA_FOLDERS = (PARTICLES, MESHES, FRAMES, OBSTACLE_FRAMES)
 DEFAULT_FPS = 30.0
 MAX_FPS = 10_000.0  # output.fps's limit, and a video's

@@ -350,14 +350,15 @@ def _signal_behind(e: BaseException) -> KeyboardInterrupt | None:
 
 def _continue_logs(run: RunFolder, sim, scene, plan, first: int, record: RunRecord, kept: list[dict]) -> tuple:
     """A resumed run's growing files, cut back to its checkpoint (frame ``first - 1``): what the
-    stopped run wrote after it goes (and the rendered images of those frames, with the views made
-    of them, :data:`.folder.VIEW_FILES`: the frames are made again), and what a killed run staged;
+    stopped run wrote after it goes (and the rendered images of those frames), and what a killed
+    run staged; the views made of all frames or samples (:data:`.folder.VIEW_FILES`: videos, the
+    USD stage, the probes' chart) go too, as the resume makes frames again or adds frames after
+    the last;
     the step records up to its step (``kept``, checked by :func:`.kept.check_kept`) stay and go
     into the totals, the solids' and the probes' rows up to its time."""
     again = _frames_after(run, first - 1)
     again += [f for f in frame_files(run.path / FRAMES, "png") if frame_index(f) > first - 1]  # their images
-    if again:  # frames this resume makes again: the views that show them go too
-        again += [run.path / v for v in VIEW_FILES if (run.path / v).is_file()]
+    again += [run.path / v for v in VIEW_FILES if (run.path / v).is_file()]  # they would miss or mix frames
     for old in again + run.temporary_files():
         old.unlink()
     for r in kept:

@@ -92,6 +92,13 @@ class Body(Record):
                 )
         else:
             self.mass = in_range(self.mass, f"{name}.mass", *MASS_RANGE, "kg")
+            volume = _uniform(self.shape)[0]
+            density = self.mass / volume
+            if not DENSITY_RANGE[0] <= density <= DENSITY_RANGE[1]:
+                raise ValueError(
+                    f"{name}.mass = {self.mass:g}: gives the body a mean density of {density:.3g} kg/m^3, outside "
+                    f"[{DENSITY_RANGE[0]:g}, {DENSITY_RANGE[1]:g}] kg/m^3 (its volume is {volume:.3g} m^3)"
+                )
         lo, hi = self.shape.bounds
         if self.center_of_mass is not None:
             c = position(self.center_of_mass, f"{name}.center_of_mass")
@@ -103,6 +110,7 @@ class Body(Record):
             self.center_of_mass = floats(c)
         if self.inertia is not None:
             self.inertia = _inertia(self.inertia, f"{name}.inertia")
+            _plausible_inertia(self, f"{name}.inertia")
         self.velocity = floats(_bounded(self.velocity, f"{name}.velocity", MAX_SPEED, "m/s"))
         self.angular_velocity = floats(_bounded(self.angular_velocity, f"{name}.angular_velocity", MAX_SPIN, "rad/s"))
         axes = self.fixed_axes
@@ -182,7 +190,7 @@ def _inertia(value, name: str) -> tuple:
     """Three principal moments or six components, a symmetric positive-definite tensor whose
     moments meet the triangle inequality (a real body's)."""
     try:
-        if isinstance(value, (str, bytes)) or any(isinstance(c, (bool, str)) for c in value):
+        if isinstance(value, (str, bytes)) or any(isinstance(c, (bool, np.bool_, str)) for c in value):
             raise TypeError
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
@@ -205,6 +213,44 @@ def _inertia(value, name: str) -> tuple:
     return floats(arr)
 
 
+def _plausible_inertia(body: Body, name: str) -> None:
+    """A given inertia that some mass distribution of the body's mass within its shape's bounds
+    could have, not lighter than the shape at the least density a body may have: each principal
+    moment at least that shape's (uniform, ``DENSITY_RANGE[0]``) in the same order, and at most
+    the whole mass at the bounds' diagonal from the centre of mass. Below, the coupling's explicit
+    step meets a body far lighter than the liquid it moves (a 1e-15 kg m^2 box diverged in one
+    step); above, no body of that mass and size exists."""
+    volume, _, unit = _uniform(body.shape)
+    mass, com, _ = body.mass_properties()
+    moments = np.linalg.eigvalsh(_tensor(body.inertia))
+    least = DENSITY_RANGE[0] * volume * np.linalg.eigvalsh(unit)
+    lo, hi = body.shape.bounds
+    most = mass * float(np.sum((hi - lo) ** 2))
+    if np.any(moments < least * (1.0 - 1.0e-9)) or moments[-1] > most:
+        raise ValueError(
+            f"{name} = {list(body.inertia)}: principal moments {_g3(moments)} kg m^2 must be at least "
+            f"{_g3(least)} (the shape at a uniform {DENSITY_RANGE[0]:g} kg/m^3, the least density a body may "
+            f"have) and at most {most:.3g} (its mass {mass:.3g} kg at its bounds' diagonal)"
+        )
+
+
+def _g3(values) -> str:
+    return "[" + ", ".join(f"{v:.3g}" for v in values) + "]"
+
+
+def thinnest(shape) -> float:
+    """The shape's least thickness (m): a box's shortest side, a sphere's diameter, a mesh's
+    shortest side of the box of the same uniform inertia (its principal extents; a thin plate's
+    thickness whichever way it is turned)."""
+    if isinstance(shape, Box):
+        lo, hi = shape.bounds
+        return float(np.min(hi - lo))
+    if isinstance(shape, Sphere):
+        return 2.0 * float(shape.radius)
+    moments = np.linalg.eigvalsh(_uniform(shape)[2])
+    return float(np.sqrt(12.0 * max(0.5 * moments.sum() - moments[-1], 0.0)))
+
+
 def _tensor(inertia) -> np.ndarray:
     a = np.asarray(inertia, dtype=np.float64)
     if a.shape == (3,):
@@ -214,7 +260,7 @@ def _tensor(inertia) -> np.ndarray:
 
 
 def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
-    """Bodies lie inside the tank, span at least two spacings, and overlap no obstacle and no
+    """Bodies lie inside the tank, are at least two spacings thick, and overlap no obstacle and no
     other body where the scene places them (``ValueError`` naming the first that does)."""
     tlo, thi = tank.bounds
     for k, b in enumerate(bodies):
@@ -227,9 +273,12 @@ def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
             raise ValueError(
                 f"{name}: {floats(lo)}..{floats(hi)} must lie inside the tank {floats(tlo)}..{floats(thi)}"
             )
-        if float(np.max(hi - lo)) < 2.0 * spacing:
+        thin = thinnest(b.shape)
+        if thin < 2.0 * spacing * (1.0 - 1.0e-6):
             raise ValueError(
-                f"{name}: smaller than two spacings ({2.0 * spacing:g} m) on every side; the liquid cannot see it"
+                f"{name}: {thin:.3g} m thin, under two spacings ({2.0 * spacing:g} m): its walls' layers of "
+                "boundary particles would meet inside it and the liquid would push on a thicker body than "
+                "its mass; make it at least two spacings thick or the spacing finer"
             )
         if np.any(np.abs(lo) > MAX_COORDINATE) or np.any(np.abs(hi) > MAX_COORDINATE):
             raise ValueError(f"{name}: must lie within {MAX_COORDINATE:g} m of the origin")

@@ -38,10 +38,7 @@ class Record:
                     f"{type(self).__name__}.{name}: no such key; the keys are {', '.join(sorted(keys))}"
                 )
         if self.__dict__.get("_frozen") and not name.startswith("_") and not _same(self.__dict__.get(name), value):
-            raise AttributeError(
-                f"{type(self).__name__}.{name}: read-only, a Simulation's own validated copy of the scene; "
-                "change the Scene and build a new Simulation"
-            )
+            raise AttributeError(f"{type(self).__name__}.{name}: {READ_ONLY}")
         object.__setattr__(self, name, value)
 
 
@@ -60,13 +57,34 @@ def _same(a, b) -> bool:
         return a is b
 
 
+READ_ONLY = "read-only, a Simulation's own validated copy of the scene; change the Scene and build a new Simulation"
+
+
+class FrozenList(list):
+    """A frozen record's list (``scene.probes``, a body's ``fixed_axes``): reads as a list, refuses
+    every change in place (``AttributeError``), as the record's own fields do."""
+
+    def _refuse(self, *args, **kwargs):
+        raise AttributeError(f"this list is {READ_ONLY}")
+
+    append = extend = insert = remove = pop = clear = sort = reverse = _refuse
+    __setitem__ = __delitem__ = __iadd__ = __imul__ = _refuse
+
+    def __reduce_ex__(self, protocol):  # copies and pickles rebuild it whole, never by appends
+        return (FrozenList, (list(self),))
+
+
 def freeze(value) -> None:
-    """Freeze a :class:`Record` and every record it holds (in fields, lists and tuples)."""
+    """Freeze a :class:`Record` and every record it holds (in fields, lists and tuples); a
+    record's lists become :class:`FrozenList`."""
     if isinstance(value, (list, tuple)):
         for item in value:
             freeze(item)
     elif isinstance(value, Record):
-        for item in list(vars(value).values()):
+        for key, item in list(vars(value).items()):
+            if type(item) is list:
+                item = FrozenList(item)
+                object.__setattr__(value, key, item)
             freeze(item)
         object.__setattr__(value, "_frozen", True)
 

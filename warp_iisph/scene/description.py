@@ -143,7 +143,7 @@ class Scene(Record):
                 )
         _check_obstacle_names(self.obstacles)
         check_bodies(self.bodies, self.obstacles, self.tank, self.spacing)  # before the probes name them
-        validate_probes(self.probes, self.tank.bounds, self.obstacles, self.bodies)
+        validate_probes(self.probes, self.tank, self.obstacles, self.bodies, self.spacing)
         for k, e in enumerate(self.emitters):
             name = f"emitters[{k}]"
             if not isinstance(e, Emitter):

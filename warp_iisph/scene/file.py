@@ -301,8 +301,11 @@ def scene_fingerprint(scene: Scene) -> dict:
 
 
 def load_scene(path, overrides=()) -> Scene:
-    """Read a scene file (a path or a bundled name), apply ``--set`` overrides, validate.
-    Every problem raises :class:`SceneFileError` with a one-line message naming the file."""
+    """Read a scene file (a path or a bundled name), apply ``--set`` overrides (``KEY=VALUE``
+    strings; one string is one override), validate. Every problem raises
+    :class:`SceneFileError` with a one-line message naming the file."""
+    if isinstance(overrides, str):
+        overrides = [overrides]
     path = resolve_scene(str(path))
     try:
         data = tomllib.loads(path.read_text())
@@ -311,7 +314,10 @@ def load_scene(path, overrides=()) -> Scene:
     except (OSError, UnicodeDecodeError) as e:
         raise SceneFileError(f"{path}: cannot read: {e}") from None
     for assignment in overrides:
-        apply_override(data, assignment)
+        try:
+            apply_override(data, assignment)
+        except SceneFileError as e:  # the override's own fault, said with the file it changes
+            raise SceneFileError(f"{path}, {e}") from None
     try:
         return scene_from_dict(data, path.parent, default_name=path.stem)
     except SceneFileError:

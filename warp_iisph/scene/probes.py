@@ -16,6 +16,7 @@ is :func:`probe_columns`. No Warp here.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass
 from typing import Optional, Union
@@ -24,6 +25,7 @@ import numpy as np
 
 from .bodies import body_names
 from .checks import Record, floats, in_range, position, unit
+from .shapes import MeshShape, contains
 
 PROBE_KINDS = ("pressure", "level", "force")
 # the keys each kind takes besides name and kind
@@ -35,6 +37,8 @@ KIND_KEYS = {
 REQUIRED = {"pressure": ("position", "normal"), "level": ("position",), "force": ()}  # a force: obstacle or body
 # a probe's name heads columns of probes.csv: letters, digits, _ - . only
 NAME = re.compile(r"[A-Za-z0-9_.\-]{1,64}")
+# probes.csv's first column, the samples' time: no probe may take its name
+TIME_COLUMN = "t"
 # a force probe's columns, after its name: the pressure and viscous parts of the force and moment
 FORCE_PARTS = ("Fp", "Fv", "Mp", "Mv")
 
@@ -60,6 +64,8 @@ class Probe(Record):
             raise ValueError(
                 f"{where}.name = {self.name!r}: must be 1-64 letters, digits, '_', '-' or '.' (it heads a column)"
             )
+        if self.name == TIME_COLUMN:
+            raise ValueError(f"{where}.name = {self.name!r}: the time's column has that name; give the probe another")
         if self.kind not in PROBE_KINDS:
             raise ValueError(f"{where}.kind = {self.kind!r}: must be one of {', '.join(PROBE_KINDS)}")
         allowed = KIND_KEYS[self.kind]
@@ -114,9 +120,9 @@ class Probe(Record):
 
 def _pair(value, name: str) -> tuple:
     try:
-        if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, str)) for c in value):
+        if isinstance(value, (str, bytes, bool)) or any(isinstance(c, (bool, np.bool_, str)) for c in value):
             raise TypeError
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+        arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} = {value!r}: must be two numbers [x, z]") from None
     if arr.shape != (2,) or not np.all(np.isfinite(arr)):
@@ -154,15 +160,18 @@ def _index(ref, names: list, kind: str, known: str, name: str) -> int:
     )
 
 
-def validate_probes(probes: list, tank_bounds, obstacles: list, bodies: tuple = ()) -> None:
+def validate_probes(probes: list, tank, obstacles: list, bodies: tuple = (), spacing: float | None = None) -> None:
     """Every probe checked (``ValueError`` naming ``probes[k].key``), names unique, and so are the
-    columns they head (a probe named ``a.Fp_x`` beside a force probe ``a`` is refused)."""
+    columns they head (a probe named ``a.Fp_x`` beside a force probe ``a`` is refused). With the
+    ``spacing``, a sensor and a gauge must also reach the liquid's side of the walls (:func:`_reach`)."""
     seen, columns = set(), {}
     for k, p in enumerate(probes):
         where = f"probes[{k}]"
         if not isinstance(p, Probe):
             raise ValueError(f"{where} = {p!r}: must be a probe")
-        p.validate(where, tank_bounds, obstacles, bodies)
+        p.validate(where, tank.bounds, obstacles, bodies)
+        if spacing is not None:
+            _reach(p, where, tank, obstacles, spacing)
         if p.name in seen:
             raise ValueError(f"{where}.name = {p.name!r}: another probe has that name")
         seen.add(p.name)
@@ -172,6 +181,46 @@ def validate_probes(probes: list, tank_bounds, obstacles: list, bodies: tuple = 
                     f"{where}.name = {p.name!r}: probe {columns[column]!r} already writes a column {column!r}"
                 )
             columns[column] = p.name
+
+
+def _reach(p: Probe, where: str, tank, obstacles: list, h: float) -> None:
+    """A pressure sensor reads the liquid around the point half a spacing ``h`` along its normal
+    from its face (:mod:`warp_iisph.sph.probes`): that point must lie inside the tank (a mesh
+    tank's surface, not only its box) and outside every still obstacle, else the sensor is buried
+    in a wall or faces it (its normal turned into it) and reads nothing, ever. A
+    level gauge's column must cross the tank's inside somewhere (a mesh tank's box holds columns
+    beside its walls). Where an obstacle moves, it may uncover the point later: not checked."""
+    lo, hi = tank.bounds
+    mesh_tank = isinstance(tank, MeshShape)
+    if mesh_tank and tank.shell:  # an open container's walls enclose what its closed surface does
+        tank = dataclasses.replace(tank, shell=False)
+    if p.kind == "pressure":
+        q = np.asarray(p.position) + 0.5 * h * np.asarray(p.normal)
+        if np.any(q <= lo) or np.any(q >= hi) or (mesh_tank and not contains(tank, q)[0]):
+            raise ValueError(
+                f"{where}.position = {list(p.position)}: half a spacing along its normal {list(p.normal)} it "
+                f"reads at {_g3(q)}, outside the tank; a sensor sits on a wall's face with its normal into "
+                "the liquid"
+            )
+        for k, o in enumerate(obstacles):
+            if o.motion is None and contains(o, q)[0]:
+                raise ValueError(
+                    f"{where}.position = {list(p.position)}: half a spacing along its normal {list(p.normal)} it "
+                    f"reads at {_g3(q)}, inside obstacles[{k}]; a sensor sits on a wall's face with its normal "
+                    "into the liquid"
+                )
+    elif p.kind == "level" and mesh_tank:
+        ys = np.linspace(lo[1], hi[1], int(min(max((hi[1] - lo[1]) / h, 8), 256)) + 2)[1:-1]
+        column = np.column_stack([np.full_like(ys, p.position[0]), ys, np.full_like(ys, p.position[1])])
+        if not np.any(contains(tank, column)):
+            raise ValueError(
+                f"{where}.position = {list(p.position)}: the column at [x, z] misses the tank's mesh (it lies "
+                "inside the tank's box only); a gauge stands where the liquid can be"
+            )
+
+
+def _g3(values) -> str:
+    return "[" + ", ".join(f"{v:.4g}" for v in values) + "]"
 
 
 def sampled_groups(probes) -> tuple[list[Probe], list[Probe], list[Probe], list[Probe]]:

@@ -11,7 +11,7 @@ from typing import Optional, Union
 import numpy as np
 
 from .checks import MAX_COORDINATE, Record, box_corners, flag, floats, in_range, position, positive, vec3
-from .motion import Motion
+from .motion import MAX_ANGLE, Motion
 
 
 def _check_motion(shape, name: str) -> None:
@@ -124,6 +124,8 @@ class MeshShape(Record):
             raise ValueError(f"{name}.path = {self.path!r}: must be a mesh file path")
         self.translate = floats(position(self.translate, f"{name}.translate"))
         self.rotate = floats(vec3(self.rotate, f"{name}.rotate"))
+        if max(abs(a) for a in self.rotate) > MAX_ANGLE:
+            raise ValueError(f"{name}.rotate = {list(self.rotate)}: angles must stay within {MAX_ANGLE:g} degrees")
         if isinstance(self.scale, (list, tuple, np.ndarray)):
             sc = vec3(self.scale, f"{name}.scale")
             if np.any(sc <= 0):
@@ -138,11 +140,12 @@ class MeshShape(Record):
             raise ValueError(f"{name}.scale = {self.scale!r}: puts the mesh beyond {MAX_COORDINATE:g} m of the origin")
 
     def stamp(self) -> tuple | None:
-        """The mesh file's modification time, size and inode (``None`` when it cannot be read): a
-        file edited or replaced since it was read is read again."""
+        """The mesh file's modification time, size and inode, so that a file edited or replaced
+        since it was read is read again; ``None`` where it cannot be read or the path is no string
+        (:meth:`validate` names that)."""
         try:
             st = os.stat(Path(self.base_dir) / self.path)
-        except (OSError, ValueError):
+        except (OSError, ValueError, TypeError):
             return None
         return (st.st_mtime_ns, st.st_size, st.st_ino)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..run.atomic import atomic_write
-from ..run.folder import RunError, RunFolder
+from ..run.folder import PROBES_CHART, RunError, RunFolder
 from ..run.lock import writing_into
 from ..run.probe_file import read_probes
 from .out_file import view_file
@@ -20,8 +20,12 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
     ``RUN_DIR/probes.png``); returns the path. Pressures in kPa; a force probe's components
     ``x``, ``y``, ``z``, pressure parts solid and viscous parts dashed."""
     run = RunFolder.existing(run_dir)
-    out = view_file(run, out, "probes.png", (".png",), "chart")
+    out = view_file(run, out, PROBES_CHART, (".png",), "chart")
     if not run.probes.is_file():
+        if not run.record_path.is_file():
+            raise RunError(
+                f"{run.path}: not a run folder (it holds no {run.record_path.name}); give the folder a run wrote"
+            )
         raise RunError(f"{run.probes}: no probe samples (the scene has no [[probes]], or no step was taken)")
     names, units, rows = read_probes(run.probes)
     if len(rows) == 0:
