@@ -53,9 +53,7 @@ def test_body_keys_are_validated(tmp_path):
         ({"release_time": 0.5, "velocity": [0.1, 0, 0]}, "bodies[0].release_time = 0.5: a held body starts from rest"),
         ({"motion": {"times": [0.0]}}, "bodies[0].motion: unknown key"),
         ({"upper": [0.2, 0.5, 0.2]}, "must lie inside the tank"),
-        ({"lower": [0.1, 0.1, 0.1], "upper": [0.11, 0.11, 0.11]}, "bodies[0]: 0.01 m thin, under two spacings"),
-        # a plate: long enough, too thin for two layers of samples (it floated at 5,000 kg/m^3)
-        ({"lower": [0.1, 0.17, 0.1], "upper": [0.3, 0.172, 0.3], "density": 5000.0}, "0.002 m thin"),
+        ({"lower": [0.1, 0.1, 0.1], "upper": [0.11, 0.11, 0.11]}, "smaller than two spacings"),
         ({"density": None, "mass": 1e-6}, "bodies[0].mass = 1e-06: gives the body a mean density of 0.001 kg/m^3"),
         ({"density": None, "mass": 1e8}, "outside [1, 100000] kg/m^3"),
         # a box of 0.1 m at 500 kg/m^3: 0.5 kg, moments 8.3e-4 kg m^2 (the least allowed 1.7e-6, the most 0.015)
@@ -213,6 +211,43 @@ def test_python_api_and_scene_file_round_trip():
     assert "bodies" not in scene_to_dict(
         Scene(spacing=0.04, tank=Box((0, 0, 0), (1, 1, 1))).add_fluid_box((0, 0, 0), (1, 1, 1))
     )
+
+
+def test_a_body_thinner_than_two_spacings_is_warned_of(tmp_path, capsys):
+    """A plate is allowed (the liquid keeps out of it) but the liquid pushes on it as on a body two
+    spacings thick: the run says so before it starts. Its thickness is read whichever way a mesh
+    is turned (the box of the same uniform inertia)."""
+    import trimesh
+
+    from warp_iisph import MeshShape
+    from warp_iisph.cli import main
+    from warp_iisph.scene.bodies import thin_bodies, thinnest
+
+    trimesh.creation.box(extents=(0.2, 0.008, 0.16)).export(tmp_path / "plate.obj")
+    turned = MeshShape("plate.obj", rotate=(30.0, 0.0, 20.0), base_dir=str(tmp_path))
+    assert thinnest(turned) == pytest.approx(0.008, rel=1e-6)
+    assert thinnest(Sphere((0, 0, 0), 0.05)) == 0.1 and thinnest(Box((0, 0, 0), (0.3, 0.1, 0.2))) == 0.1
+    plate, block = (
+        Body(Box((0.1, 0.1, 0.1), (0.3, 0.102, 0.3)), density=5000.0),
+        Body(Box((0, 0, 0), (0.04, 0.04, 0.04)), density=500.0),
+    )
+    (warning,) = thin_bodies([block, plate], 0.02)
+    assert warning.startswith("bodies[1]: 0.002 m thin, under two spacings (0.04 m)")
+    assert thin_bodies([block], 0.02) == []  # two spacings exactly
+    path = tmp_path / "plate.toml"
+    path.write_text(
+        _toml(
+            {
+                "spacing": 0.04,
+                "tank": {"lower": [0, 0, 0], "upper": [0.4, 0.4, 0.4]},
+                "fluids": [{"lower": [0, 0, 0], "upper": [0.4, 0.2, 0.4]}],
+                "bodies": [{"lower": [0.1, 0.3, 0.1], "upper": [0.3, 0.31, 0.3], "density": 500}],
+                "output": {"duration": 0.05, "fps": 20},
+            }
+        )
+    )
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--no-progress"]) == 0
+    assert "warp-iisph: warning: bodies[0]: 0.01 m thin, under two spacings" in capsys.readouterr().err
 
 
 def test_mass_properties_from_the_shape():

@@ -173,9 +173,10 @@ def _run(args) -> int:
         out, source = args.out or f"runs/{scene.name}", resolve_scene(args.scene)
     from ..run.run_record import lattice_shortfalls
     from ..scene import scene_to_dict
+    from ..scene.bodies import thin_bodies
 
     # said before a long run starts, not only in the warnings it ends with
-    early = lattice_shortfalls(scene_to_dict(scene))
+    early = lattice_shortfalls(scene_to_dict(scene)) + thin_bodies(scene.bodies, scene.spacing)
     for warning in early:
         print(f"warp-iisph: warning: {warning}", file=sys.stderr)
     _start_warp(args.threads)

@@ -234,6 +234,24 @@ def _plausible_inertia(body: Body, name: str) -> None:
         )
 
 
+def thin_bodies(bodies: list, spacing: float) -> list[str]:
+    """One sentence for each body thinner than two spacings: the liquid keeps out of it (thin
+    plates are bodies users ask for, and the containment holds them), but its two layers of
+    boundary particles meet inside it, so the liquid pushes on it as on a body about two spacings
+    thick: its buoyancy and drag are the thicker body's (a 2 mm plate of 5,000 kg/m^3 at
+    h = 0.02 m floated, the water's force on it 8.8 N against its weight of 3.9 N)."""
+    out = []
+    for k, b in enumerate(bodies):
+        thin = thinnest(b.shape)
+        if thin < 2.0 * spacing * (1.0 - 1.0e-6):
+            out.append(
+                f"bodies[{k}]: {thin:.3g} m thin, under two spacings ({2.0 * spacing:g} m): the liquid keeps out "
+                "of it but pushes on it as on a body about two spacings thick, so its buoyancy and drag are "
+                "that body's; where its load matters, make it thicker or the spacing finer"
+            )
+    return out
+
+
 def _g3(values) -> str:
     return "[" + ", ".join(f"{v:.3g}" for v in values) + "]"
 
@@ -260,7 +278,7 @@ def _tensor(inertia) -> np.ndarray:
 
 
 def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
-    """Bodies lie inside the tank, are at least two spacings thick, and overlap no obstacle and no
+    """Bodies lie inside the tank, span at least two spacings, and overlap no obstacle and no
     other body where the scene places them (``ValueError`` naming the first that does)."""
     tlo, thi = tank.bounds
     for k, b in enumerate(bodies):
@@ -273,12 +291,9 @@ def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
             raise ValueError(
                 f"{name}: {floats(lo)}..{floats(hi)} must lie inside the tank {floats(tlo)}..{floats(thi)}"
             )
-        thin = thinnest(b.shape)
-        if thin < 2.0 * spacing * (1.0 - 1.0e-6):
+        if float(np.max(hi - lo)) < 2.0 * spacing:
             raise ValueError(
-                f"{name}: {thin:.3g} m thin, under two spacings ({2.0 * spacing:g} m): its walls' layers of "
-                "boundary particles would meet inside it and the liquid would push on a thicker body than "
-                "its mass; make it at least two spacings thick or the spacing finer"
+                f"{name}: smaller than two spacings ({2.0 * spacing:g} m) on every side; the liquid cannot see it"
             )
         if np.any(np.abs(lo) > MAX_COORDINATE) or np.any(np.abs(hi) > MAX_COORDINATE):
             raise ValueError(f"{name}: must lie within {MAX_COORDINATE:g} m of the origin")
