@@ -62,6 +62,11 @@ def test_a_box_of_liquid_filled_short_is_warned_of_before_the_run(tmp_path, caps
     cap = capsys.readouterr()
     assert cap.err.count("warning: fluids[0]: whole layers of spacing = 0.07 m fill only 76 % of it") == 1, cap.err
     assert "completed" in cap.out
+    # refused once its particles are built (the block lies inside a body): the refusal alone, one line
+    body = "bodies=[{lower=[0.0,0.0,0.0],upper=[0.5,0.7,0.6],density=500.0}]"
+    assert main([*args, "--overwrite", "--set", body, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fluids: no particle fits at spacing = 0.07 m" in err[0], err
 
 
 def test_unknown_scene_is_a_clear_error(capsys):

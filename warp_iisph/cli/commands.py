@@ -175,10 +175,14 @@ def _run(args) -> int:
     from ..scene import scene_to_dict
     from ..scene.bodies import thin_bodies
 
-    # said before a long run starts, not only in the warnings it ends with
+    # said before a long run starts (once its scene is built: a refusal stays one line), not only
+    # in the warnings it ends with
     early = lattice_shortfalls(scene_to_dict(scene)) + thin_bodies(scene.bodies, scene.spacing)
-    for warning in early:
-        print(f"warp-iisph: warning: {warning}", file=sys.stderr)
+
+    def say_early() -> None:
+        for warning in early:
+            print(f"warp-iisph: warning: {warning}", file=sys.stderr)
+
     _start_warp(args.threads)
     device = checked_device(args.device)
     from ..run.folder import RunError
@@ -196,6 +200,7 @@ def _run(args) -> int:
             graph=use_graph(args.graph, device),
             resume=bool(args.resume),
             inputs=[] if args.resume else [source],
+            on_built=say_early,
         )
     except ValueError as e:
         if str(e).startswith("--") or isinstance(e, RunError):  # an argument, or a run folder's file: named already

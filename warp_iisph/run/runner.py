@@ -175,6 +175,7 @@ def run_scene(
     background_output: bool = True,
     resume: bool = False,
     inputs=(),
+    on_built=None,
 ) -> dict:
     """Simulate the scene, writing ``particles/frame_%05d.ply`` (or ``.vtu``, as ``output.format``
     says) every ``1/fps`` s, ``stats.jsonl`` (one record per step), ``run.json``, for a scene
@@ -186,7 +187,8 @@ def run_scene(
     :func:`resumed_scene`). ``inputs``: files the run is made from besides the scene's meshes (its
     scene file), which ``overwrite`` never deletes. The run folder is locked while the run goes on
     (:mod:`.lock`); a new run is written beside its place and moved there with its first frame
-    (:mod:`.replace`)."""
+    (:mod:`.replace`). ``on_built`` is called once everything is built and checked, before the
+    first step: a refusal never follows what it says."""
     from ..stepping import Simulation
 
     plan = plan_frames(scene, duration, fps)
@@ -217,6 +219,8 @@ def run_scene(
         else:
             staging = stage(target)
             run = RunFolder(staging[0], scene.output.format)
+        if on_built is not None:
+            on_built()
         place = None if resume else (lambda: commit(target, *staging))
         record = _simulate(
             scene, sim, run, plan, first, t_start, background_output, progress, graph, (before, kept_steps), place
