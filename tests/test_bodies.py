@@ -247,7 +247,27 @@ def test_a_body_thinner_than_two_spacings_is_warned_of(tmp_path, capsys):
         )
     )
     assert main(["run", str(path), "--out", str(tmp_path / "run"), "--no-progress"]) == 0
-    assert "warp-iisph: warning: bodies[0]: 0.01 m thin, under two spacings" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "warp-iisph: warning: bodies[0]: 0.01 m thin, under two spacings" in err
+    assert "starts under the liquid" not in err  # it starts above it
+
+
+def test_a_body_free_in_the_liquid_at_the_start_is_warned_of():
+    """Free from t = 0 inside a block of liquid, a body starts in the set-up's holes beside its
+    edges (docs/scenes.md, "Bodies"): warned of, unless held by release_time; the bundled scenes'
+    bodies start dry (flood) or held (heave)."""
+    from warp_iisph.scene.bodies import bodies_in_liquid
+
+    scene = pool()  # floating at its draft, free from the start: most of its bottom's liquid kept
+    assert bodies_in_liquid(scene.bodies, scene.fluids) == []
+    scene.add_body(Box((0.02, 0.04, 0.02), (0.1, 0.12, 0.1)), density=500.0)  # under the surface
+    (warning,) = bodies_in_liquid(scene.bodies, scene.fluids)
+    assert warning.startswith("bodies[1] starts under the liquid of fluids[0], free") and "release_time" in warning
+    scene.bodies[1].release_time = 0.2
+    assert bodies_in_liquid(scene.bodies, scene.fluids) == []
+    for name in ("flood", "heave"):
+        bundled = load_scene(name)
+        assert bodies_in_liquid(bundled.bodies, bundled.fluids) == [], name
 
 
 def test_mass_properties_from_the_shape():

@@ -173,11 +173,12 @@ def _run(args) -> int:
         out, source = args.out or f"runs/{scene.name}", resolve_scene(args.scene)
     from ..run.run_record import lattice_shortfalls
     from ..scene import scene_to_dict
-    from ..scene.bodies import thin_bodies
+    from ..scene.bodies import bodies_in_liquid, thin_bodies
 
     # said before a long run starts (once its scene is built: a refusal stays one line), not only
     # in the warnings it ends with
     early = lattice_shortfalls(scene_to_dict(scene)) + thin_bodies(scene.bodies, scene.spacing)
+    early += bodies_in_liquid(scene.bodies, scene.fluids)
 
     def say_early() -> None:
         for warning in early:

@@ -252,6 +252,30 @@ def thin_bodies(bodies: list, spacing: float) -> list[str]:
     return out
 
 
+def bodies_in_liquid(bodies: list, fluids: list) -> list[str]:
+    """One sentence for each body free from t = 0 whose box lies within a block of liquid's (under
+    the liquid, not floating in its surface): the set-up leaves out the liquid's lattice sites its
+    edges make denser than rest (the holes of docs/physics.md 6.2), and until the liquid fills them
+    it hardly holds the body (a submerged box felt -4 N against its 30 N buoyancy, then a 169 N
+    kick; docs/scenes.md, "Bodies"). A body floating at its draft keeps most of its bottom face's
+    liquid and settles (the drafts' tests)."""
+    out = []
+    for k, b in enumerate(bodies):
+        if b.release_time > 0.0:
+            continue
+        lo, hi = b.bounds
+        for j, f in enumerate(fluids):
+            f_lo, f_hi = f.bounds
+            if np.all(lo >= np.asarray(f_lo) - 1e-9) and np.all(hi <= np.asarray(f_hi) + 1e-9):
+                out.append(
+                    f"bodies[{k}] starts under the liquid of fluids[{j}], free: the liquid beside its edges is left "
+                    "out at the start, and until it fills those holes it hardly holds the body, which sinks into "
+                    "them and is then kicked; hold it with a release_time of 0.1-0.3 s (docs/scenes.md, Bodies)"
+                )
+                break
+    return out
+
+
 def _g3(values) -> str:
     return "[" + ", ".join(f"{v:.3g}" for v in values) + "]"
 
