@@ -196,7 +196,7 @@ def _reach(p: Probe, where: str, tank, obstacles: list, h: float) -> None:
         tank = dataclasses.replace(tank, shell=False)
     if p.kind == "pressure":
         q = np.asarray(p.position) + 0.5 * h * np.asarray(p.normal)
-        if np.any(q <= lo) or np.any(q >= hi) or (mesh_tank and not contains(tank, q)[0]):
+        if np.any(q < lo - 1e-9) or np.any(q > hi + 1e-9) or (mesh_tank and not contains(tank, q)[0]):
             raise ValueError(
                 f"{where}.position = {list(p.position)}: half a spacing along its normal {list(p.normal)} it "
                 f"reads at {_g3(q)}, outside the tank; a sensor sits on a wall's face with its normal into "
