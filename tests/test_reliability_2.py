@@ -754,6 +754,85 @@ def test_the_simulation_keeps_its_own_validated_copy():
     assert sim.time == pytest.approx(0.02)
 
 
+def _tiny() -> Scene:
+    return Scene(spacing=0.05, tank=Box((0, 0, 0), (0.5, 0.4, 0.25))).add_fluid_box((0, 0, 0), (0.2, 0.2, 0.25))
+
+
+def test_a_restore_takes_a_whole_state_of_this_scene_or_nothing():
+    """A hostile pass (2026-12-06): restore() assigned the particles before it checked the rest
+    (a state without its time left them at t = 0.03 and the clock at 0.01), took short arrays in
+    part, a NaN time, bodies the scene has not, and kept the abandoned timeline's records."""
+    a = Simulation(_tiny())
+    a.advance(0.03)
+    b = Simulation(_tiny())
+    b.advance(0.01)
+    kept = b.positions
+    broken = [
+        ({"time": None}, "checkpoint: has no time"),
+        ({"rho": np.full(5, 7.0, np.float32)}, r"checkpoint: rho is float32\[5\], not floats\[80\]"),
+        ({"time": np.float64(np.nan)}, "checkpoint: time = nan: must be finite"),
+        ({"step_count": np.int64(-3)}, "checkpoint: step_count = -3: must be >= 0"),
+        ({"id": np.zeros(80, np.int32)}, "checkpoint: id: 80 particle ids must be distinct"),
+        ({"bodies_position": np.zeros((1, 3))}, "checkpoint: holds free bodies' state; the scene has no bodies"),
+        ({"x": a.checkpoint()["x"] + 1.0}, "checkpoint: holds particles outside the scene's domain"),
+    ]
+    for change, message in broken:
+        state = {**a.checkpoint(), **change}
+        state = {k: v for k, v in state.items() if v is not None}
+        with pytest.raises(ValueError, match=message):
+            b.restore(state)
+        assert np.array_equal(b.positions, kept) and b.time == pytest.approx(0.01) and len(b.stats) == b.step_count
+    b.restore(a.checkpoint())
+    assert b.time == a.time and np.array_equal(b.positions, a.positions) and len(b.stats) == 0  # a new timeline
+    b.advance(0.01)
+    a.advance(0.01)
+    assert np.array_equal(b.positions, a.positions)
+
+
+def test_the_api_refuses_what_it_cannot_do_and_keeps_its_own_state():
+    """What a hostile pass found the API take (2026-12-06): a 1 s step (every particle below the
+    floor), a 1e12 s advance (a hang), a callback that is no function (after a step), a graph
+    replay's clock left behind its particles by a callback that raised, a step record or probe
+    samples whose change reached the simulation, and the caller's scene given the defaults its
+    copy's validation fills in."""
+    sim = Simulation(_tiny())
+    sim.advance(0.02)
+    with pytest.raises(ValueError, match=r"dt = 1\.0: longer than one step may be now"):
+        sim.step(1.0)
+    with pytest.raises(ValueError, match=r"duration = 1000000000000.0: must be a number of seconds in \[0, 1e\+06\]"):
+        sim.advance(1e12)
+    steps = sim.step_count
+    with pytest.raises(TypeError, match="callback = 5: must be a function"):
+        sim.advance(0.01, callback=5)
+    assert sim.step_count == steps
+    record = sim.step()
+    record["dt"] = 10.0
+    assert sim.stats[-1]["dt"] != 10.0
+    for bad in ("yes", 1):
+        with pytest.raises(TypeError, match="graph = .*: must be True or False"):
+            Simulation(_tiny(), graph=bad)
+    with pytest.raises(ValueError, match="history = .*: must be None"):
+        Simulation(_tiny(), history=10**30)
+    graph = Simulation(_tiny(), graph=True)
+    graph.advance(0.01)
+
+    def fails(record):
+        raise RuntimeError("a caller's error")
+
+    with pytest.raises(RuntimeError):
+        graph.advance(0.1, fails)
+    plain = Simulation(_tiny())
+    plain.advance(graph.time)  # the clock says where the particles are
+    assert graph.time > 0.05 and np.allclose(graph.positions, plain.positions, atol=1e-5)
+    scene = _tiny()
+    spin = Motion(times=[0, 1], rotate=[[0, 0, 0], [0, 90, 0]])
+    scene.add_obstacle(Box((0.3, 0, 0.05), (0.4, 0.1, 0.15), name="o", motion=spin))
+    Simulation(scene)
+    assert scene.obstacles[0].motion.pivot is None  # filled in the simulation's copy only
+    with pytest.raises(AttributeError, match="read-only"):
+        Simulation(scene).scene.obstacles[0].motion.translate[1][0] = -0.1  # nested lists too
+
+
 def test_memory_limits_of_control_groups_are_read(tmp_path):
     v2 = tmp_path / "v2"
     (v2 / "job" / "task").mkdir(parents=True)

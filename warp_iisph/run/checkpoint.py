@@ -16,16 +16,15 @@ the run folder must still hold besides is :mod:`.kept`'s.
 from __future__ import annotations
 
 import json
-import math
 import zipfile
 
 import numpy as np
 
 from .. import __version__
 from ..scene import scene_fingerprint
-from ..scene.checks import MAX_PARTICLES
-from ..scene.settings import METHODS, MIN_STEP
+from ..scene.settings import MIN_STEP
 from ..setup.model import PARTICLE_FIELDS
+from ..stepping.state_check import check_state, scalar
 from .atomic import staged_write
 from .folder import RunError, RunFolder
 
@@ -36,17 +35,6 @@ STATE_KEYS = (*PARTICLE_FIELDS, "max_speed2", "sub_left", "sub_done", "time", "s
 KEYS = (*STATE_KEYS, "next_id", "frame", *OWNER_KEYS)
 # the rows probes.csv held when the checkpoint was taken (a scene with probes; older checkpoints: none)
 PROBE_SAMPLES = "probe_samples"
-# a scene with free bodies: their state (Simulation.checkpoint), by key and width
-BODY_KEYS = {
-    "bodies_position": 3,
-    "bodies_orientation": 4,
-    "bodies_velocity": 3,
-    "bodies_momentum": 3,
-    "bodies_acceleration": 3,
-    "bodies_angular_acceleration": 3,
-    "bodies_coupled": 3,
-    "bodies_coupled_angular": 3,
-}
 
 
 def owner(run_id: str, scene) -> dict:
@@ -83,79 +71,25 @@ def load_checkpoint(run: RunFolder) -> dict:
         raise RunError(f"{run.checkpoint}: not a readable checkpoint ({' '.join(str(e).split())})") from None
 
 
-def _scalar(state: dict, key: str, kind: str):
-    a = state[key]
-    if a.shape != () or not (np.issubdtype(a.dtype, np.integer) if kind == "int" else a.dtype.kind in kind):
-        raise ValueError(f"{key} is {a.dtype}{list(a.shape)}, not one {'integer' if kind == 'int' else 'value'}")
-    return a.item()
-
-
-def _array(state: dict, key: str, shape: tuple, integer: bool = False) -> np.ndarray:
-    a = state[key]
-    ok = np.issubdtype(a.dtype, np.integer) if integer else np.issubdtype(a.dtype, np.floating)
-    if a.shape != shape or not ok:
-        raise ValueError(f"{key} is {a.dtype}{list(a.shape)}, not {'integers' if integer else 'floats'}{list(shape)}")
-    if not integer and not np.all(np.isfinite(a)):
-        raise ValueError(f"{key} holds non-finite values")
-    return a
-
-
 def _check_values(state: dict, fps: float, duration: float, scene) -> None:
-    """``ValueError`` saying what makes no sense (the caller names the file)."""
-    for key in ("time", "step_count", "next_id", "frame"):
+    """``ValueError`` saying what makes no sense (the caller names the file): the simulation's
+    state (:func:`~warp_iisph.stepping.state_check.check_state`), and the run's own: the frame
+    it was taken at, the steps and probe samples up to it."""
+    for key in ("next_id", "frame"):
         if key not in state:
             raise ValueError(f"has no {key}")
-    time = _scalar(state, "time", "f")
-    frame, steps, next_id = (_scalar(state, k, "int") for k in ("frame", "step_count", "next_id"))
-    method = _scalar(state, "method", "U")
-    if method not in METHODS:
-        raise ValueError(f"method = {method!r}: not one of {', '.join(METHODS)}")
-    if not (math.isfinite(time) and time >= 0.0):
-        raise ValueError(f"time = {time!r}: must be finite and >= 0")
+    time, steps, _ = check_state(state, scene)
+    frame = scalar(state, "frame", "int")
     if frame < 0 or abs(time - frame / fps) > 1e-6 * max(1.0, time):
         raise ValueError(f"frame = {frame} at time = {time:g} s: not that frame's time at {fps:g} frames/s")
     if time > duration * (1 + 1e-9) + 1e-9:
         raise ValueError(f"time = {time:g} s: beyond the {duration:g} s the run was asked for")
     if not frame <= steps <= 2.0 * time / MIN_STEP + 10 * (frame + 1):
         raise ValueError(f"step_count = {steps}: must be at least the frame ({frame}) and within the time")
-    n = len(state["x"]) if state["x"].ndim >= 1 else -1
-    if not 0 <= n <= next_id <= MAX_PARTICLES:
-        raise ValueError(f"next_id = {next_id}: must be at least the particle count ({n}) and at most {MAX_PARTICLES}")
-    _array(state, "x", (n, 3))
-    _array(state, "v", (n, 3))
-    if np.any(_array(state, "rho", (n,)) < 0.0):
-        raise ValueError("rho holds negative densities")
-    _array(state, "p", (n,))
-    ids = _array(state, "id", (n,), integer=True)
-    if n and (ids.min() < 0 or ids.max() >= next_id or len(np.unique(ids)) != n):
-        raise ValueError(f"id: {n} particle ids must be distinct and in [0, next_id = {next_id})")
-    for key in [k for k in state if k.startswith("carried_")]:
-        _array(state, key, (n,))
-    if np.any(_array(state, "max_speed2", (1,)) < 0.0) or np.any(_array(state, "sub_left", (1,)) < 0.0):
-        raise ValueError("max_speed2 and sub_left must be >= 0")
-    if np.any(_array(state, "sub_done", (1,), integer=True) < 0):
-        raise ValueError("sub_done must be >= 0")
-    if scene.bodies:  # the free bodies' state: one row per body, finite, unit quaternions
-        for key, width in BODY_KEYS.items():
-            if key not in state:
-                raise ValueError(f"has no {key} (the free bodies' state)")
-            _array(state, key, (len(scene.bodies), width))
-        if np.any(np.abs(np.linalg.norm(state["bodies_orientation"], axis=1) - 1.0) > 1e-6):
-            raise ValueError("bodies_orientation holds quaternions that are not of unit length")
     if PROBE_SAMPLES in state:  # the rows probes.csv held at the checkpoint: at most one per step
-        samples = _scalar(state, PROBE_SAMPLES, "int")
+        samples = scalar(state, PROBE_SAMPLES, "int")
         if not 0 <= samples <= steps:
             raise ValueError(f"{PROBE_SAMPLES} = {samples}: must be in [0, step_count = {steps}]")
-    if scene.emitters or scene.sinks:
-        for key in ("flows_next_time", "flows_next_check", "flows_counts"):
-            if key not in state:
-                raise ValueError(f"has no {key} (the emitters' and sinks' clocks)")
-        if np.any(_array(state, "flows_next_time", (len(scene.emitters),)) < 0.0):
-            raise ValueError("flows_next_time must be >= 0")
-        if not _scalar(state, "flows_next_check", "f") >= 0.0:
-            raise ValueError("flows_next_check must be >= 0")
-        if np.any(_array(state, "flows_counts", (4,), integer=True) < 0):
-            raise ValueError("flows_counts must be >= 0")
 
 
 def check_checkpoint(state: dict, run: RunFolder, record: dict, scene, fps: float) -> None:
@@ -168,7 +102,7 @@ def check_checkpoint(state: dict, run: RunFolder, record: dict, scene, fps: floa
         older = " (written by an older warp-iisph)" if set(missing) & set(OWNER_KEYS) else ""
         raise RunError(f"{where}: has no {', '.join(missing)}{older}; this run cannot be resumed from it")
     try:
-        fmt, version, run_id = _scalar(state, "format", "int"), str(state["warp_iisph"]), str(state["run_id"])
+        fmt, version, run_id = scalar(state, "format", "int"), str(state["warp_iisph"]), str(state["run_id"])
     except ValueError as e:
         raise RunError(f"{where}: {e}") from None
     if fmt != FORMAT or version != __version__:

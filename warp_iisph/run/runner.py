@@ -191,6 +191,10 @@ def run_scene(
     first step: a refusal never follows what it says."""
     from ..stepping import Simulation
 
+    flags = {"overwrite": overwrite, "progress": progress, "graph": graph, "background_output": background_output}
+    for name, value in {**flags, "resume": resume}.items():
+        if not isinstance(value, bool):
+            raise TypeError(f"{name} = {value!r}: must be True or False")
     plan = plan_frames(scene, duration, fps)
     held = []  # the locks (and the target) released when the run ends, however it ends
     staging = None  # a new run's folder and lock, until it takes its place
@@ -397,6 +401,8 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
     data.setdefault("output", {}).update(
         duration=record.get("requested_duration", record.get("duration")), fps=run.fps(record)
     )
+    if isinstance(overrides, str):  # one string is one override, as load_scene takes it
+        overrides = [overrides]
     for assignment in overrides:
         key = assignment.partition("=")[0].strip()
         if key.split(".")[0] not in ("physics", "output", "surface", "camera"):

@@ -74,6 +74,11 @@ class FrozenList(list):
         return (FrozenList, (list(self),))
 
 
+def _frozen_list(items: list) -> FrozenList:
+    """``items`` and the lists within it (a motion's keys) as :class:`FrozenList`."""
+    return FrozenList(_frozen_list(i) if type(i) is list else i for i in items)
+
+
 def freeze(value) -> None:
     """Freeze a :class:`Record` and every record it holds (in fields, lists and tuples); a
     record's lists become :class:`FrozenList`."""
@@ -83,7 +88,7 @@ def freeze(value) -> None:
     elif isinstance(value, Record):
         for key, item in list(vars(value).items()):
             if type(item) is list:
-                item = FrozenList(item)
+                item = _frozen_list(item)
                 object.__setattr__(value, key, item)
             freeze(item)
         object.__setattr__(value, "_frozen", True)

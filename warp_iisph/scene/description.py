@@ -210,14 +210,16 @@ class Scene(Record):
     def frozen_copy(self) -> "Scene":
         """A validated deep copy of this scene that refuses changes (``AttributeError``): what a
         ``Simulation`` keeps, so that later changes to this scene, or to its copy, never reach a
-        run unvalidated. Meshes already read are shared, not copied."""
-        self.validate()
+        run unvalidated. Meshes already read are shared, not copied. The copy is validated, not
+        this scene: the defaults validation fills in (a moving obstacle's pivot, a force probe's
+        point, from the shape's bounds) stay unset here, so a later change of the shape moves them."""
         memo = {}
         for shape in [self.tank, *self.obstacles, *(b.shape for b in self.bodies)]:
             loaded = getattr(shape, "_loaded", None)
             if loaded is not None:
                 memo[id(loaded[1])] = loaded[1]
         scene = copy.deepcopy(self, memo)
+        scene.validate()
         freeze(scene)
         return scene
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import re
 import sys
 from pathlib import Path
@@ -306,6 +307,10 @@ def load_scene(path, overrides=()) -> Scene:
     :class:`SceneFileError` with a one-line message naming the file."""
     if isinstance(overrides, str):
         overrides = [overrides]
+    if overrides is None or not all(isinstance(a, str) for a in overrides):
+        raise TypeError(f"overrides = {overrides!r}: must be KEY=VALUE strings, e.g. ['spacing=0.02']")
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"path = {path!r}: must be a scene file's path or a bundled scene's name")
     path = resolve_scene(str(path))
     try:
         data = tomllib.loads(path.read_text())

@@ -251,7 +251,7 @@ class ProbeSamples:
             self._chunks.append(rows)
             self._array = None
             if self.history is not None and len(self) > self.history:
-                self._chunks = [self.array()[-max(1, int(self.history)) :].copy()]
+                self._chunks = [self._all()[-max(1, int(self.history)) :].copy()]
                 self._array = None
             for fn in self._listeners:
                 fn(rows)
@@ -259,8 +259,17 @@ class ProbeSamples:
     def listen(self, fn) -> None:
         self._listeners.append(fn)
 
+    def clear(self) -> None:
+        """Forget every sample (a restored simulation's timeline starts anew)."""
+        self._chunks, self._array = [], None
+
     def array(self) -> np.ndarray:
-        """Every sample so far: (samples, 1 + columns), time first."""
+        """Every sample so far: (samples, 1 + columns), time first (a copy: writing into it
+        changes nothing kept here)."""
+        return self._all().copy()
+
+    def _all(self) -> np.ndarray:
+        """The samples kept, as one array (not to be handed out: callers get copies)."""
         if self._array is None:
             self._array = (
                 np.concatenate(self._chunks) if self._chunks else np.zeros((0, 1 + len(self.names)), dtype=np.float64)
@@ -270,17 +279,17 @@ class ProbeSamples:
 
     @property
     def time(self) -> np.ndarray:
-        return self.array()[:, 0]
+        return self._all()[:, 0].copy()
 
     def __getitem__(self, name: str) -> np.ndarray:
         """A column's samples, or a force probe's twelve (``NAME``: samples x 12, in the columns'
         order ``NAME.Fp_x .. NAME.Mv_z``)."""
         if name in self.names:
-            return self.array()[:, 1 + self.names.index(name)]
+            return self._all()[:, 1 + self.names.index(name)].copy()
         of_probe = self._probe_columns(name) if isinstance(name, str) else []
         if not of_probe:
             raise KeyError(f"{name!r}: no such probe or probe column ({', '.join(self.names)})")
-        return self.array()[:, of_probe]
+        return self._all()[:, of_probe]  # fancy indexing: a copy
 
     def _probe_columns(self, name) -> list[int]:
         """The log's columns of a force probe ``name`` (its twelve), or none."""
@@ -300,6 +309,6 @@ class ProbeSamples:
         return iter(self.keys())
 
     def as_dict(self) -> dict[str, np.ndarray]:
-        """``{"t": times, name: values, ...}``."""
+        """``{"t": times, name: values, ...}`` (copies)."""
         a = self.array()
         return {"t": a[:, 0], **{n: a[:, 1 + k] for k, n in enumerate(self.names)}}

@@ -19,6 +19,7 @@ from ..sph.solvers import make_solver
 from .flows import Flows
 from .graph import LoopGraph
 from .probing import ProbeSampler, ProbeSamples
+from .state_check import check_state
 from .time_loop import TimeLoop
 
 # The derived velocity limit is at least this many times the fastest point of a body at its start
@@ -27,12 +28,17 @@ from .time_loop import TimeLoop
 START_SPEED_MARGIN = 3.0
 
 
+MAX_RECORDS = 10**9  # the most records history or probe_history may keep (a deque's maxlen is a C long)
+
+
 def _count(value, name: str) -> int | None:
     """A record count (``history``, ``probe_history``): ``None`` (all) or a whole number >= 1."""
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} = {value!r}: must be None (keep every record) or a whole number >= 1")
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_RECORDS:
+        raise ValueError(
+            f"{name} = {value!r}: must be None (keep every record) or a whole number in [1, {MAX_RECORDS:g}]"
+        )
     return int(value)
 
 
@@ -73,6 +79,8 @@ class Simulation:
         emitters need (default: the scene's ``output.duration``)."""
         if not isinstance(scene, Scene):
             raise TypeError(f"scene: a Scene (or load_scene(path) of a scene file), not {type(scene).__name__}")
+        if not isinstance(graph, (bool, np.bool_)):
+            raise TypeError(f"graph = {graph!r}: must be True or False")
         history, probe_history = (
             _count(n, name) for n, name in ((history, "history"), (probe_history, "probe_history"))
         )
@@ -93,6 +101,7 @@ class Simulation:
             self.state.carry(name, array)
         self.time = 0.0
         self.step_count = 0
+        self._last = None  # the last step's dt and fastest speed, for the next step's events
         self.stats: list[dict] | deque = [] if history is None else deque(maxlen=history)
         # heights are taken against gravity, whichever way it points (y up when it has none)
         g_vector = np.asarray(self.physics.gravity, dtype=np.float64)
@@ -144,27 +153,57 @@ class Simulation:
 
     def step(self, dt: Optional[float] = None) -> dict:
         """Advance one time step (``dt``: seconds, or ``None`` for the CFL rule); returns its
-        statistics record (also appended to ``stats``)."""
+        statistics record (also appended to ``stats``). With ``physics.substeps`` (the default) a
+        ``dt`` longer than the substep rule allows now is refused (``ValueError``); a step due to
+        land on an emitter's or a sink's event is shortened to it."""
         if dt is not None and (
             isinstance(dt, bool)
             or not (isinstance(dt, (int, float, np.floating, np.integer)) and MIN_STEP <= float(dt) <= 1.0)
         ):
             raise ValueError(f"dt = {dt!r}: must be a number in [{MIN_STEP:g}, 1] seconds")
+        if dt is not None and self.physics.substeps:
+            limit = self._step_limit()
+            if float(dt) > limit * (1.0 + 1.0e-9):
+                raise ValueError(
+                    f"dt = {dt!r}: longer than one step may be now ({limit:.3g} s, in which the fastest particle, or "
+                    "the fall from the liquid's top, crosses a spacing); advance(dt) cuts it into steps, and "
+                    "physics.substeps = false takes such a step as it is"
+                )
         (record,) = self._steps(math.inf, None if dt is None else float(dt), 1)
         return record
+
+    def _step_limit(self) -> float:
+        """The longest step the substep rule lets a fixed dt take now (``step_length.choose_dt``):
+        ``h / (max(max|v|, sqrt(2) sqrt(2 g y_top)) + c)``."""
+        loop = self.loop
+        fastest = math.sqrt(max(float(loop.max_speed2.numpy()[0]), 0.0))
+        speed = max(fastest, math.sqrt(2.0) * loop.velocity_scale) + float(self.solver.signal_speed)
+        return float(self.model.spacing) / speed if speed > 0.0 else 1.0
 
     def advance(self, duration: float, callback: Optional[Callable[[dict], None]] = None) -> None:
         """Simulate ``duration`` seconds; the last step is shortened to land on the end time.
         With ``graph=True`` the steps run as replays of the recorded loop (.graph)."""
         if isinstance(duration, bool) or not (
-            isinstance(duration, (int, float, np.floating, np.integer)) and math.isfinite(duration) and duration >= 0.0
+            isinstance(duration, (int, float, np.floating, np.integer)) and 0.0 <= duration <= MAX_DURATION
         ):
-            raise ValueError(f"duration = {duration!r}: must be a finite number of seconds >= 0")
+            raise ValueError(f"duration = {duration!r}: must be a number of seconds in [0, {MAX_DURATION:g}]")
+        if callback is not None and not callable(callback):
+            raise TypeError(f"callback = {callback!r}: must be a function of a step's record, or None")
         end = self.time + float(duration)
         while self.time < end - 1e-9:
-            for record in self._steps(end):
-                if callback is not None:
+            # a replayed graph's steps are taken together: all of them are accepted (the clock and
+            # the records) before the callback sees any, so one that raises leaves the clock true
+            batch, diverged = [], None
+            try:
+                for record in self._steps(end):
+                    batch.append(record)
+            except DivergenceError as e:
+                diverged = e
+            if callback is not None:
+                for record in batch:
                     callback(record)
+            if diverged is not None:
+                raise diverged
         self.flows.drain()  # and at the end of every call: a run's frame
 
     def _steps(self, end: float, dt: Optional[float] = None, limit: Optional[int] = None):
@@ -175,9 +214,9 @@ class Simulation:
         # close would cut a sliver of a step, whose pressure kicks the next step); steps land on
         # the next ones unless they fall that close before ``end`` (then they are taken there), so
         # the plain and graph paths act alike.
-        last = self.stats[-1] if self.stats else None
-        slack = 0.25 * last["dt"] if last else 0.0
-        speed = max(last["max_velocity"] if last else 0.0, self.loop.velocity_scale)
+        last = self._last  # the last step's (dt, max_velocity): the simulation's own, not stats' (a caller's list)
+        slack = 0.25 * last[0] if last else 0.0
+        speed = max(last[1] if last else 0.0, self.loop.velocity_scale)
         self.flows.check_sinks(self.time + slack, self.time, speed)
         self.flows.emit(self.time + slack)
         event = self.flows.next_event()
@@ -203,8 +242,10 @@ class Simulation:
         end in one state)."""
         self.step_count += 1
         self.time = record["t"]
+        self._last = (record["dt"], record["max_velocity"])
         record = {"step": self.step_count, **record}
         self.stats.append(record)
+        record = dict(record)  # the caller's: a change to it never reaches stats
         reason = None
         if record["non_finite"]:
             reason = f"{record['non_finite']} particles have non-finite position or velocity"
@@ -262,11 +303,23 @@ class Simulation:
         return out
 
     def restore(self, checkpoint: dict) -> None:
-        """Continue from :meth:`checkpoint`'s arrays (``ValueError`` when they are not of this scene)."""
+        """Continue from :meth:`checkpoint`'s arrays (``ValueError`` when they are not of this
+        scene or make no sense: :mod:`.state_check`, all of it checked before anything is taken,
+        so a refused state leaves the simulation as it was). The step records and the probes'
+        samples kept so far are of the timeline left behind: they are dropped."""
+        if not isinstance(checkpoint, dict):
+            raise TypeError(f"checkpoint: a dict of arrays (Simulation.checkpoint()), not {type(checkpoint).__name__}")
         s = self.state
+        if not isinstance(checkpoint.get("x"), np.ndarray) or checkpoint["x"].ndim != 2:
+            raise ValueError("checkpoint: has no x, the particles' positions as an (N, 3) array")
         n = len(checkpoint["x"])
         if n > s.capacity or (not self.scene.emitters and not self.scene.sinks and n != s.n):
             raise ValueError(f"checkpoint: holds {n} particles, the scene makes {s.n}; its geometry changed")
+        domain = (self.model.domain_lower, self.model.domain_upper)
+        try:
+            time, steps, next_id = check_state(checkpoint, self.scene, domain, carried=list(s.carried))
+        except ValueError as e:
+            raise ValueError(f"checkpoint: {e}") from None
         if str(checkpoint["method"]) != self.physics.method:
             raise ValueError(
                 f"checkpoint: was made by {checkpoint['method']}, the scene asks for {self.physics.method}"
@@ -274,28 +327,21 @@ class Simulation:
         for name, array in s.fields().items():
             array[:n].assign(checkpoint[name])
         for name, array in s.carried.items():
-            key = f"carried_{name}"
-            if key not in checkpoint:
-                raise ValueError(f"checkpoint: has no {name} (the {self.physics.method} solver's warm start)")
-            array[:n].assign(checkpoint[key])
+            array[:n].assign(checkpoint[f"carried_{name}"])
         rigid = self.model.rigid
         if rigid is not None:
-            missing = [k for k in rigid.fields() if f"bodies_{k}" not in checkpoint]
-            if missing:
-                raise ValueError(f"checkpoint: has no bodies_{missing[0]} (the free bodies' state)")
-            shapes = {k: np.shape(checkpoint[f"bodies_{k}"]) for k in rigid.fields()}
-            if any(shape[0] != rigid.n for shape in shapes.values()):
-                raise ValueError(f"checkpoint: holds other bodies than the scene's {rigid.n}; its geometry changed")
             rigid.assign({k: checkpoint[f"bodies_{k}"] for k in rigid.fields()})
         s.count = n
-        s.next_id = int(checkpoint.get("next_id", n))
+        s.next_id = next_id
         self.flows.restore(checkpoint)
         self.loop.max_speed2.assign(checkpoint["max_speed2"])
         if "sub_left" in checkpoint:  # a fixed step being cut into substeps (older checkpoints: none)
             self.loop.sub_left.assign(checkpoint["sub_left"])
             self.loop.sub_done.assign(checkpoint["sub_done"])
-        self.time = float(checkpoint["time"])
-        self.step_count = int(checkpoint["step_count"])
+        self.time, self.step_count = time, steps
+        self.stats.clear()
+        self.probes.clear()
+        self._last = None
 
     # NumPy accessors, in original particle order.
     @property
