@@ -813,6 +813,12 @@ def test_the_api_refuses_what_it_cannot_do_and_keeps_its_own_state():
             Simulation(_tiny(), graph=bad)
     with pytest.raises(ValueError, match="history = .*: must be None"):
         Simulation(_tiny(), history=10**30)
+    with pytest.raises(TypeError, match=r"lower = 5: must be three numbers"):
+        _tiny().add_fluid_box(5, (0.1, 0.1, 0.1))
+    from warp_iisph import scenes
+
+    with pytest.raises(ValueError, match=r"particles = 0: must be a whole number in \[1, 1e9\]"):
+        scenes.dam_break_cube(particles=0)  # was a ZeroDivisionError
     graph = Simulation(_tiny(), graph=True)
     graph.advance(0.01)
 

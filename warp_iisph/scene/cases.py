@@ -29,6 +29,8 @@ def dam_break_cube(spacing: float = 0.03, particles: int | None = None, **physic
     keeps its 0.96 m side and the spacing is chosen to hold about that many particles."""
     side = 32 * spacing
     if particles is not None:
+        if isinstance(particles, bool) or not isinstance(particles, int) or not 1 <= particles <= 10**9:
+            raise ValueError(f"particles = {particles!r}: must be a whole number in [1, 1e9]")
         side = 0.96
         spacing = side / round(particles ** (1.0 / 3.0))
     scene = Scene(

@@ -25,6 +25,14 @@ from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, Fluid, MeshShape, Obstacle, Sphere, contains
 
 
+def _corner(value, name: str) -> tuple:
+    """A point given to a builder, as a tuple (validation checks its numbers later); a scalar or a
+    string is refused here, naming the argument."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise TypeError(f"{name} = {value!r}: must be three numbers [x, y, z]")
+    return tuple(value)
+
+
 @dataclass
 class Scene(Record):
     """A tank holding fluid blocks, with optional obstacles.
@@ -54,11 +62,11 @@ class Scene(Record):
     bodies: list = field(default_factory=list)
 
     def add_fluid_box(self, lower, upper) -> "Scene":
-        self.fluids.append(Box(tuple(lower), tuple(upper)))
+        self.fluids.append(Box(_corner(lower, "lower"), _corner(upper, "upper")))
         return self
 
     def add_fluid_sphere(self, center, radius) -> "Scene":
-        self.fluids.append(Sphere(tuple(center), radius))
+        self.fluids.append(Sphere(_corner(center, "center"), radius))
         return self
 
     def add_obstacle(self, shape: Obstacle) -> "Scene":
