@@ -808,6 +808,8 @@ def test_the_api_refuses_what_it_cannot_do_and_keeps_its_own_state():
     record = sim.step()
     record["dt"] = 10.0
     assert sim.stats[-1]["dt"] != 10.0
+    with pytest.raises(TypeError, match="cannot be pickled or copied; keep sim.checkpoint"):
+        copy.deepcopy(sim)  # was a ctypes error
     for bad in ("yes", 1):
         with pytest.raises(TypeError, match="graph = .*: must be True or False"):
             Simulation(_tiny(), graph=bad)

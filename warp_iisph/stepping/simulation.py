@@ -146,6 +146,12 @@ class Simulation:
         # same step body from Python, times every stage, and is the reference the graph is tested against
         self.graph = LoopGraph(self.loop) if graph else None
 
+    def __reduce_ex__(self, protocol):
+        raise TypeError(
+            "a Simulation holds its state on a Warp device and cannot be pickled or copied; keep "
+            "sim.checkpoint() and restore() it into a Simulation of the same scene"
+        )
+
     @property
     def n_particles(self) -> int:
         """Fluid particles now (emitters add, sinks remove)."""
@@ -368,6 +374,8 @@ class Simulation:
     def bodies(self) -> dict:
         """The free bodies now: ``position`` (centre of mass, m), ``orientation`` (unit quaternion
         x, y, z, w), ``velocity`` (m/s), ``spin`` (angular velocity, rad/s), ``momentum``
-        (angular, kg m^2/s), ``acceleration``, ``angular_acceleration``: arrays of one row per
-        body (none without bodies)."""
+        (angular, kg m^2/s), ``acceleration``, ``angular_acceleration`` (m/s^2, rad/s^2, the
+        last step's, contacts included), ``coupled``, ``coupled_angular`` (the last step's
+        accelerations by the liquid and gravity alone, which the next step's added mass takes):
+        arrays of one row per body (none without bodies)."""
         return self.model.rigid.host() if self.model.rigid is not None else {}
