@@ -74,11 +74,18 @@ class Motion(Record):
     def end(self) -> float:
         return float(self.times[-1])
 
+    def _keys(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The key times, translations and angles as arrays, a key list left empty as zeros (what
+        :meth:`validate` makes of it: a motion read before its scene is validated reads the same)."""
+        t = np.asarray(self.times, dtype=np.float64)
+        tr, rot = (np.asarray(v, float) if len(v) else np.zeros((len(t), 3)) for v in (self.translate, self.rotate))
+        return t, tr, rot
+
     def slopes(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-key slopes of translation and angles (zero for linear, which needs none)."""
-        t = np.asarray(self.times)
+        t, tr, rot = self._keys()
         out = []
-        for v in (np.asarray(self.translate, float), np.asarray(self.rotate, float)):
+        for v in (tr, rot):
             m = np.zeros_like(v)
             if self.interpolation == "smooth" and len(t) > 2:
                 m[1:-1] = (v[2:] - v[:-2]) / (t[2:] - t[:-2])[:, None]
@@ -87,8 +94,7 @@ class Motion(Record):
 
     def at(self, time: float) -> tuple[np.ndarray, np.ndarray]:
         """Translation (m) and angles (degrees) at ``time``."""
-        t = np.asarray(self.times)
-        tr, rot = np.asarray(self.translate, float), np.asarray(self.rotate, float)
+        t, tr, rot = self._keys()
         if time <= t[0] or len(t) == 1:
             return tr[0].copy(), rot[0].copy()
         if time >= t[-1]:

@@ -83,7 +83,7 @@ def check_state(state: dict, scene, domain=None, carried=()) -> tuple[float, int
         raise ValueError(f"id: {n} particle ids must be distinct and in [0, next_id = {next_id})")
     for name in carried:
         if f"carried_{name}" not in state:
-            raise ValueError(f"has no carried_{name} (the {method} solver's warm start)")
+            raise ValueError(f"has no {name} (the {method} solver's warm start)")
     for key in [k for k in state if k.startswith("carried_")]:
         array(state, key, (n,))
     if np.any(array(state, "max_speed2", (1,)) < 0.0):
