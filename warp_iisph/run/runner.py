@@ -410,7 +410,10 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
                 f"--set {key}: a resumed run keeps its particles; "
                 f"only physics, output, surface and camera keys may change"
             )
-        apply_override(data, assignment)
+        try:
+            apply_override(data, assignment)
+        except ValueError as e:  # the override's own fault, said with the record it changes
+            raise type(e)(f"{run.record_path}, {e}") from None
     try:
         return scene_from_dict(data, default_name=run.path.name)
     except ValueError as e:
