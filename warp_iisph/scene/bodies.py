@@ -23,7 +23,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from .checks import MAX_COORDINATE, Record, floats, in_range, magnitude, position, vec3
+from .checks import MAX_COORDINATE, Record, floats, in_range, magnitude, position, shown, vec3
 from .shapes import Box, MeshShape, Sphere, contains, placement, shape_mesh
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
@@ -228,8 +228,8 @@ def _plausible_inertia(body: Body, name: str) -> None:
     most = mass * float(np.sum((hi - lo) ** 2))
     if np.any(moments < least * (1.0 - 1.0e-9)) or moments[-1] > most:
         raise ValueError(
-            f"{name} = {list(body.inertia)}: principal moments {_g3(moments)} kg m^2 must be at least "
-            f"{_g3(least)} (the shape at a uniform {DENSITY_RANGE[0]:g} kg/m^3, the least density a body may "
+            f"{name} = {list(body.inertia)}: principal moments {shown(moments, 3)} kg m^2 must be at least "
+            f"{shown(least, 3)} (the shape at a uniform {DENSITY_RANGE[0]:g} kg/m^3, the least density a body may "
             f"have) and at most {most:.3g} (its mass {mass:.3g} kg at its bounds' diagonal)"
         )
 
@@ -274,10 +274,6 @@ def bodies_in_liquid(bodies: list, fluids: list) -> list[str]:
                 )
                 break
     return out
-
-
-def _g3(values) -> str:
-    return "[" + ", ".join(f"{v:.3g}" for v in values) + "]"
 
 
 def thinnest(shape) -> float:

@@ -101,6 +101,11 @@ def _number(value) -> float:
     return float(value)
 
 
+def shown(values, digits: int = 4) -> str:
+    """Numbers for a message, ``[a, b, c]`` to ``digits`` significant digits."""
+    return "[" + ", ".join(f"{float(v):.{digits}g}" for v in values) + "]"
+
+
 def floats(values) -> tuple:
     """Plain Python floats (NumPy's scalars would print as np.float64(...) in messages and files)."""
     return tuple(float(v) for v in values)

@@ -24,7 +24,7 @@ from typing import Optional, Union
 import numpy as np
 
 from .bodies import body_names
-from .checks import Record, floats, in_range, position, unit
+from .checks import Record, floats, in_range, position, shown, unit
 from .shapes import MeshShape, contains
 
 PROBE_KINDS = ("pressure", "level", "force")
@@ -199,14 +199,14 @@ def _reach(p: Probe, where: str, tank, obstacles: list, h: float) -> None:
         if np.any(q < lo - 1e-9) or np.any(q > hi + 1e-9) or (mesh_tank and not contains(tank, q)[0]):
             raise ValueError(
                 f"{where}.position = {list(p.position)}: half a spacing along its normal {list(p.normal)} it "
-                f"reads at {_g3(q)}, outside the tank; a sensor sits on a wall's face with its normal into "
+                f"reads at {shown(q)}, outside the tank; a sensor sits on a wall's face with its normal into "
                 "the liquid"
             )
         for k, o in enumerate(obstacles):
             if o.motion is None and contains(o, q)[0]:
                 raise ValueError(
                     f"{where}.position = {list(p.position)}: half a spacing along its normal {list(p.normal)} it "
-                    f"reads at {_g3(q)}, inside obstacles[{k}]; a sensor sits on a wall's face with its normal "
+                    f"reads at {shown(q)}, inside obstacles[{k}]; a sensor sits on a wall's face with its normal "
                     "into the liquid"
                 )
     elif p.kind == "level" and mesh_tank:
@@ -217,10 +217,6 @@ def _reach(p: Probe, where: str, tank, obstacles: list, h: float) -> None:
                 f"{where}.position = {list(p.position)}: the column at [x, z] misses the tank's mesh (it lies "
                 "inside the tank's box only); a gauge stands where the liquid can be"
             )
-
-
-def _g3(values) -> str:
-    return "[" + ", ".join(f"{v:.4g}" for v in values) + "]"
 
 
 def sampled_groups(probes) -> tuple[list[Probe], list[Probe], list[Probe], list[Probe]]:
