@@ -24,7 +24,7 @@ from .. import __version__
 from ..scene import scene_fingerprint
 from ..scene.settings import MIN_STEP
 from ..setup.model import PARTICLE_FIELDS
-from ..stepping.state_check import check_state, scalar
+from ..stepping.state_check import check_state, outside, scalar
 from .atomic import staged_write
 from .folder import RunError, RunFolder
 
@@ -153,7 +153,5 @@ def check_checkpoint(state: dict, run: RunFolder, record: dict, scene, fps: floa
 
 def check_positions(state: dict, run: RunFolder, domain) -> None:
     """``RunError`` when the checkpoint's particles lie outside the scene's domain (lower, upper)."""
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in domain)
-    x = state["x"]
-    if len(x) and (np.any(x < lo) or np.any(x > hi)):
+    if outside(state["x"], domain):
         raise RunError(f"{run.checkpoint}: holds particles outside the tank; not a checkpoint of this scene")

@@ -191,8 +191,14 @@ def run_scene(
     first step: a refusal never follows what it says."""
     from ..stepping import Simulation
 
-    flags = {"overwrite": overwrite, "progress": progress, "graph": graph, "background_output": background_output}
-    for name, value in {**flags, "resume": resume}.items():
+    flags = {
+        "overwrite": overwrite,
+        "progress": progress,
+        "graph": graph,
+        "background_output": background_output,
+        "resume": resume,
+    }
+    for name, value in flags.items():
         if not isinstance(value, bool):
             raise TypeError(f"{name} = {value!r}: must be True or False")
     plan = plan_frames(scene, duration, fps)

@@ -16,7 +16,6 @@ test's release, or a crate dropped once the water has calmed.
 
 from __future__ import annotations
 
-import dataclasses
 import re
 from dataclasses import dataclass, field
 from typing import Optional, Union
@@ -24,7 +23,7 @@ from typing import Optional, Union
 import numpy as np
 
 from .checks import MAX_COORDINATE, Record, floats, in_range, magnitude, position, shown, vec3
-from .shapes import Box, MeshShape, Sphere, contains, placement, shape_mesh
+from .shapes import Box, MeshShape, Sphere, contains, enclosed, placement, shape_mesh
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 NAME = re.compile(r"[A-Za-z0-9_]{1,64}")  # a body's name: bodies.csv's columns and force probes' ``body``
@@ -221,7 +220,7 @@ def _plausible_inertia(body: Body, name: str) -> None:
     step meets a body far lighter than the liquid it moves (a 1e-15 kg m^2 box diverged in one
     step); above, no body of that mass and size exists."""
     volume, _, unit = _uniform(body.shape)
-    mass, com, _ = body.mass_properties()
+    mass = body.mass if body.mass is not None else body.density * volume
     moments = np.linalg.eigvalsh(_tensor(body.inertia))
     least = DENSITY_RANGE[0] * volume * np.linalg.eigvalsh(unit)
     lo, hi = body.shape.bounds
@@ -266,7 +265,7 @@ def bodies_in_liquid(bodies: list, fluids: list) -> list[str]:
         lo, hi = b.bounds
         for j, f in enumerate(fluids):
             f_lo, f_hi = f.bounds
-            if np.all(lo >= np.asarray(f_lo) - 1e-9) and np.all(hi <= np.asarray(f_hi) + 1e-9):
+            if np.all(lo >= f_lo - 1e-9) and np.all(hi <= f_hi + 1e-9):
                 out.append(
                     f"bodies[{k}] starts under the liquid of fluids[{j}], free: the liquid beside its edges is left "
                     "out at the start, and until it fills those holes it hardly holds the body, which sinks into "
@@ -325,7 +324,7 @@ def check_bodies(bodies: list, obstacles: list, tank, spacing: float) -> None:
                 + ("" if bodies[k].name else " (the default of an unnamed body: bodyK, K its place)")
             )
     if not isinstance(tank, Box):  # a container mesh: the body inside its walls, not only its box
-        closed = dataclasses.replace(tank, shell=False) if getattr(tank, "shell", False) else tank  # encloses
+        closed = enclosed(tank)
         for k, b in enumerate(bodies):
             if not np.all(contains(closed, _samples(b.shape))):
                 raise ValueError(f"bodies[{k}]: must lie inside the tank's mesh where the scene places it")

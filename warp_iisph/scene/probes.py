@@ -16,7 +16,6 @@ is :func:`probe_columns`. No Warp here.
 
 from __future__ import annotations
 
-import dataclasses
 import re
 from dataclasses import dataclass
 from typing import Optional, Union
@@ -25,7 +24,7 @@ import numpy as np
 
 from .bodies import body_names
 from .checks import Record, floats, in_range, position, shown, unit
-from .shapes import MeshShape, contains
+from .shapes import MeshShape, contains, enclosed
 
 PROBE_KINDS = ("pressure", "level", "force")
 # the keys each kind takes besides name and kind
@@ -192,8 +191,7 @@ def _reach(p: Probe, where: str, tank, obstacles: list, h: float) -> None:
     beside its walls). Where an obstacle moves, it may uncover the point later: not checked."""
     lo, hi = tank.bounds
     mesh_tank = isinstance(tank, MeshShape)
-    if mesh_tank and tank.shell:  # an open container's walls enclose what its closed surface does
-        tank = dataclasses.replace(tank, shell=False)
+    tank = enclosed(tank)
     if p.kind == "pressure":
         q = np.asarray(p.position) + 0.5 * h * np.asarray(p.normal)
         if np.any(q < lo - 1e-9) or np.any(q > hi + 1e-9) or (mesh_tank and not contains(tank, q)[0]):

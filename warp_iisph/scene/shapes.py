@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass
@@ -224,6 +225,12 @@ def placement(shape, time: float) -> np.ndarray:
     lo, hi = shape.bounds
     pivot = shape.motion.pivot if shape.motion.pivot is not None else 0.5 * (lo + hi)
     return shape.motion.matrix(time, np.asarray(pivot, dtype=np.float64))
+
+
+def enclosed(shape):
+    """The shape as a closed surface: an open ``shell`` mesh (a container) as the closed mesh it
+    is made of, so that :func:`contains` finds what its walls hold; any other shape as it is."""
+    return dataclasses.replace(shape, shell=False) if getattr(shape, "shell", False) else shape
 
 
 def contains(shape, points, time: float = 0.0) -> np.ndarray:

@@ -36,8 +36,6 @@ BODY_KEYS = {
 def scalar(state: dict, key: str, kind: str):
     """``state[key]`` as one value of ``kind`` (``"int"``, or NumPy's kind letters: ``"f"``, ``"U"``)."""
     a = np.asarray(state[key])
-    if a.dtype.kind == "i" and kind == "f":  # a whole number of seconds is a time too
-        a = a.astype(np.float64)
     if a.shape != () or not (np.issubdtype(a.dtype, np.integer) if kind == "int" else a.dtype.kind in kind):
         raise ValueError(f"{key} is {a.dtype}{list(a.shape)}, not one {'integer' if kind == 'int' else 'value'}")
     return a.item()
@@ -110,8 +108,12 @@ def check_state(state: dict, scene, domain=None, carried=()) -> tuple[float, int
             raise ValueError("flows_next_check must be >= 0")
         if np.any(array(state, "flows_counts", (4,), integer=True) < 0):
             raise ValueError("flows_counts must be >= 0")
-    if domain is not None:
-        lo, hi = (np.asarray(b, dtype=np.float64) for b in domain)
-        if n and (np.any(x < lo) or np.any(x > hi)):
-            raise ValueError("holds particles outside the scene's domain; not a state of this scene")
+    if domain is not None and outside(x, domain):
+        raise ValueError("holds particles outside the scene's domain; not a state of this scene")
     return float(time), int(steps), int(next_id)
+
+
+def outside(x: np.ndarray, domain) -> bool:
+    """Whether any of the positions ``x`` lies outside ``domain``, ``(lower, upper)``."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in domain)
+    return bool(len(x)) and bool(np.any(x < lo) or np.any(x > hi))
