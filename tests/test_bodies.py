@@ -270,6 +270,36 @@ def test_a_body_free_in_the_liquid_at_the_start_is_warned_of():
         assert bodies_in_liquid(bundled.bodies, bundled.fluids) == [], name
 
 
+def test_a_light_body_starting_in_the_liquid_at_a_wall_is_warned_of():
+    """No particle of liquid fits in a gap under a spacing (a sphere's under half a spacing, its
+    footprint a point): the liquid's pressure is missing there and a light body is held to the
+    wall (docs/scenes.md, "Bodies": a box of 500 kg/m^3 stayed on the floor from a gap of h/2 and
+    rose from h). Heavy bodies, dry ones a wave reaches and the bundled scenes are not warned of."""
+    from warp_iisph.scene.bodies import bodies_at_walls
+
+    h, tank, water = 0.025, Box((0, 0, 0), (0.4, 0.4, 0.4)), [Box((0, 0, 0), (0.4, 0.25, 0.4))]
+
+    def warned(shape, density=500.0, fluids=water):
+        body = Body(shape, density=density)
+        body.validate("bodies[0]")
+        return bodies_at_walls([body], fluids, tank, h, 1000.0)
+
+    (warning,) = warned(Box((0.12, 0.0125, 0.12), (0.28, 0.1125, 0.28)))
+    assert warning.startswith("bodies[0] starts in the liquid, lighter than it, 0.0125 m from the tank's lower y face")
+    assert "under a spacing (0.025 m)" in warning
+    (warning,) = warned(Box((0.0, 0.1, 0.12), (0.16, 0.2, 0.28)))  # against a side wall
+    assert "0 m from the tank's lower x face" in warning
+    assert warned(Box((0.12, 0.025, 0.12), (0.28, 0.125, 0.28))) == []  # a spacing clear
+    assert warned(Box((0.12, 0.0, 0.12), (0.28, 0.1, 0.28)), density=2000.0) == []  # it sinks anyway
+    assert warned(Box((0.12, 0.0, 0.12), (0.28, 0.1, 0.28)), fluids=[Box((0, 0, 0), (0.1, 0.2, 0.4))]) == []  # dry
+    (warning,) = warned(Sphere((0.2, 0.09, 0.2), 0.08), density=900.0)
+    assert "0.01 m from the tank's lower y face, under half a spacing (0.0125 m)" in warning
+    assert warned(Sphere((0.2, 0.0925, 0.2), 0.08), density=900.0) == []
+    for name in ("flood", "heave"):
+        s = load_scene(name)
+        assert bodies_at_walls(s.bodies, s.fluids, s.tank, s.spacing, s.physics.rho0) == [], name
+
+
 def test_mass_properties_from_the_shape():
     box = Body(Box((0.0, 0.0, 0.0), (0.2, 0.1, 0.4)), density=500.0)
     box.validate("b")

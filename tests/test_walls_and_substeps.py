@@ -313,12 +313,13 @@ def test_a_liquid_too_small_for_the_default_viscosity_is_warned_about():
         assert reynolds is None or reynolds > 25.0, name
 
 
-def test_a_box_of_liquid_its_whole_layers_fill_short_is_warned_of():
+def test_a_block_of_liquid_its_lattice_fills_short_or_over_is_warned_of():
     """A box holds the whole layers of the spacing that fit: 5 cm of water at 2 cm is 4 cm, 20 %
-    short; below 90 % the run's warnings say so, naming the block; no bundled scene is."""
-    from warp_iisph.run.run_record import lattice_shortfalls
+    short; below 90 % the run's warnings say so, naming the block (exactly 90 % is not below); a
+    sphere outside 90-110 % too; no bundled scene is."""
     from warp_iisph.scene import scene_to_dict
     from warp_iisph.scene.library import bundled_scenes
+    from warp_iisph.setup.fill import lattice_shortfalls, sphere_share
 
     shallow = {"lower": [0.0, 0.0, 0.0], "upper": [0.2, 0.05, 0.2]}
     ball = {"center": [0.5, 0.5, 0.5], "radius": 0.1}
@@ -326,6 +327,14 @@ def test_a_box_of_liquid_its_whole_layers_fill_short_is_warned_of():
     assert warning.startswith("fluids[1]: whole layers of spacing = 0.02 m fill only 80 % of it (0.2 x 0.04 x 0.2 m")
     assert "20 % short" in warning
     assert lattice_shortfalls({"spacing": 0.025, "fluids": [shallow]}) == []  # two whole layers
+    assert lattice_shortfalls({"spacing": 0.03, "fluids": [{"lower": [0, 0, 0], "upper": [0.2, 0.03, 0.03]}]}) == []
+    # a sphere holds the lattice points within its radius: over or short by the shells it cuts
+    over = {"center": [0.3, 0.3, 0.3], "radius": 0.123}
+    (warning,) = lattice_shortfalls({"spacing": 0.05, "fluids": [over]})
+    assert warning.startswith("fluids[0]: the lattice of spacing = 0.05 m holds 130 % of this sphere's volume")
+    assert "30 % over; a radius of 0.1194 m holds its volume within 1 %" in warning
+    assert sphere_share(over["center"], 0.1194, 0.05) == pytest.approx(1.0, abs=0.01)
+    assert lattice_shortfalls({"spacing": 0.02, "fluids": [ball]}) == []  # 93 %
     for name in bundled_scenes():
         assert lattice_shortfalls(scene_to_dict(load_scene(name))) == [], name
 

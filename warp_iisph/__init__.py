@@ -11,7 +11,21 @@ __version__ = "0.1.0"
 # Everything is imported when first asked for, so that importing the package costs nothing: the
 # command line (warp_iisph.cli) takes over Ctrl-C first, and starts (or reports bad input) before
 # NumPy and Warp load.
-_SCENE = ("Body", "Box", "Camera", "MeshShape", "Output", "Physics", "Probe", "Scene", "Sphere", "load_scene")
+_SCENE = (
+    "Body",
+    "Box",
+    "Camera",
+    "Emitter",
+    "MeshShape",
+    "Motion",
+    "Output",
+    "Physics",
+    "Probe",
+    "Scene",
+    "Sink",
+    "Sphere",
+    "load_scene",
+)
 _STEPPING = ("Simulation", "DivergenceError", "LiquidFullWarning")
 
 

@@ -171,14 +171,16 @@ def _run(args) -> int:
     else:
         scene = load_scene(args.scene, overrides)
         out, source = args.out or f"runs/{scene.name}", resolve_scene(args.scene)
-    from ..run.run_record import lattice_shortfalls
     from ..scene import scene_to_dict
-    from ..scene.bodies import bodies_in_liquid, thin_bodies
+    from ..scene.bodies import bodies_at_walls, bodies_in_liquid, thin_bodies
+    from ..setup.fill import lattice_shortfalls, nozzle_flows
 
     # said before a long run starts (once its scene is built: a refusal stays one line), not only
     # in the warnings it ends with
-    early = lattice_shortfalls(scene_to_dict(scene)) + thin_bodies(scene.bodies, scene.spacing)
+    table = scene_to_dict(scene)
+    early = lattice_shortfalls(table) + nozzle_flows(table) + thin_bodies(scene.bodies, scene.spacing)
     early += bodies_in_liquid(scene.bodies, scene.fluids)
+    early += bodies_at_walls(scene.bodies, scene.fluids, scene.tank, scene.spacing, scene.physics.rho0)
 
     def say_early() -> None:
         for warning in early:
@@ -222,7 +224,7 @@ def _run(args) -> int:
         f"{_frames(t['frames'])} of {wrote}, {t.get('particles', record['particles']['fluid'])} particles"
         + (
             f" ({t['emitted']} emitted, {t['removed']} removed by sinks"
-            + (f", {t['blocked']} not emitted: liquid at the nozzle" if t.get("blocked") else "")
+            + (f", {t['blocked']} blocked: liquid at the nozzle" if t.get("blocked") else "")
             + ")"
             if "emitted" in t
             else ""

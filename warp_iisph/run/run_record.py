@@ -14,7 +14,8 @@ import numpy as np
 from .. import __version__
 from ..engine.timing import StageTimes
 from ..scene import scene_to_dict
-from ..scene.shapes import whole_layers
+from ..setup.fill import lattice_shortfalls, nozzle_flows
+from ..stepping.flows import BLOCKED
 from .folder import new_run_id
 from .frame_queue import FrameQueue
 
@@ -217,45 +218,29 @@ def liquid_reynolds(scene: dict) -> float | None:
     return math.sqrt(g * height) * height / nu
 
 
-# A box of liquid whose whole layers of the spacing hold less than this share of it is warned of.
-LATTICE_SHARE = 0.9
-
-
-def lattice_shortfalls(scene: dict) -> list[str]:
-    """For each box of liquid in a scene table that its lattice fills to less than
-    :data:`LATTICE_SHARE` (a box holds the whole layers of the spacing that fit along each side:
-    0.05 m of water at 0.02 m is two layers, 0.04 m), one sentence naming it."""
-    h = scene.get("spacing")
-    out = []
-    for k, f in enumerate(scene.get("fluids") or ()):
-        if not h or "lower" not in f or "upper" not in f:
-            continue
-        sides = [b - a for a, b in zip(f["lower"], f["upper"])]
-        filled = [h * whole_layers(s, h) for s in sides]
-        share = math.prod(filled) / math.prod(sides) if math.prod(sides) > 0.0 else 1.0
-        if share < LATTICE_SHARE:
-            out.append(
-                f"fluids[{k}]: whole layers of spacing = {h:g} m fill only {100 * share:.0f} % of it "
-                f"({' x '.join(f'{v:g}' for v in filled)} m of its {' x '.join(f'{v:g}' for v in sides)} m): the "
-                f"liquid started {100 * (1 - share):.0f} % short; sides that are whole numbers of spacings keep it "
-                "all (docs/scenes.md, Fluid blocks)"
-            )
-    return out
-
-
 def run_warnings(record: dict) -> list[str]:
     """What a finished run's record (``run.json``: its totals and its scene's physics) says its
-    user should know, one sentence each: particles the emitters could not add, steps that stopped
+    user should know, one sentence each: particles the emitters could not add, layers liquid at
+    a nozzle blocked, steps that stopped
     at ``max_iterations``, a density held looser than asked (a step too long for the pressure
     solve, which the solve's own criterion, met on the linearised prediction, does not see),
     pressure probes read beside Akinci's walls (whose wall layer carries up to twice the pressure),
-    and boxes of liquid that whole layers of the spacing fill to less than 90 %."""
+    blocks of liquid and nozzles whose lattice holds less than 90 % or more than 110 % of them
+    (:mod:`warp_iisph.setup.fill`)."""
     t, ph = record["totals"], record["scene"]["physics"]
     warnings = []
     if t.get("not_emitted"):
         warnings.append(
             f"the emitters could not add {t['not_emitted']} particles: the liquid reached its capacity of "
             f"{record['particles']['capacity']} (raise max_particles)"
+        )
+    if t.get("blocked"):
+        due = t["emitted"] + t["blocked"] + t.get("not_emitted", 0)
+        warnings.append(
+            f"the emitters poured {100 * t['emitted'] / due:.0f} % of their layers: {t['blocked']} particles were "
+            f"blocked, their layers due while liquid sat at the nozzle (within {BLOCKED:g} spacings of a new "
+            "particle); a nozzle under the liquid's surface, or one its own stream falls back onto, pours "
+            "little or nothing (docs/scenes.md, Emitters)"
         )
     if t["unconverged_steps"]:
         warnings.append(
@@ -293,7 +278,7 @@ def run_warnings(record: dict) -> list[str]:
             f"Akinci's wall pressure ({walls}) carries up to twice the hydrostatic pressure: at rest such a "
             "sensor reads about a third high; IISPH's default (extrapolated) walls read within a few per cent"
         )
-    return warnings + lattice_shortfalls(record["scene"])
+    return warnings + lattice_shortfalls(record["scene"]) + nozzle_flows(record["scene"])
 
 
 def _stage_seconds(times: StageTimes, mesher, queue: FrameQueue) -> dict:

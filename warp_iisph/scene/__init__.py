@@ -7,6 +7,7 @@ from .description import Scene
 from .file import load_scene, scene_fingerprint, scene_from_dict, scene_to_dict
 from .flows import Emitter, Sink
 from .library import bundled_scenes, resolve_scene
+from .motion import Motion
 from .probes import Probe
 from .settings import Camera, Output, Physics, SurfaceSettings
 from .shapes import Box, MeshShape, Sphere, obstacles_mesh, shape_mesh
@@ -17,6 +18,7 @@ __all__ = [
     "Camera",
     "Emitter",
     "MeshShape",
+    "Motion",
     "Sink",
     "Output",
     "Physics",
