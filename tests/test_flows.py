@@ -144,25 +144,36 @@ def test_particle_frames_hold_each_particles_own_id(tmp_path):
     np.testing.assert_allclose(frame["x"], sim.positions, atol=1e-4)
 
 
-def test_an_emitter_under_the_liquid_is_blocked_not_forced_in():
-    """A nozzle inside a full tank: a layer there would overlap the liquid (and the pressure
-    solve would blow the two apart), so each one due is skipped and counted, and the water
-    stays at rest; the same nozzle above the water emits every layer."""
+def test_an_emitter_under_the_liquid_pours_from_a_wall_and_is_blocked_in_open_water():
+    """A layer is never forced into the liquid (the pressure solve would blow the two apart): one
+    due where liquid sits is skipped and counted. The liquid just in front of a pouring nozzle moves
+    with its stream, so a nozzle in a wall under the surface pushes the liquid away and pours every
+    layer but its first (where the liquid starts); one in open water, the liquid behind it flowing
+    into its mouth, stays blocked, and once its first layers have pushed what sat at it does not
+    stir the water (no pump that moves liquid without pouring any). Above the water a nozzle pours
+    every layer."""
 
-    def tank(nozzle_y):
+    def tank(nozzle, direction=(0.0, -1.0, 0.0)):
         scene = Scene(spacing=H, tank=Box((0, 0, 0), (0.3, 0.4, 0.2)), name="submerged")
         scene.add_fluid_box((0, 0, 0), (0.3, 0.2, 0.2))
-        scene.add_emitter(
-            Emitter(center=(0.15, nozzle_y, 0.1), direction=(0.0, -1.0, 0.0), speed=0.5, radius=0.03, end=0.2)
-        )
+        scene.add_emitter(Emitter(center=nozzle, direction=direction, speed=0.5, radius=0.03, end=0.2))
         return scene
 
-    under = Simulation(tank(0.1), "cpu")
-    n0 = under.n_particles
-    under.advance(0.2)
-    assert under.n_particles == n0 and under.flows.emitted == 0 and under.flows.blocked > 0
-    assert max(s["max_velocity"] for s in under.stats) < 0.2  # no layer forced in: no burst
-    above = Simulation(tank(0.35), "cpu")
+    def run(scene):
+        sim = Simulation(scene, "cpu")
+        n0 = sim.n_particles
+        sim.advance(0.4)
+        late = [s["max_velocity"] for s in sim.stats if s["t"] > 0.3]
+        return sim, n0, max(s["max_velocity"] for s in sim.stats), max(late)
+
+    wall, n0, fastest, _ = run(tank((0.01, 0.1, 0.1), direction=(1.0, 0.0, 0.0)))
+    layer, due = wall.flows.layers[0].shape[0], round(0.2 / (H / 0.5))
+    assert wall.flows.blocked == layer and wall.flows.emitted == (due - 1) * layer
+    assert wall.n_particles == n0 + wall.flows.emitted and fastest < 2.0 * 0.5  # no burst
+    under, n0, fastest, late = run(tank((0.15, 0.1, 0.1)))
+    assert under.n_particles == n0 and under.flows.emitted == 0 and under.flows.blocked == due * layer
+    assert fastest < 1.5 * 0.5 and late < 0.15  # pushed by its first layers' stream, then still
+    above = Simulation(tank((0.15, 0.35, 0.1)), "cpu")
     above.advance(0.2)
     assert above.flows.blocked == 0 and above.flows.emitted > 0
 

@@ -239,8 +239,8 @@ def run_warnings(record: dict) -> list[str]:
         warnings.append(
             f"the emitters poured {100 * t['emitted'] / due:.0f} % of their layers: {t['blocked']} particles were "
             f"blocked, their layers due while liquid sat at the nozzle (within {BLOCKED:g} spacings of a new "
-            "particle); a nozzle under the liquid's surface, or one its own stream falls back onto, pours "
-            "little or nothing (docs/scenes.md, Emitters)"
+            "particle); a nozzle under the liquid's surface with no wall behind it pours nothing, one its own "
+            "stream falls back onto part of its layers (docs/scenes.md, Emitters)"
         )
     if t["unconverged_steps"]:
         warnings.append(

@@ -1,9 +1,11 @@
 """Liquid entering and leaving during a run: emitters add a layer of particles at their nozzle
 each time the last layer has moved one spacing, unless liquid sits at the nozzle (a particle
 closer than :data:`BLOCKED` spacings to a new one: the layer would overlap it and the pressure
-solve would blow the two apart), when the layer is skipped and counted; sinks remove the
-particles inside them, often enough that none crosses one unseen: between checks the fastest
-particle moves at most half the smallest sink's thinnest side.
+solve would blow the two apart), when the layer is skipped and counted; the liquid just in front
+of a pouring nozzle moves with its stream every step (:func:`drive`), so that it pushes the liquid
+beyond away and its next layer finds room; sinks remove the particles inside them, often enough
+that none crosses one unseen: between checks the fastest particle moves at most half the smallest
+sink's thinnest side.
 
 Emission and removal happen between steps, so a step (or a replayed graph of steps) always
 sees one particle count; the time loop is told when the next layer or sink check is due (steps
@@ -23,11 +25,21 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 
-# A liquid particle this close to a new one (in spacings) blocks the nozzle. A stream leaving at
-# its speed has moved one spacing when the next layer is due, so it does not block itself; one
-# slowed below sqrt(2 g h) (a slow jet upwards) has moved less than 0.75 h by then, and every
-# other layer is skipped: what it can push out is about what is emitted.
+# A liquid particle this close to a new one (in spacings) blocks the nozzle: the layer would overlap
+# it and the pressure solve would blow the two apart.
 BLOCKED = 0.75
+# The liquid up to this far in front of a pouring nozzle (in spacings: one kernel support) and
+# within MARGIN beside and behind its layer moves with the stream (:func:`drive`), as the liquid
+# leaving a pipe does: it pushes the liquid in front away, so a nozzle in a wall under the surface
+# pours (all but its first layer, where the liquid starts), and what falls back onto a nozzle is
+# pushed off. MARGIN is over BLOCKED: what could block the next layer moves on before it is due.
+DRIVEN = 2.0
+MARGIN = 1.0
+# A nozzle drives only while it pours (its last layer due came in), or until this many layers have
+# been due from a nozzle that has poured none (what sat at it from the start is pushed off): one
+# whose mouth liquid keeps flowing into from behind (under the surface with no wall behind it)
+# stays blocked and still, not a pump that moves liquid without pouring any.
+FIRST_LAYERS = 2
 
 
 @wp.kernel
@@ -77,6 +89,69 @@ def emit_layer(
     ids[i] = first_id + k
 
 
+@wp.struct
+class Nozzles:
+    """The emitters' nozzles on the device, for :func:`drive`: each a disc (``half[k]`` its layer's
+    radius, twice) or a rectangle (its layer's half width and height) at ``centre[k]`` facing
+    ``direction[k]``, spanned by ``across[k]`` and ``up[k]``, pouring at ``speed[k]`` from
+    ``start[k]`` to ``end[k]``; the liquid within ``margin`` of its layer's points (sideways and
+    behind) or up to ``ahead`` in front of it moves with the stream."""
+
+    centre: wp.array(dtype=wp.vec3)
+    direction: wp.array(dtype=wp.vec3)
+    across: wp.array(dtype=wp.vec3)
+    up: wp.array(dtype=wp.vec3)
+    half: wp.array(dtype=wp.vec2)
+    disc: wp.array(dtype=wp.int32)
+    speed: wp.array(dtype=float)
+    start: wp.array(dtype=wp.float64)
+    end: wp.array(dtype=wp.float64)
+    pouring: wp.array(dtype=wp.int32)  # 1 while it drives (FIRST_LAYERS)
+    margin: float
+    ahead: float
+    count: int
+
+
+@wp.kernel
+def drive(
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    nozzles: Nozzles,
+    time: wp.array(dtype=wp.float64),
+    dt: wp.array(dtype=wp.float64),
+):
+    """A particle that started the step in the stretch in front of a pouring nozzle moves with the
+    stream over the step (its speed along the nozzle's direction, whatever the step's forces gave
+    it), as the liquid leaving a pipe does: the stretch pushes the liquid in front of it away, and
+    the next layer finds its place free."""
+    i = wp.tid() + offset
+    step = float(dt[0])
+    x_end = x[i]
+    x_start = x_end - step * v[i]
+    for k in range(nozzles.count):
+        # from its start to its end, each with the emission's 1 ns of slack for the float clock
+        t = time[0] + wp.float64(1.0e-9)
+        if nozzles.pouring[k] != 0 and t >= nozzles.start[k] and t < nozzles.end[k]:
+            r = x_start - nozzles.centre[k]
+            along = wp.dot(r, nozzles.direction[k])
+            if along >= -nozzles.margin and along <= nozzles.ahead:
+                a = wp.dot(r, nozzles.across[k])
+                b = wp.dot(r, nozzles.up[k])
+                half = nozzles.half[k]
+                inside = False
+                if nozzles.disc[k] != 0:
+                    reach = half[0] + nozzles.margin
+                    inside = a * a + b * b <= reach * reach
+                else:
+                    inside = wp.abs(a) <= half[0] + nozzles.margin and wp.abs(b) <= half[1] + nozzles.margin
+                if inside:
+                    stream = nozzles.speed[k] * nozzles.direction[k]
+                    x[i] = x_start + step * stream
+                    v[i] = stream
+                    return
+
+
 class LiquidFullWarning(RuntimeWarning):
     """An emitter's layer was left out: the particles' room (sized for the run's length, or
     ``max_particles``) is full."""
@@ -124,6 +199,43 @@ class Flows:
         self.reach = BLOCKED * h
         self.extents = [float(np.linalg.norm(e.layer(h), axis=1).max(initial=0.0)) + self.reach for e in self.emitters]
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
+        # per emitter: layers due, layers poured, and whether the last one due came in
+        self.layer_counts = np.zeros((len(self.emitters), 3), dtype=np.int64)
+        self.nozzles = self._nozzles(h) if self.emitters else None
+
+    def _nozzles(self, h: float) -> Nozzles:
+        n, dev = Nozzles(), self.device
+        es = self.emitters
+        axes = [e.axes() for e in es]
+        n.centre = wp.array(np.array([e.center for e in es], np.float32), dtype=wp.vec3, device=dev)
+        n.direction = wp.array(np.array([e.direction for e in es], np.float32), dtype=wp.vec3, device=dev)
+        n.across = wp.array(np.array([u for u, _ in axes], np.float32), dtype=wp.vec3, device=dev)
+        n.up = wp.array(np.array([w for _, w in axes], np.float32), dtype=wp.vec3, device=dev)
+        half = []
+        for e in es:
+            layer = e.layer(h)
+            if e.shape == "disc":
+                r = float(np.linalg.norm(layer, axis=1).max(initial=0.0))
+                half.append((r, r))
+            else:
+                u, w = e.axes()
+                half.append((float(np.abs(layer @ u).max()), float(np.abs(layer @ w).max())))
+        n.half = wp.array(np.array(half, np.float32), dtype=wp.vec2, device=dev)
+        n.disc = wp.array(np.array([e.shape == "disc" for e in es], np.int32), dtype=wp.int32, device=dev)
+        n.speed = wp.array(np.array([e.speed for e in es], np.float32), dtype=float, device=dev)
+        n.start = wp.array(np.array([e.start for e in es], np.float64), dtype=wp.float64, device=dev)
+        ends = [math.inf if e.end is None else e.end for e in es]
+        n.end = wp.array(np.array(ends, np.float64), dtype=wp.float64, device=dev)
+        n.pouring = wp.ones(len(es), dtype=wp.int32, device=dev)
+        self._pouring = np.ones(len(es), dtype=np.int32)
+        n.margin, n.ahead, n.count = float(MARGIN * h), float(DRIVEN * h), len(es)
+        return n
+
+    def drive(self, n: int, time: wp.array, dt: wp.array) -> None:
+        """The liquid in front of each pouring nozzle moves with its stream this step (:func:`drive`;
+        ``n`` particles, ``time`` the step's start): graph-safe."""
+        if self.nozzles is not None:
+            launch_particles(drive, n, [self.state.x, self.state.v, self.nozzles, time, dt], self.device)
 
     def __bool__(self) -> bool:
         return self.active
@@ -164,9 +276,12 @@ class Flows:
                         )
                         warnings.warn(LiquidFullWarning(text), stacklevel=_caller_level())
                     self.refused += m
+                    self._count_layer(k, False)
                 elif self._blocked(e, layer, self.extents[k]):
                     self.blocked += m
+                    self._count_layer(k, False)
                 else:
+                    self._count_layer(k, True)
                     velocity = wp.vec3(*(e.speed * np.asarray(e.direction)))
                     wp.launch(
                         emit_layer,
@@ -192,7 +307,22 @@ class Flows:
                     added += m
                 self.next_time[k] += self.period[k]
         self.emitted += added
+        self._update_pouring()
         return added
+
+    def _count_layer(self, k: int, poured: bool) -> None:
+        due, done, _ = self.layer_counts[k]
+        self.layer_counts[k] = (due + 1, done + int(poured), int(poured))
+
+    def _update_pouring(self) -> None:
+        """Each nozzle drives while it pours, or while it has poured nothing for FIRST_LAYERS."""
+        if self.nozzles is None:
+            return
+        due, done, last = self.layer_counts.T
+        pouring = ((last != 0) | ((done == 0) & (due <= FIRST_LAYERS))).astype(np.int32)
+        if not np.array_equal(pouring, self._pouring):
+            self.nozzles.pouring.assign(pouring)
+            self._pouring = pouring
 
     def _blocked(self, emitter, layer, extent: float) -> bool:
         """Whether liquid sits where the layer would go (one pass over the liquid, one read)."""
@@ -228,6 +358,7 @@ class Flows:
             "flows_next_time": np.asarray(self.next_time, dtype=np.float64),
             "flows_next_check": np.float64(self.next_check),
             "flows_counts": np.asarray([self.emitted, self.refused, self.removed, self.blocked], dtype=np.int64),
+            "flows_layers": self.layer_counts.copy(),
         }
 
     def restore(self, checkpoint: dict) -> None:
@@ -239,3 +370,8 @@ class Flows:
                 0
             ]  # checkpoints before the blocked count had three
             self.emitted, self.refused, self.removed, self.blocked = counts[:4]
+            if "flows_layers" in checkpoint:  # older checkpoints: every nozzle taken as pouring
+                self.layer_counts = np.asarray(checkpoint["flows_layers"], dtype=np.int64).reshape(-1, 3).copy()
+            else:
+                self.layer_counts[:] = (FIRST_LAYERS + 1, 1, 1)
+            self._update_pouring()

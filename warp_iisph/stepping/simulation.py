@@ -135,6 +135,7 @@ class Simulation:
         self.loop = TimeLoop(self.model, self.state, self.solver, speed, velocity_limit)
         self.loop.max_speed2.fill_(body_top * body_top)
         body_loads = self.loop.bodies.loads if self.loop.bodies is not None else None  # the free bodies'
+        self.loop.flows = self.flows if self.flows.emitters else None
         self.loop.probes = (
             ProbeSampler(self.scene, self.model, self.solver, self.loop.capacity, body_loads)
             if self.scene.probes

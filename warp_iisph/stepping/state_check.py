@@ -108,6 +108,10 @@ def check_state(state: dict, scene, domain=None, carried=()) -> tuple[float, int
             raise ValueError("flows_next_check must be >= 0")
         if np.any(array(state, "flows_counts", (4,), integer=True) < 0):
             raise ValueError("flows_counts must be >= 0")
+        if "flows_layers" in state and np.any(
+            array(state, "flows_layers", (len(scene.emitters), 3), integer=True) < 0
+        ):  # older states have none
+            raise ValueError("flows_layers must be >= 0")
     if domain is not None and outside(x, domain):
         raise ValueError("holds particles outside the scene's domain; not a state of this scene")
     return float(time), int(steps), int(next_id)

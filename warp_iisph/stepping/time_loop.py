@@ -190,6 +190,7 @@ class TimeLoop:
         self._zero_total = wp.zeros(1, dtype=wp.int32, device=dev)
         self.rule, self.clock, self.substeps, self.statistics = self._structs()
         self.probes = None  # a scene's probes (.probing.ProbeSampler), sampled at the end of a step
+        self.flows = None  # a scene's emitters (.flows.Flows), whose nozzles drive the liquid in front of them
         self.bodies = BodySteps(model, solver) if model.bodies is not None else None
 
     def _structs(self) -> tuple[StepRule, Clock, Substeps, StepStatistics]:
@@ -247,6 +248,8 @@ class TimeLoop:
             self.max_speed2.zero_()
             if self.bodies is not None:  # loads, gravity and contacts move the free bodies (their speed counts)
                 self.bodies.move(state, self.time, self.dt64, self.max_speed2)
+            if self.flows is not None:  # the liquid in front of a pouring nozzle moves with its stream
+                self.flows.drive(state.n, self.time, self.dt64)
             # the last line: nothing beyond a wall, every correction counted; then the checks
             model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.dt64)
             self.counts.zero_()
