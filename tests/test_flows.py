@@ -149,9 +149,9 @@ def test_an_emitter_under_the_liquid_pours_from_a_wall_and_is_blocked_in_open_wa
     due where liquid sits is skipped and counted. The liquid just in front of a pouring nozzle moves
     with its stream, so a nozzle in a wall under the surface pushes the liquid away and pours every
     layer but its first (where the liquid starts); one in open water, the liquid behind it flowing
-    into its mouth, stays blocked, and once its first layers have pushed what sat at it does not
-    stir the water (no pump that moves liquid without pouring any). Above the water a nozzle pours
-    every layer."""
+    into its mouth, stays blocked, and once three layers due have not come in it does not stir the
+    water (no pump that moves liquid without pouring any). Above the water a nozzle pours every
+    layer."""
 
     def tank(nozzle, direction=(0.0, -1.0, 0.0)):
         scene = Scene(spacing=H, tank=Box((0, 0, 0), (0.3, 0.4, 0.2)), name="submerged")

@@ -35,11 +35,11 @@ BLOCKED = 0.75
 # pushed off. MARGIN is over BLOCKED: what could block the next layer moves on before it is due.
 DRIVEN = 2.0
 MARGIN = 1.0
-# A nozzle drives only while it pours (its last layer due came in), or until this many layers have
-# been due from a nozzle that has poured none (what sat at it from the start is pushed off): one
-# whose mouth liquid keeps flowing into from behind (under the surface with no wall behind it)
-# stays blocked and still, not a pump that moves liquid without pouring any.
-FIRST_LAYERS = 2
+# A nozzle drives while it has poured one of its last RECENT layers due (those before its start
+# count as poured, so what sits at it from the start is pushed off): one whose mouth liquid keeps
+# flowing into from behind (under the surface with no wall behind it) stays blocked and still, not
+# a pump that moves liquid without pouring any, and one blocked now and then keeps pouring.
+RECENT = 3
 
 
 @wp.kernel
@@ -106,7 +106,7 @@ class Nozzles:
     speed: wp.array(dtype=float)
     start: wp.array(dtype=wp.float64)
     end: wp.array(dtype=wp.float64)
-    pouring: wp.array(dtype=wp.int32)  # 1 while it drives (FIRST_LAYERS)
+    pouring: wp.array(dtype=wp.int32)  # 1 while it drives (RECENT)
     margin: float
     ahead: float
     count: int
@@ -199,8 +199,10 @@ class Flows:
         self.reach = BLOCKED * h
         self.extents = [float(np.linalg.norm(e.layer(h), axis=1).max(initial=0.0)) + self.reach for e in self.emitters]
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
-        # per emitter: layers due, layers poured, and whether the last one due came in
+        # per emitter: layers due, layers poured, and which of the last RECENT due came in (bit 0
+        # the last; those before the start count as come in)
         self.layer_counts = np.zeros((len(self.emitters), 3), dtype=np.int64)
+        self.layer_counts[:, 2] = 2**RECENT - 1
         self.nozzles = self._nozzles(h) if self.emitters else None
 
     def _nozzles(self, h: float) -> Nozzles:
@@ -311,15 +313,14 @@ class Flows:
         return added
 
     def _count_layer(self, k: int, poured: bool) -> None:
-        due, done, _ = self.layer_counts[k]
-        self.layer_counts[k] = (due + 1, done + int(poured), int(poured))
+        due, done, recent = self.layer_counts[k]
+        self.layer_counts[k] = (due + 1, done + int(poured), ((recent << 1) | int(poured)) & (2**RECENT - 1))
 
     def _update_pouring(self) -> None:
-        """Each nozzle drives while it pours, or while it has poured nothing for FIRST_LAYERS."""
+        """Each nozzle drives while it has poured one of its last RECENT layers due."""
         if self.nozzles is None:
             return
-        due, done, last = self.layer_counts.T
-        pouring = ((last != 0) | ((done == 0) & (due <= FIRST_LAYERS))).astype(np.int32)
+        pouring = (self.layer_counts[:, 2] != 0).astype(np.int32)
         if not np.array_equal(pouring, self._pouring):
             self.nozzles.pouring.assign(pouring)
             self._pouring = pouring
@@ -373,5 +374,5 @@ class Flows:
             if "flows_layers" in checkpoint:  # older checkpoints: every nozzle taken as pouring
                 self.layer_counts = np.asarray(checkpoint["flows_layers"], dtype=np.int64).reshape(-1, 3).copy()
             else:
-                self.layer_counts[:] = (FIRST_LAYERS + 1, 1, 1)
+                self.layer_counts[:] = (0, 0, 2**RECENT - 1)
             self._update_pouring()
