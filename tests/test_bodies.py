@@ -868,3 +868,39 @@ def test_fast_impacts_leave_no_particle_inside_a_body(body, fixed_step, tmp_path
         speeds.append(abs(b["velocity"][0][1]))
     assert speeds[0] > 3.5 and min(speeds) < 0.5 * speeds[0]  # it hit the water fast, and the water slowed it
     assert worst == 0, (worst, put_back)
+
+
+def test_a_body_spinning_freely_keeps_its_angular_momentum_and_its_energy():
+    """No liquid touches it and gravity is off: its angular momentum is exact, and its kinetic
+    energy too, to the midpoint turn's accuracy (turning at the start's angular velocity it gained
+    2.4 % in 4 s at 3.7 rad/s and 4.1 % in 2 s at 8 rad/s about its middle axis); the start's spin
+    about a fixed axis is dropped at once, as every step drops it."""
+    scene = Scene(spacing=0.05, tank=Box((0, 0, 0), (1.2, 1.2, 1.2)))
+    scene.add_fluid_box((0, 0, 0), (0.1, 0.1, 0.1))
+    scene.physics.gravity = (0.0, 0.0, 0.0)
+    scene.add_body(Box((0.45, 0.5, 0.55), (0.75, 0.7, 0.65)), density=500.0, angular_velocity=(0.5, 8.0, 0.5))
+    sim = Simulation(scene, "cpu")
+
+    def energy_and_momentum():
+        b = sim.bodies
+        return 0.5 * float(np.dot(b["spin"][0], b["momentum"][0])), b["momentum"][0].copy()
+
+    e0, l0 = energy_and_momentum()
+    sim.advance(2.0)
+    e1, l1 = energy_and_momentum()
+    assert np.allclose(l1, l0, rtol=0.0, atol=1e-12)
+    assert abs(e1 / e0 - 1.0) < 1e-4
+    assert np.abs(sim.bodies["orientation"][0][:3]).max() > 0.1  # it did turn
+
+    held = Scene(spacing=0.05, tank=Box((0, 0, 0), (1.2, 1.2, 1.2)))
+    held.add_fluid_box((0, 0, 0), (0.1, 0.1, 0.1))
+    held.add_body(
+        Box((0.45, 0.5, 0.55), (0.75, 0.7, 0.65)),
+        density=500.0,
+        angular_velocity=(1.0, 2.0, 3.0),
+        velocity=(0.1, 0.2, 0.3),
+        fixed_axes=["x", "rx", "rz"],
+    )
+    b = Simulation(held, "cpu").bodies
+    assert b["velocity"][0][0] == 0.0 and np.allclose(b["spin"][0], (0.0, 2.0, 0.0))
+    assert b["momentum"][0][0] == 0.0 and b["momentum"][0][2] == 0.0

@@ -10,10 +10,14 @@ integration):
 
     V* = V + h (F / M + g),     L* = L + h T,     w* = I_w^-1 L*     (I_w = R I_body R^T)
     contacts: impulses on (V*, w*) (:func:`.contacts.resolve`)
-    x += h V*,   q = exp(h w* / 2) q,   L = I_w w*
+    L = I_w w*,   x += h V*,   q = R(h w_m) q,   w_m = I_w(R(h w_m / 2) q)^-1 L
+    (R(a): the turn by |a| about a)
 
 Holding the angular momentum (not the angular velocity) keeps a free body's L exact without a
-torque, and its angular velocity follows its inertia as it turns. ``fixed_axes`` zero the held
+torque, and its angular velocity follows its inertia as it turns; turning at the angular velocity
+of the step's midpoint orientation (``w_m``, found by a few fixed-point iterations) makes the turn
+time-symmetric, so a body spinning freely keeps its kinetic energy too (turning at ``w*``, the
+start's, it gained 2.4 % in 4 s spinning at 3.7 rad/s in 5 ms steps). ``fixed_axes`` zero the held
 translations and rotations (world axes); a body before its ``release`` time is held whole (at rest,
 and to the contacts as heavy as a fixed obstacle). The last step's accelerations, ``(V - V_before) / h``
 and ``(w - w_before) / h``, are what the body's boundary particles carry into the walls'
@@ -29,6 +33,10 @@ from ..scene.bodies import quaternion_matrix
 from .bodies import Poses
 from .contacts import FACES, ContactSet, Motion, pool_contacts, resolve, sample_gaps
 from .containment import Solids
+
+# Fixed-point iterations of the turn's midpoint angular velocity: each gains a factor of about
+# h |w| (under 0.1 at any step the CFL rule allows a body turning less than 20 rad/s).
+MIDPOINT_ITERATIONS = 4
 
 
 @wp.struct
@@ -95,6 +103,15 @@ def begin_step(c: RigidConstants, s: RigidState, poses: Poses):
     poses.angular_acceleration[b] = wp.vec3(s.angular_acceleration[f])
 
 
+@wp.func
+def turned(q: wp.quatd, w: wp.vec3d, h: wp.float64) -> wp.quatd:
+    """Orientation ``q`` turned at angular velocity ``w`` (world axes) for ``h`` seconds."""
+    angle = wp.length(w) * h
+    if angle > wp.float64(0.0):
+        q = wp.normalize(wp.quat_from_axis_angle(w / wp.length(w), angle) * q)
+    return q
+
+
 @wp.kernel
 def advance(
     c: RigidConstants,
@@ -152,12 +169,17 @@ def advance(
         w = motion.spin[f]
         s.acceleration[f] = (v - s.velocity[f]) / h
         s.angular_acceleration[f] = (w - spin_of(c, s, f)) / h
-        s.momentum[f] = world_inertia(c, f, q, 0) * w
+        L = world_inertia(c, f, q, 0) * w
+        s.momentum[f] = L
         s.velocity[f] = v
         x = s.position[f] + h * v
-        angle = wp.length(w) * h
-        if angle > wp.float64(0.0):
-            q = wp.normalize(wp.quat_from_axis_angle(w / wp.length(w), angle) * q)
+        # the turn at the angular velocity of the step's midpoint orientation (implicit midpoint,
+        # by fixed-point iteration): time-symmetric, so a freely spinning body keeps its energy
+        w_mid = w
+        for _ in range(MIDPOINT_ITERATIONS):
+            half = turned(q, w_mid, wp.float64(0.5) * h)
+            w_mid = wp.cw_mul(c.angular_free[f], world_inertia(c, f, half, 1) * L)
+        q = turned(q, w_mid, h)
         s.position[f] = x
         s.orientation[f] = q
         poses.end[c.keyed + f] = wp.transform(wp.vec3(x), wp.quat(q))
@@ -213,9 +235,11 @@ class RigidBodies:
         self.initial = {
             "position": np.array([b["com"] for b in bodies], np.float64).reshape(-1, 3),
             "orientation": np.tile([0.0, 0.0, 0.0, 1.0], (self.n, 1)),
-            "velocity": np.array([b["velocity"] for b in bodies], np.float64).reshape(-1, 3),
+            # the start's motion along and about fixed axes is dropped, as every step drops it
+            "velocity": np.array([np.multiply(m[:3], b["velocity"]) for m, b in zip(held, bodies)]).reshape(-1, 3),
             "momentum": np.array(
-                [np.asarray(b["inertia"]) @ np.asarray(b["angular_velocity"]) for b in bodies], np.float64
+                [np.asarray(b["inertia"]) @ np.multiply(m[3:], b["angular_velocity"]) for m, b in zip(held, bodies)],
+                np.float64,
             ).reshape(-1, 3),
             "acceleration": np.zeros((self.n, 3)),
             "angular_acceleration": np.zeros((self.n, 3)),
