@@ -288,7 +288,13 @@ def test_a_light_body_starting_in_the_liquid_at_a_wall_is_warned_of():
     assert warning.startswith("bodies[0] starts in the liquid, lighter than it, 0.0125 m from the tank's lower y face")
     assert "under a spacing (0.025 m)" in warning
     (warning,) = warned(Box((0.0, 0.1, 0.12), (0.16, 0.2, 0.28)))  # against a side wall
-    assert "0 m from the tank's lower x face" in warning
+    assert "0 m from the tank's lower x face" in warning and "presses the body against that face" in warning
+    assert "does not lift the body off that face" in warned(Box((0.12, 0.0, 0.12), (0.28, 0.1, 0.28)))[0]
+    tall = [Box((0, 0, 0), (0.4, 0.4, 0.4))]  # the liquid up to the lid: a light body pressed to it anyway
+    assert warned(Box((0.12, 0.3, 0.12), (0.28, 0.4, 0.28)), fluids=tall) == []
+    body = Body(Box((0.0, 0.1, 0.12), (0.16, 0.2, 0.28)), density=500.0, fixed_axes=["x"])
+    body.validate("bodies[0]")
+    assert bodies_at_walls([body], water, tank, h, 1000.0) == []  # it cannot move off that face
     assert warned(Box((0.12, 0.025, 0.12), (0.28, 0.125, 0.28))) == []  # a spacing clear
     assert warned(Box((0.12, 0.0, 0.12), (0.28, 0.1, 0.28)), density=2000.0) == []  # it sinks anyway
     assert warned(Box((0.12, 0.0, 0.12), (0.28, 0.1, 0.28)), fluids=[Box((0, 0, 0), (0.1, 0.2, 0.4))]) == []  # dry

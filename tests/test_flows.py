@@ -272,7 +272,31 @@ def test_layers_blocked_at_the_nozzle_are_warned_of():
     record = {"scene": scene_to_dict(jet_scene()), "particles": {"capacity": 1000}}
     record["totals"] = {"steps": 10, "mean_compression": 0.0, "unconverged_steps": 0, "emitted": 30, "blocked": 90}
     (warning,) = [w for w in run_warnings(record) if "blocked" in w]
-    assert warning.startswith("the emitters poured 25 % of their layers: 90 particles were blocked")
+    assert warning.startswith("the emitters poured 25 % of the particles due: 90 were blocked")
     assert "under the liquid's surface" in warning
     record["totals"]["blocked"] = 0
     assert not [w for w in run_warnings(record) if "blocked" in w]
+
+
+def test_a_restore_keeps_which_nozzles_drive():
+    """A nozzle in open water under the surface stops driving once three layers due have not come
+    in; a restored state keeps that (a restore that took every nozzle as pouring would drive the
+    liquid again, and the runs would part), and a state whose record of it makes no sense is
+    refused whole."""
+    scene = Scene(spacing=H, tank=Box((0, 0, 0), (0.3, 0.4, 0.2)), name="submerged")
+    scene.add_fluid_box((0, 0, 0), (0.3, 0.2, 0.2))
+    scene.add_emitter(Emitter(center=(0.15, 0.1, 0.1), direction=(0.0, -1.0, 0.0), speed=0.5, radius=0.03))
+    whole = Simulation(scene, "cpu")
+    whole.advance(0.2)
+    assert whole.flows.nozzles.pouring.numpy()[0] == 0 and whole.flows.emitted == 0
+    state = whole.checkpoint()
+    whole.advance(0.1)
+    resumed = Simulation(scene, "cpu")
+    resumed.restore(state)
+    resumed.advance(0.1)
+    assert np.array_equal(resumed.positions, whole.positions)
+    for bad in (np.array([8]), np.array([-1]), np.array([1, 1]), np.array([1.0])):
+        other = Simulation(scene, "cpu")
+        with pytest.raises(ValueError, match="flows_poured_recently"):
+            other.restore({**state, "flows_poured_recently": bad})
+        assert other.time == 0.0

@@ -179,8 +179,10 @@ def _run(args) -> int:
     # in the warnings it ends with
     table = scene_to_dict(scene)
     early = lattice_shortfalls(table) + nozzle_flows(table) + thin_bodies(scene.bodies, scene.spacing)
-    early += bodies_in_liquid(scene.bodies, scene.fluids)
-    early += bodies_at_walls(scene.bodies, scene.fluids, scene.tank, scene.spacing, scene.physics.rho0)
+    if not args.resume:  # where the bodies start: said at the start only
+        early += bodies_in_liquid(scene.bodies, scene.fluids)
+        ph = scene.physics
+        early += bodies_at_walls(scene.bodies, scene.fluids, scene.tank, scene.spacing, ph.rho0, ph.gravity)
 
     def say_early() -> None:
         for warning in early:

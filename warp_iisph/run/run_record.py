@@ -220,12 +220,12 @@ def liquid_reynolds(scene: dict) -> float | None:
 
 def run_warnings(record: dict) -> list[str]:
     """What a finished run's record (``run.json``: its totals and its scene's physics) says its
-    user should know, one sentence each: particles the emitters could not add, layers liquid at
-    a nozzle blocked, steps that stopped
-    at ``max_iterations``, a density held looser than asked (a step too long for the pressure
-    solve, which the solve's own criterion, met on the linearised prediction, does not see),
-    pressure probes read beside Akinci's walls (whose wall layer carries up to twice the pressure),
-    blocks of liquid and nozzles whose lattice holds less than 90 % or more than 110 % of them
+    user should know, one sentence each: particles the emitters could not add, layers liquid at a
+    nozzle blocked, steps that stopped at ``max_iterations``, a density held looser than asked (a
+    step too long for the pressure solve, which the solve's own criterion, met on the linearised
+    prediction, does not see), pressure probes read beside Akinci's walls (whose wall layer
+    carries up to twice the pressure), boxes of liquid their lattice fills to less than 90 %, and
+    spheres of liquid and nozzles it holds to less than 90 % or more than 110 %
     (:mod:`warp_iisph.setup.fill`)."""
     t, ph = record["totals"], record["scene"]["physics"]
     warnings = []
@@ -237,7 +237,7 @@ def run_warnings(record: dict) -> list[str]:
     if t.get("blocked"):
         due = t["emitted"] + t["blocked"] + t.get("not_emitted", 0)
         warnings.append(
-            f"the emitters poured {100 * t['emitted'] / due:.0f} % of their layers: {t['blocked']} particles were "
+            f"the emitters poured {100 * t['emitted'] / due:.0f} % of the particles due: {t['blocked']} were "
             f"blocked, their layers due while liquid sat at the nozzle (within {BLOCKED:g} spacings of a new "
             "particle); a nozzle under the liquid's surface with no wall behind it pours nothing, one its own "
             "stream falls back onto part of its layers (docs/scenes.md, Emitters)"

@@ -275,38 +275,47 @@ def bodies_in_liquid(bodies: list, fluids: list) -> list[str]:
     return out
 
 
-def bodies_at_walls(bodies: list, fluids: list, tank, spacing: float, rho0: float) -> list[str]:
+def bodies_at_walls(
+    bodies: list, fluids: list, tank, spacing: float, rho0: float, gravity=(0.0, -9.81, 0.0)
+) -> list[str]:
     """One sentence for each body lighter than the liquid that starts in a block of liquid with its
     surface closer to a box tank's face than a spacing (a sphere's than half a spacing): no particle
-    of liquid fits in the gap, so the liquid's pressure is missing over that part of its surface
-    and still liquid never lifts it off (docs/scenes.md, "Bodies": a box of 500 kg/m^3 stayed on
-    the floor from gaps of 0 and h/2 and rose from h; a sphere of 900 stayed from 0, felt half its
-    buoyancy, and rose from h/2). A dry body that a wave reaches (the flood's crates) is not
-    warned of: the flow lifts and tilts it."""
+    of liquid fits in the gap, so the liquid's pressure is missing over that part of its surface:
+    still liquid never lifts it off the face below it, and presses it to a side face (docs/scenes.md,
+    "Bodies": a box of 500 kg/m^3 stayed on the floor from gaps of 0 and h/2 and rose from h; a
+    sphere of 900 stayed from 0, felt half its buoyancy, and rose from h/2). The face above it
+    (where its buoyancy takes it anyway) and faces across a fixed axis are left out; a dry body that
+    a wave reaches (the flood's crates) is not warned of: the flow lifts and tilts it."""
     if not isinstance(tank, Box):
         return []
+    g = np.asarray(gravity, dtype=np.float64)
     t_lo, t_hi = tank.bounds
     out = []
     for k, b in enumerate(bodies):
         lo, hi = b.bounds
-        wet = any(np.all(lo < f.bounds[1]) and np.all(hi > f.bounds[0]) for f in fluids)
+        if not any(np.all(lo < f.bounds[1]) and np.all(hi > f.bounds[0]) for f in fluids):
+            continue  # dry
         volume = _uniform(b.shape)[0]
-        if not wet or (b.mass if b.mass is not None else b.density * volume) >= rho0 * volume:
+        if (b.mass if b.mass is not None else b.density * volume) >= rho0 * volume:
             continue
         reach = (0.5 if isinstance(b.shape, Sphere) else 1.0) * spacing
-        near = [
-            (gap, f"the tank's {side} {'xyz'[axis]} face")
-            for axis in range(3)
-            for side, gap in (("lower", lo[axis] - t_lo[axis]), ("upper", t_hi[axis] - hi[axis]))
-            if gap < reach * (1.0 - 1.0e-6)
-        ]
+        near = []
+        for axis in range(3):
+            if "xyz"[axis] in b.fixed_axes:
+                continue
+            for side, sign, gap in (("lower", -1.0, lo[axis] - t_lo[axis]), ("upper", 1.0, t_hi[axis] - hi[axis])):
+                if gap >= reach * (1.0 - 1.0e-6) or sign * g[axis] < 0.0:
+                    continue  # clear of it, or the face its buoyancy takes it to
+                below = sign * g[axis] > 0.0
+                near.append((gap, f"the tank's {side} {'xyz'[axis]} face", below))
         if near:
-            gap, face = min(near)
+            gap, face, below = min(near)
+            held = "does not lift the body off that face" if below else "presses the body against that face"
             out.append(
                 f"bodies[{k}] starts in the liquid, lighter than it, {max(gap, 0.0):.3g} m from {face}, under "
                 f"{'half a spacing' if reach < spacing else 'a spacing'} ({reach:g} m): no liquid fits between, "
-                "so its pressure is missing there and the liquid does not lift the body off that face; start "
-                "it at least that far from the walls (docs/scenes.md, Bodies)"
+                f"so its pressure is missing there and the liquid {held}; start it at least that far from "
+                "the walls (docs/scenes.md, Bodies)"
             )
     return out
 

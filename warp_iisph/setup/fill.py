@@ -10,10 +10,8 @@ import math
 
 import numpy as np
 
-from ..scene import Sphere
 from ..scene.flows import Emitter
 from ..scene.shapes import whole_layers
-from .sampling import sample_sphere
 
 # A block or nozzle whose lattice holds a share of its declared volume or area outside this range
 # is warned of.
@@ -25,10 +23,18 @@ def _outside(share: float) -> bool:
     return share < LATTICE_SHARE[0] - 1.0e-9 or share > LATTICE_SHARE[1] + 1.0e-9
 
 
-def sphere_share(center, radius: float, h: float) -> float:
+def sphere_points(radius: float, h: float) -> int:
+    """How many lattice points :func:`.sampling.sample_sphere` places in a sphere (by the same
+    comparison), counted a plane of the lattice at a time so that a large sphere costs no memory."""
+    n = int(np.ceil(radius / h)) + 1
+    k = np.arange(-n, n + 1) * h
+    b, c = (g.reshape(-1) for g in np.meshgrid(k, k, indexing="ij"))
+    return sum(int(np.sum(np.linalg.norm(np.stack([np.full(b.shape, a), b, c], axis=1), axis=1) < radius)) for a in k)
+
+
+def sphere_share(radius: float, h: float) -> float:
     """The share of a sphere's volume its lattice points hold (``h^3`` each)."""
-    n = len(sample_sphere(Sphere(tuple(center), radius), h))
-    return n * h**3 / (4.0 / 3.0 * math.pi * radius**3)
+    return sphere_points(radius, h) * h**3 / (4.0 / 3.0 * math.pi * radius**3)
 
 
 def matching_sphere_radius(radius: float, h: float) -> float | None:
@@ -47,6 +53,21 @@ def matching_sphere_radius(radius: float, h: float) -> float | None:
             if best is None or abs(r - radius) < abs(best - radius):
                 best = r
     return best
+
+
+def _holding(radius: float, count) -> float:
+    """``radius`` to the fewest significant digits (from 4) at which ``count`` (of a radius) gives
+    what it gives at ``radius``: a printed radius that holds what the sentence says."""
+    for digits in range(4, 16):
+        r = float(f"{radius:.{digits}g}")
+        if count(r) == count(radius):
+            return r
+    return radius
+
+
+def disc_points(radius: float, h: float) -> int:
+    """How many points a disc nozzle's layer of ``radius`` has (its facing does not change it)."""
+    return Emitter(center=(0.0, 0.0, 0.0), direction=(0.0, -1.0, 0.0), speed=1.0, radius=radius).layer_size(h)
 
 
 def nozzle_share(emitter: Emitter, h: float) -> tuple[float, float]:
@@ -87,14 +108,16 @@ def lattice_shortfalls(scene: dict) -> list[str]:
         if not h:
             continue
         if "radius" in f:
-            share = sphere_share(f["center"], f["radius"], h)
+            share = sphere_share(f["radius"], h)
             if _outside(share):
                 better = matching_sphere_radius(f["radius"], h)
+                if better:
+                    better = _holding(better, lambda r: sphere_points(r, h))
                 out.append(
                     f"fluids[{k}]: the lattice of spacing = {h:g} m holds {100 * share:.0f} % of this sphere's volume "
                     f"(the points within its radius of {f['radius']:g} m): the liquid starts "
                     f"{abs(100 * (share - 1)):.0f} % {'short' if share < 1 else 'over'}"
-                    + (f"; a radius of {better:.4g} m holds its volume within 1 %" if better else "")
+                    + (f"; a radius of {better:g} m holds its volume within 1 %" if better else "")
                     + " (docs/scenes.md, Fluid blocks)"
                 )
             continue
@@ -129,7 +152,7 @@ def nozzle_flows(scene: dict) -> list[str]:
         if emitter.shape == "disc":
             better = matching_disc_radius(emitter, h)
             cure = (
-                f"a radius of {better:.4g} m pours its area within 1 %"
+                f"a radius of {_holding(better, lambda r: disc_points(r, h)):g} m pours its area within 1 %"
                 if better
                 else "a radius of five spacings or more pours its area within 10 %"
             )

@@ -32,7 +32,9 @@ BLOCKED = 0.75
 # within MARGIN beside and behind its layer moves with the stream (:func:`drive`), as the liquid
 # leaving a pipe does: it pushes the liquid in front away, so a nozzle in a wall under the surface
 # pours (all but its first layer, where the liquid starts), and what falls back onto a nozzle is
-# pushed off. MARGIN is over BLOCKED: what could block the next layer moves on before it is due.
+# pushed off. MARGIN is over BLOCKED so that liquid entering the stretch from beside it is moved
+# on in the steps before the next layer is due (0.75 h, BLOCKED itself, left an inlet in a wall
+# blocked at a quarter of its layers; 1.0 h at its first only, lab, 2026-12-06).
 DRIVEN = 2.0
 MARGIN = 1.0
 # A nozzle drives while it has poured one of its last RECENT layers due (those before its start
@@ -121,10 +123,10 @@ def drive(
     time: wp.array(dtype=wp.float64),
     dt: wp.array(dtype=wp.float64),
 ):
-    """A particle that started the step in the stretch in front of a pouring nozzle moves with the
-    stream over the step (its speed along the nozzle's direction, whatever the step's forces gave
-    it), as the liquid leaving a pipe does: the stretch pushes the liquid in front of it away, and
-    the next layer finds its place free."""
+    """A particle that started the step in the stretch in front of a pouring nozzle ends it moved
+    at the stream's velocity (speed times direction, whatever the step's forces gave it), as the
+    liquid leaving a pipe does: the stretch pushes the liquid in front of it away, and the next
+    layer finds its place free."""
     i = wp.tid() + offset
     step = float(dt[0])
     x_end = x[i]
@@ -199,10 +201,9 @@ class Flows:
         self.reach = BLOCKED * h
         self.extents = [float(np.linalg.norm(e.layer(h), axis=1).max(initial=0.0)) + self.reach for e in self.emitters]
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
-        # per emitter: layers due, layers poured, and which of the last RECENT due came in (bit 0
-        # the last; those before the start count as come in)
-        self.layer_counts = np.zeros((len(self.emitters), 3), dtype=np.int64)
-        self.layer_counts[:, 2] = 2**RECENT - 1
+        # per emitter, which of its last RECENT layers due came in (bit 0 the last; those before its
+        # start count as come in)
+        self.poured_recently = np.full(len(self.emitters), 2**RECENT - 1, dtype=np.int64)
         self.nozzles = self._nozzles(h) if self.emitters else None
 
     def _nozzles(self, h: float) -> Nozzles:
@@ -313,14 +314,13 @@ class Flows:
         return added
 
     def _count_layer(self, k: int, poured: bool) -> None:
-        due, done, recent = self.layer_counts[k]
-        self.layer_counts[k] = (due + 1, done + int(poured), ((recent << 1) | int(poured)) & (2**RECENT - 1))
+        self.poured_recently[k] = ((self.poured_recently[k] << 1) | int(poured)) & (2**RECENT - 1)
 
     def _update_pouring(self) -> None:
         """Each nozzle drives while it has poured one of its last RECENT layers due."""
         if self.nozzles is None:
             return
-        pouring = (self.layer_counts[:, 2] != 0).astype(np.int32)
+        pouring = (self.poured_recently != 0).astype(np.int32)
         if not np.array_equal(pouring, self._pouring):
             self.nozzles.pouring.assign(pouring)
             self._pouring = pouring
@@ -359,11 +359,11 @@ class Flows:
             "flows_next_time": np.asarray(self.next_time, dtype=np.float64),
             "flows_next_check": np.float64(self.next_check),
             "flows_counts": np.asarray([self.emitted, self.refused, self.removed, self.blocked], dtype=np.int64),
-            "flows_layers": self.layer_counts.copy(),
+            "flows_poured_recently": self.poured_recently.copy(),
         }
 
     def restore(self, checkpoint: dict) -> None:
-        if "flows_next_time" in checkpoint:
+        if self.active and "flows_next_time" in checkpoint:  # a scene without flows keeps none
             self.next_time = [float(t) for t in checkpoint["flows_next_time"]]
             if "flows_next_check" in checkpoint:  # older checkpoints: sinks checked once per frame only
                 self.next_check = float(checkpoint["flows_next_check"])
@@ -371,8 +371,8 @@ class Flows:
                 0
             ]  # checkpoints before the blocked count had three
             self.emitted, self.refused, self.removed, self.blocked = counts[:4]
-            if "flows_layers" in checkpoint:  # older checkpoints: every nozzle taken as pouring
-                self.layer_counts = np.asarray(checkpoint["flows_layers"], dtype=np.int64).reshape(-1, 3).copy()
+            if "flows_poured_recently" in checkpoint:  # older checkpoints: every nozzle taken as pouring
+                self.poured_recently = np.asarray(checkpoint["flows_poured_recently"], dtype=np.int64).copy()
             else:
-                self.layer_counts[:] = (0, 0, 2**RECENT - 1)
+                self.poured_recently[:] = 2**RECENT - 1
             self._update_pouring()

@@ -7,7 +7,7 @@ state's name (a run's checkpoint file, ``checkpoint:`` for the Python API): keys
 the wrong shape or kind, non-finite particles, ids repeated or beyond the next one, a time or step
 count out of range, particles outside the scene's domain, free bodies' state that is not one
 finite row per body with unit quaternions (or present where the scene has none), and the
-emitters' and sinks' clocks.
+emitters' and sinks' clocks and which of the nozzles' last layers came in.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import numpy as np
 from ..scene.checks import MAX_PARTICLES
 from ..scene.settings import METHODS
 from ..setup.model import PARTICLE_FIELDS
+from .flows import RECENT
 
 # a scene with free bodies: their state (Simulation.checkpoint), by key and width
 BODY_KEYS = {
@@ -108,10 +109,10 @@ def check_state(state: dict, scene, domain=None, carried=()) -> tuple[float, int
             raise ValueError("flows_next_check must be >= 0")
         if np.any(array(state, "flows_counts", (4,), integer=True) < 0):
             raise ValueError("flows_counts must be >= 0")
-        if "flows_layers" in state and np.any(
-            array(state, "flows_layers", (len(scene.emitters), 3), integer=True) < 0
-        ):  # older states have none
-            raise ValueError("flows_layers must be >= 0")
+        if "flows_poured_recently" in state:  # older states have none
+            recent = array(state, "flows_poured_recently", (len(scene.emitters),), integer=True)
+            if np.any((recent < 0) | (recent >= 2**RECENT)):
+                raise ValueError(f"flows_poured_recently must hold {RECENT} bits a nozzle (0 to {2**RECENT - 1})")
     if domain is not None and outside(x, domain):
         raise ValueError("holds particles outside the scene's domain; not a state of this scene")
     return float(time), int(steps), int(next_id)
