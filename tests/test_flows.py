@@ -149,9 +149,10 @@ def test_an_emitter_under_the_liquid_pours_from_a_wall_and_is_blocked_in_open_wa
     due where liquid sits is skipped and counted. The liquid just in front of a pouring nozzle moves
     with its stream, so a nozzle in a wall under the surface pushes the liquid away and pours every
     layer but its first (where the liquid starts); one in open water, the liquid behind it flowing
-    into its mouth, stays blocked, and once three layers due have not come in it does not stir the
-    water (no pump that moves liquid without pouring any). Above the water a nozzle pours every
-    layer."""
+    into its mouth, stays blocked and, liquid lying behind its mouth when its first layer is due,
+    never drives, so the water stays still (no pump that moves liquid without pouring any; with a
+    start-up drive for its first layers it moved the water at 0.62 m/s). Above the water a nozzle
+    pours every layer."""
 
     def tank(nozzle, direction=(0.0, -1.0, 0.0)):
         scene = Scene(spacing=H, tank=Box((0, 0, 0), (0.3, 0.4, 0.2)), name="submerged")
@@ -172,7 +173,7 @@ def test_an_emitter_under_the_liquid_pours_from_a_wall_and_is_blocked_in_open_wa
     assert wall.n_particles == n0 + wall.flows.emitted and fastest < 2.0 * 0.5  # no burst
     under, n0, fastest, late = run(tank((0.15, 0.1, 0.1)))
     assert under.n_particles == n0 and under.flows.emitted == 0 and under.flows.blocked == due * layer
-    assert fastest < 1.5 * 0.5 and late < 0.15  # pushed by its first layers' stream, then still
+    assert fastest < 0.15 and late < 0.15  # never driven: still from the start
     above = Simulation(tank((0.15, 0.35, 0.1)), "cpu")
     above.advance(0.2)
     assert above.flows.blocked == 0 and above.flows.emitted > 0

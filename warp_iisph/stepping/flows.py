@@ -38,9 +38,10 @@ BLOCKED = 0.75
 DRIVEN = 2.0
 MARGIN = 1.0
 # A nozzle drives while it has poured one of its last RECENT layers due (those before its start
-# count as poured, so what sits at it from the start is pushed off): one whose mouth liquid keeps
-# flowing into from behind (under the surface with no wall behind it) stays blocked and still, not
-# a pump that moves liquid without pouring any, and one blocked now and then keeps pouring.
+# count as poured, so what sits at a mouth in a wall from the start is pushed off; but not where
+# liquid lies behind its mouth at its first layer: open water, which would keep flowing into it),
+# so a blocked one stays still, not a pump that moves liquid without pouring any, and one blocked
+# now and then keeps pouring.
 RECENT = 3
 
 
@@ -114,6 +115,23 @@ class Nozzles:
     count: int
 
 
+@wp.func
+def in_stretch(nozzles: Nozzles, k: int, p: wp.vec3, behind: float, ahead: float) -> bool:
+    """Whether point ``p`` lies in front of nozzle k's mouth, from ``behind`` its plane to
+    ``ahead`` of it (along its direction), within ``margin`` beside its layer's points."""
+    r = p - nozzles.centre[k]
+    along = wp.dot(r, nozzles.direction[k])
+    if along < -behind or along > ahead:
+        return False
+    a = wp.dot(r, nozzles.across[k])
+    b = wp.dot(r, nozzles.up[k])
+    half = nozzles.half[k]
+    if nozzles.disc[k] != 0:
+        reach = half[0] + nozzles.margin
+        return a * a + b * b <= reach * reach
+    return wp.abs(a) <= half[0] + nozzles.margin and wp.abs(b) <= half[1] + nozzles.margin
+
+
 @wp.kernel
 def drive(
     offset: int,
@@ -135,23 +153,20 @@ def drive(
         # from its start to its end, each with the emission's 1 ns of slack for the float clock
         t = time[0] + wp.float64(1.0e-9)
         if nozzles.pouring[k] != 0 and t >= nozzles.start[k] and t < nozzles.end[k]:
-            r = x_start - nozzles.centre[k]
-            along = wp.dot(r, nozzles.direction[k])
-            if along >= -nozzles.margin and along <= nozzles.ahead:
-                a = wp.dot(r, nozzles.across[k])
-                b = wp.dot(r, nozzles.up[k])
-                half = nozzles.half[k]
-                inside = False
-                if nozzles.disc[k] != 0:
-                    reach = half[0] + nozzles.margin
-                    inside = a * a + b * b <= reach * reach
-                else:
-                    inside = wp.abs(a) <= half[0] + nozzles.margin and wp.abs(b) <= half[1] + nozzles.margin
-                if inside:
-                    stream = nozzles.speed[k] * nozzles.direction[k]
-                    x[i] = x_start + step * stream
-                    v[i] = stream
-                    return
+            if in_stretch(nozzles, k, x_start, nozzles.margin, nozzles.ahead):
+                stream = nozzles.speed[k] * nozzles.direction[k]
+                x[i] = x_start + step * stream
+                v[i] = stream
+                return
+
+
+@wp.kernel
+def count_behind(x: wp.array(dtype=wp.vec3), nozzles: Nozzles, k: int, upto: float, found: wp.array(dtype=wp.int32)):
+    """How many particles lie behind nozzle k's mouth, from as far behind its plane as its stretch
+    reaches ahead to ``upto`` (negative: behind): liquid there flows into the mouth. An atomic:
+    one launch, never split."""
+    if in_stretch(nozzles, k, x[wp.tid()], nozzles.ahead, upto):
+        wp.atomic_add(found, 0, 1)
 
 
 class LiquidFullWarning(RuntimeWarning):
@@ -199,6 +214,7 @@ class Flows:
         self.blocked = 0  # particles of layers skipped: liquid sat at the nozzle
         self.removed = 0
         self.reach = BLOCKED * h
+        self.spacing = h
         self.extents = [float(np.linalg.norm(e.layer(h), axis=1).max(initial=0.0)) + self.reach for e in self.emitters]
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
         # per emitter, which of its last RECENT layers due came in (bit 0 the last; those before its
@@ -282,6 +298,8 @@ class Flows:
                     self._count_layer(k, False)
                 elif self._blocked(e, layer, self.extents[k]):
                     self.blocked += m
+                    if self.next_time[k] == e.start and self._open_water(k):
+                        self.poured_recently[k] = 0  # no start-up drive: it would stir the water
                     self._count_layer(k, False)
                 else:
                     self._count_layer(k, True)
@@ -324,6 +342,15 @@ class Flows:
         if not np.array_equal(pouring, self._pouring):
             self.nozzles.pouring.assign(pouring)
             self._pouring = pouring
+
+    def _open_water(self, k: int) -> bool:
+        """Whether liquid lies behind nozzle k's mouth (more than half a spacing behind its plane):
+        open water that flows into it, not a mouth in a wall whose liquid the drive can push off."""
+        s = self.state
+        self._blocking.zero_()
+        inputs = [s.x, self.nozzles, k, -0.5 * self.spacing, self._blocking]
+        wp.launch(count_behind, dim=s.count, inputs=inputs, device=self.device)
+        return int(self._blocking.numpy()[0]) > 0
 
     def _blocked(self, emitter, layer, extent: float) -> bool:
         """Whether liquid sits where the layer would go (one pass over the liquid, one read)."""
