@@ -184,7 +184,8 @@ def _run(args) -> int:
         ph = scene.physics
         early += bodies_at_walls(scene.bodies, scene.fluids, scene.tank, scene.spacing, ph.rho0, ph.gravity)
 
-    def say_early() -> None:
+    def say_early(sim) -> None:
+        early.extend(sim.model.setup_warnings)
         for warning in early:
             print(f"warp-iisph: warning: {warning}", file=sys.stderr)
 

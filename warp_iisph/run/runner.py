@@ -187,8 +187,8 @@ def run_scene(
     :func:`resumed_scene`). ``inputs``: files the run is made from besides the scene's meshes (its
     scene file), which ``overwrite`` never deletes. The run folder is locked while the run goes on
     (:mod:`.lock`); a new run is written beside its place and moved there with its first frame
-    (:mod:`.replace`). ``on_built`` is called once everything is built and checked, before the
-    first step: a refusal never follows what it says."""
+    (:mod:`.replace`). ``on_built`` is called with the simulation once everything is built and
+    checked, before the first step: a refusal never follows what it says."""
     from ..stepping import Simulation
 
     flags = {
@@ -230,7 +230,7 @@ def run_scene(
             staging = stage(target)
             run = RunFolder(staging[0], scene.output.format)
         if on_built is not None:
-            on_built()
+            on_built(sim)
         place = None if resume else (lambda: commit(target, *staging))
         record = _simulate(
             scene, sim, run, plan, first, t_start, background_output, progress, graph, (before, kept_steps), place

@@ -21,6 +21,9 @@ from .sampling import sample_box_faces, sample_fluid, sample_tank_walls
 
 # Largest initial compression (fraction of rho0) a fluid particle beside a mesh may start with.
 INITIAL_COMPRESSION = 0.005
+# A mesh container whose liquid keeps less than this share of its blocks' lattice sites in it is
+# warned of (Model.setup_warnings).
+CONTAINER_SHARE = 0.9
 
 
 def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model, State]:
@@ -32,7 +35,7 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
     meshes = _shape_meshes(scene)
     _check_memory(*(int(c) for c in scene.particle_estimate()), device)  # before sampling allocates anything
     free = [sample_body(b, h, ph.rho0, device) for b in scene.bodies]
-    xf, xb, bodies, owner = sample_scene(scene, device, meshes, free)
+    xf, xb, bodies, owner, inside = sample_scene(scene, device, meshes, free)
     if len(xf) == 0 and not scene.emitters:
         raise ValueError(f"fluids: no particle fits at spacing = {h} m; make the blocks larger or the spacing smaller")
     n_moving = sum(len(rest) for _, rest in bodies) + sum(len(f["rest"]) for f in free)
@@ -71,6 +74,15 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         # Rasterised meshes are not a calibrated wall: fluid sampled where they make it denser
         # than rest is left out rather than kicked away in the first step.
         xf = xf[~overcompressed(xf, xb_dev, psi, h, ph.rho0, INITIAL_COMPRESSION, device)]
+    notes = []
+    if inside and len(xf) < CONTAINER_SHARE * inside:
+        notes.append(
+            f"tank: the liquid starts with {len(xf)} of the {inside} lattice sites its blocks have in the container "
+            f"({100 * len(xf) / inside:.0f} %): the sites closer than a spacing to the container's wall particles "
+            "(within about h/2 of a curved wall, the lattice not lying along it) and made denser than rest "
+            "beside it are left out, so the liquid stands lower than the blocks say; a finer spacing loses less "
+            "(docs/scenes.md, The tank)"
+        )
     lo, hi = scene.tank.bounds
     # A box tank's walls start h/2 outside its faces; a mesh container's cells reach h outside.
     margin = 0.5 * h if isinstance(scene.tank, Box) else 2.0 * h
@@ -97,6 +109,7 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         domain_lower=lo - margin,
         domain_upper=hi + margin,
         capacity=capacity,
+        setup_warnings=notes,
     )
     x = np.zeros((capacity, 3), dtype=np.float32)
     x[:n] = xf
@@ -174,21 +187,22 @@ def _placed(motion, points: np.ndarray, time: float) -> np.ndarray:
 
 def sample_scene(
     scene: Scene, device, meshes: dict, free: list = ()
-) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, list, np.ndarray, int | None]:
     """Fluid particles, the static boundary particles (tank and still obstacles) and, per moving
     obstacle, its motion and its boundary particles where the scene places it (``meshes``: the
     shapes' meshes, from :func:`_shape_meshes`; ``free``: the free bodies as :func:`sample_body`
     samples them), and which shape each static boundary particle belongs to (its obstacle's index,
     -1 for the tank). A scene without obstacles and bodies and with a box tank costs no mesh work;
     fluid overlapping an obstacle or a body (where it is at t = 0) or outside a mesh container is
-    dropped."""
+    dropped; last, how many lattice sites lay in a mesh container before those closer than a
+    spacing to its walls' particles were left out (None for a box tank)."""
     h = scene.spacing
     box_tank = isinstance(scene.tank, Box)
     xf = sample_fluid(scene.fluids, scene.tank if box_tank else None, h)
     walls = [sample_tank_walls(scene.tank, h)] if box_tank else []
     shapes = ([] if box_tank else [scene.tank]) + list(scene.obstacles)
     if not shapes and not free:
-        return xf, walls[0], [], np.full(len(walls[0]), -1, dtype=np.int32)
+        return xf, walls[0], [], np.full(len(walls[0]), -1, dtype=np.int32), None
     trimeshes = [meshes[id(s)] for s in shapes]
     # the tank's mesh in layers outside it; a box sampled by faces in layers inside its faces, as
     # the tank's walls are; other closed obstacles (meshes, spheres, boxes thinner than those
@@ -215,6 +229,9 @@ def sample_scene(
     ]
     solids += [(f["vertices"] + f["com"], f["faces"]) for f in free]
     containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
+    inside = None
+    if containers:  # the lattice sites in the container, before those beside its walls are left out
+        inside = len(clear_fluid(xf, np.concatenate(start), solids, h, containers, device, clear=False))
     xf = clear_fluid(xf, np.concatenate(start), solids, h, containers, device)
     still = walls + [x for x, o in zip(sampled, shapes) if not getattr(o, "motion", None)]
     owner = [np.full(len(w), -1) for w in walls] + [
@@ -222,8 +239,8 @@ def sample_scene(
     ]
     bodies = [(o.motion, x) for x, o in zip(sampled, shapes) if getattr(o, "motion", None)]
     if not still:
-        return xf, np.zeros((0, 3)), bodies, np.zeros(0, dtype=np.int32)
-    return xf, np.concatenate(still), bodies, np.concatenate(owner).astype(np.int32)
+        return xf, np.zeros((0, 3)), bodies, np.zeros(0, dtype=np.int32), inside
+    return xf, np.concatenate(still), bodies, np.concatenate(owner).astype(np.int32), inside
 
 
 def _cell_sorted(points: np.ndarray, H: float, device, labels: np.ndarray) -> tuple[wp.array, np.ndarray]:

@@ -42,6 +42,7 @@ class Model:
     rigid: Optional[RigidBodies] = None  # the free bodies' dynamics (their particles are the last ones)
     containment: Optional[Containment] = None  # the walls no particle may be beyond after a step
     capacity: int = 0  # fluid particles the arrays hold at most (more than n_fluid with emitters)
+    setup_warnings: list = field(default_factory=list)  # what the set-up says its user should know
 
     @property
     def n_boundary(self) -> int:

@@ -180,11 +180,11 @@ def fluid_clearance(
 
 
 def clear_fluid(
-    x: np.ndarray, xb: np.ndarray, solids: list, h: float, containers: list = (), device="cpu"
+    x: np.ndarray, xb: np.ndarray, solids: list, h: float, containers: list = (), device="cpu", clear: bool = True
 ) -> np.ndarray:
     """The fluid particles ``x`` that are outside every closed obstacle mesh in ``solids``, inside
     every container mesh in ``containers`` (meshes as ``(vertices, faces)`` pairs) and at least one
-    spacing ``h`` from every boundary particle in ``xb``."""
+    spacing ``h`` from every boundary particle in ``xb`` (without ``clear``: at any distance)."""
     closed_meshes = list(solids) + list(containers)
     if len(x) == 0 or (len(xb) == 0 and not closed_meshes):
         return x
@@ -204,7 +204,8 @@ def clear_fluid(
     solid = wp.array(np.array([1] * len(solids) + [0] * len(containers), dtype=np.int32), dtype=wp.int32, device=device)
     keep = wp.zeros(len(x), dtype=wp.int32, device=device)
     # Slightly under h: a fluid lattice point exactly one spacing from a wall particle stays.
-    wp.launch(fluid_clearance, dim=len(x), inputs=[xd, grid.id, xbd, 0.999 * h, ids, solid, keep], device=device)
+    reach = 0.999 * h if clear else 0.0
+    wp.launch(fluid_clearance, dim=len(x), inputs=[xd, grid.id, xbd, reach, ids, solid, keep], device=device)
     return x[keep.numpy().astype(bool)]
 
 
