@@ -37,22 +37,32 @@ def sphere_share(radius: float, h: float) -> float:
     return sphere_points(radius, h) * h**3 / (4.0 / 3.0 * math.pi * radius**3)
 
 
-def matching_sphere_radius(radius: float, h: float) -> float | None:
-    """The radius nearest ``radius`` (within a quarter of it) whose lattice points hold its volume
-    to 1 %: a sphere of radius r holds the points closer than r to its centre, so each run of radii
-    between two shells of the lattice holds one count c, and ``(3 c / (4 pi))^(1/3) h`` holds c's
-    volume exactly where it falls in that run."""
+def _nearest_exact_radius(radius: float, h: float, dims: int, inclusive: bool, holds=None) -> float | None:
+    """The radius nearest ``radius`` (within a quarter of it) at which the lattice points of a ball
+    of ``dims`` dimensions (those closer to its centre than its radius, or as close with
+    ``inclusive``) fill its volume (its area) exactly, at ``h^dims`` each: each run of radii between
+    two shells of the lattice holds one count c, and the radius whose ball c fills exactly is a
+    candidate where it falls in that run (and ``holds`` it, where given)."""
+    measure = math.pi if dims == 2 else 4.0 / 3.0 * math.pi  # of the unit ball
     n = int(np.ceil(1.25 * radius / h)) + 1
     k = np.arange(-n, n + 1)
-    d = np.sqrt(k[:, None, None] ** 2 + k[None, :, None] ** 2 + k[None, None, :] ** 2).ravel()
+    d = np.sqrt(sum(g**2 for g in np.meshgrid(*([k] * dims), indexing="ij"))).ravel()
     shells, counts = np.unique(np.round(d, 9), return_counts=True)
     best = None
     for i, c in enumerate(np.cumsum(counts)[:-1]):
-        r = (3.0 * c / (4.0 * math.pi)) ** (1.0 / 3.0) * h
-        if shells[i] * h < r <= shells[i + 1] * h and abs(r - radius) <= 0.25 * radius:
+        r = (c / measure) ** (1.0 / dims) * h
+        lo, hi = shells[i] * h, shells[i + 1] * h
+        within = lo <= r < hi if inclusive else lo < r <= hi
+        if within and abs(r - radius) <= 0.25 * radius and (holds is None or holds(r)):
             if best is None or abs(r - radius) < abs(best - radius):
                 best = r
     return best
+
+
+def matching_sphere_radius(radius: float, h: float) -> float | None:
+    """The radius nearest ``radius`` (within a quarter of it) whose lattice points hold its volume
+    to 1 %: a sphere holds the points closer than its radius to its centre."""
+    return _nearest_exact_radius(radius, h, 3, inclusive=False)
 
 
 def _holding(radius: float, count) -> float:
@@ -79,23 +89,14 @@ def nozzle_share(emitter: Emitter, h: float) -> tuple[float, float]:
     return emitter.layer_size(h) * h * h / area, area
 
 
-def matching_disc_radius(emitter: Emitter, h: float) -> float | None:
-    """The disc radius nearest the emitter's (within a quarter of it) whose layer carries its
-    area to 1 %, from the counts of the radii a layer's rule changes at."""
-    r0 = emitter.radius
-    n = int(np.ceil(1.25 * r0 / h)) + 1
-    k = np.arange(-n, n + 1)
-    d = np.sqrt(k[:, None] ** 2 + k[None, :] ** 2).ravel()
-    rings, counts = np.unique(np.round(d, 9), return_counts=True)
-    best = None
-    for i, c in enumerate(np.cumsum(counts)[:-1]):
-        r = math.sqrt(c / math.pi) * h  # a layer of c points carries pi r^2
-        if rings[i] * h <= r < rings[i + 1] * h and abs(r - r0) <= 0.25 * r0 and r >= 0.5 * h:
-            probe = Emitter(center=emitter.center, direction=emitter.direction, speed=emitter.speed, radius=r)
-            if abs(probe.layer_size(h) * h * h / (math.pi * r * r) - 1.0) <= 0.01:
-                if best is None or abs(r - r0) < abs(best - r0):
-                    best = r
-    return best
+def matching_disc_radius(radius: float, h: float) -> float | None:
+    """The disc radius nearest ``radius`` (within a quarter of it) whose layer carries its area to
+    1 %: a layer holds the points as close as its radius to its centre (at least one)."""
+
+    def holds(r: float) -> bool:
+        return r >= 0.5 * h and abs(disc_points(r, h) * h * h / (math.pi * r * r) - 1.0) <= 0.01
+
+    return _nearest_exact_radius(radius, h, 2, inclusive=True, holds=holds)
 
 
 def lattice_shortfalls(scene: dict) -> list[str]:
@@ -150,7 +151,7 @@ def nozzle_flows(scene: dict) -> list[str]:
         if not _outside(share):
             continue
         if emitter.shape == "disc":
-            better = matching_disc_radius(emitter, h)
+            better = matching_disc_radius(emitter.radius, h)
             cure = (
                 f"a radius of {_holding(better, lambda r: disc_points(r, h)):g} m pours its area within 1 %"
                 if better
