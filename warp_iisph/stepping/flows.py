@@ -149,9 +149,9 @@ def drive(
     step = float(dt[0])
     x_end = x[i]
     x_start = x_end - step * v[i]
+    t = time[0] + wp.float64(1.0e-9)  # the emission's 1 ns of slack for the float clock
     for k in range(nozzles.count):
-        # from its start to its end, each with the emission's 1 ns of slack for the float clock
-        t = time[0] + wp.float64(1.0e-9)
+        # from its start to its end
         if nozzles.pouring[k] != 0 and t >= nozzles.start[k] and t < nozzles.end[k]:
             if in_stretch(nozzles, k, x_start, nozzles.margin, nozzles.ahead):
                 stream = nozzles.speed[k] * nozzles.direction[k]
@@ -161,11 +161,13 @@ def drive(
 
 
 @wp.kernel
-def count_behind(x: wp.array(dtype=wp.vec3), nozzles: Nozzles, k: int, upto: float, found: wp.array(dtype=wp.int32)):
-    """How many particles lie behind nozzle k's mouth, from as far behind its plane as its stretch
-    reaches ahead to ``upto`` (negative: behind): liquid there flows into the mouth. An atomic:
-    one launch, never split."""
-    if in_stretch(nozzles, k, x[wp.tid()], nozzles.ahead, upto):
+def count_behind(
+    offset: int, x: wp.array(dtype=wp.vec3), nozzles: Nozzles, k: int, upto: float, found: wp.array(dtype=wp.int32)
+):
+    """Particles behind nozzle k's mouth, from as far behind its plane as its stretch reaches
+    ahead to ``upto`` (negative: behind), counted into ``found`` (read as none or some): liquid
+    there flows into the mouth."""
+    if in_stretch(nozzles, k, x[wp.tid() + offset], nozzles.ahead, upto):
         wp.atomic_add(found, 0, 1)
 
 
@@ -205,7 +207,8 @@ class Flows:
         self.rho0 = float(scene.physics.rho0)
         self.state = state
         self.device = device
-        self.layers = [wp.array(e.layer(h).astype(np.float32), dtype=wp.vec3, device=device) for e in self.emitters]
+        layers = [e.layer(h) for e in self.emitters]  # each layer's points, from its nozzle's centre
+        self.layers = [wp.array(p.astype(np.float32), dtype=wp.vec3, device=device) for p in layers]
         self.period = [h / e.speed for e in self.emitters]  # a layer moves one spacing in this time
         self.next_time = [e.start for e in self.emitters]
         self.emitted = 0
@@ -215,14 +218,14 @@ class Flows:
         self.removed = 0
         self.reach = BLOCKED * h
         self.spacing = h
-        self.extents = [float(np.linalg.norm(e.layer(h), axis=1).max(initial=0.0)) + self.reach for e in self.emitters]
+        self.extents = [float(np.linalg.norm(p, axis=1).max(initial=0.0)) + self.reach for p in layers]
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
         # per emitter, which of its last RECENT layers due came in (bit 0 the last; those before its
         # start count as come in)
         self.poured_recently = np.full(len(self.emitters), 2**RECENT - 1, dtype=np.int64)
-        self.nozzles = self._nozzles(h) if self.emitters else None
+        self.nozzles = self._nozzles(h, layers) if self.emitters else None
 
-    def _nozzles(self, h: float) -> Nozzles:
+    def _nozzles(self, h: float, layers: list) -> Nozzles:
         n, dev = Nozzles(), self.device
         es = self.emitters
         axes = [e.axes() for e in es]
@@ -231,13 +234,11 @@ class Flows:
         n.across = wp.array(np.array([u for u, _ in axes], np.float32), dtype=wp.vec3, device=dev)
         n.up = wp.array(np.array([w for _, w in axes], np.float32), dtype=wp.vec3, device=dev)
         half = []
-        for e in es:
-            layer = e.layer(h)
+        for e, layer, (u, w) in zip(es, layers, axes):
             if e.shape == "disc":
                 r = float(np.linalg.norm(layer, axis=1).max(initial=0.0))
                 half.append((r, r))
             else:
-                u, w = e.axes()
                 half.append((float(np.abs(layer @ u).max()), float(np.abs(layer @ w).max())))
         n.half = wp.array(np.array(half, np.float32), dtype=wp.vec2, device=dev)
         n.disc = wp.array(np.array([e.shape == "disc" for e in es], np.int32), dtype=wp.int32, device=dev)
@@ -346,24 +347,21 @@ class Flows:
     def _open_water(self, k: int) -> bool:
         """Whether liquid lies behind nozzle k's mouth (more than half a spacing behind its plane):
         open water that flows into it, not a mouth in a wall whose liquid the drive can push off."""
-        s = self.state
-        self._blocking.zero_()
-        inputs = [s.x, self.nozzles, k, -0.5 * self.spacing, self._blocking]
-        wp.launch(count_behind, dim=s.count, inputs=inputs, device=self.device)
-        return int(self._blocking.numpy()[0]) > 0
+        return self._any(count_behind, [self.nozzles, k, -0.5 * self.spacing])
 
     def _blocked(self, emitter, layer, extent: float) -> bool:
-        """Whether liquid sits where the layer would go (one pass over the liquid, one read)."""
+        """Whether liquid sits where the layer would go."""
+        return self._any(count_blocking, [wp.vec3(*emitter.center), layer, extent, float(self.reach)])
+
+    def _any(self, kernel, inputs: list) -> bool:
+        """Whether ``kernel`` (over the liquid's particles: ``x``, then ``inputs``, then the counter)
+        counts any: one pass, one read. Split over threads, its increments may race, but a race only
+        loses increments of a count already above zero."""
         s = self.state
         if s.count == 0:
             return False
         self._blocking.zero_()
-        launch_particles(
-            count_blocking,
-            s.count,
-            [s.x, wp.vec3(*emitter.center), layer, extent, float(self.reach), self._blocking],
-            self.device,
-        )
+        launch_particles(kernel, s.count, [s.x, *inputs, self._blocking], self.device)
         return int(self._blocking.numpy()[0]) > 0
 
     def drain(self) -> int:
