@@ -16,7 +16,7 @@ from ..sph.rigid import RigidBodies
 from .bodies import sample_body
 from .boundary import compute_boundary_psi, overcompressed
 from .model import Model, State
-from .rasterize import clear_fluid, oriented, sample_mesh, surface_layers
+from .rasterize import CLEAR, NO_ROOM, fluid_room, oriented, sample_mesh, surface_layers
 from .sampling import sample_box_faces, sample_fluid, sample_tank_walls
 
 # Largest initial compression (fraction of rho0) a fluid particle beside a mesh may start with.
@@ -229,10 +229,10 @@ def sample_scene(
     ]
     solids += [(f["vertices"] + f["com"], f["faces"]) for f in free]
     containers = [] if box_tank else [(trimeshes[0].vertices, trimeshes[0].faces)]
-    inside = None
-    if containers:  # the lattice sites in the container, before those beside its walls are left out
-        inside = len(clear_fluid(xf, np.concatenate(start), solids, h, containers, device, clear=False))
-    xf = clear_fluid(xf, np.concatenate(start), solids, h, containers, device)
+    room = fluid_room(xf, np.concatenate(start), solids, h, containers, device)
+    # the lattice sites in a container, before those beside its walls are left out
+    inside = int(np.sum(room != NO_ROOM)) if containers else None
+    xf = xf[room == CLEAR]
     still = walls + [x for x, o in zip(sampled, shapes) if not getattr(o, "motion", None)]
     owner = [np.full(len(w), -1) for w in walls] + [
         np.full(len(x), k) for x, o, k in zip(sampled, shapes, labels) if not getattr(o, "motion", None)

@@ -155,6 +155,12 @@ def sample_mesh(vertices: np.ndarray, faces: np.ndarray, h: float, device="cpu",
     return ((ijk + 0.5) * h, triangles) if pairs else (ijk + 0.5) * h
 
 
+# What :func:`fluid_room` says of a fluid point: where the meshes leave no room for liquid (inside
+# an obstacle, outside a container), where there is room but a boundary particle is closer than a
+# spacing, and where it stays.
+NO_ROOM, BESIDE_WALL, CLEAR = 0, 1, 2
+
+
 @wp.kernel
 def fluid_clearance(
     x: wp.array(dtype=wp.vec3),
@@ -163,31 +169,33 @@ def fluid_clearance(
     min_distance: float,
     meshes: wp.array(dtype=wp.uint64),
     solid_inside: wp.array(dtype=wp.int32),
-    keep: wp.array(dtype=wp.int32),
+    room: wp.array(dtype=wp.int32),
 ):
     i = wp.tid()
     p = x[i]
-    ok = int(1)
+    clear = int(1)
     for b in wp.hash_grid_query(grid, p, min_distance):
         if wp.length(xb[b] - p) < min_distance:
-            ok = 0
+            clear = 0
+    inside = int(1)
     for m in range(meshes.shape[0]):
         q = wp.mesh_query_point_sign_winding_number(meshes[m], p, 1.0e6)
         if q.result:
             if (q.sign < 0.0) == (solid_inside[m] != 0):
-                ok = 0
-    keep[i] = ok
+                inside = 0
+    room[i] = inside * (1 + clear)  # NO_ROOM, BESIDE_WALL or CLEAR
 
 
-def clear_fluid(
-    x: np.ndarray, xb: np.ndarray, solids: list, h: float, containers: list = (), device="cpu", clear: bool = True
+def fluid_room(
+    x: np.ndarray, xb: np.ndarray, solids: list, h: float, containers: list = (), device="cpu"
 ) -> np.ndarray:
-    """The fluid particles ``x`` that are outside every closed obstacle mesh in ``solids``, inside
-    every container mesh in ``containers`` (meshes as ``(vertices, faces)`` pairs) and at least one
-    spacing ``h`` from every boundary particle in ``xb`` (without ``clear``: at any distance)."""
+    """For each fluid point ``x``: ``NO_ROOM`` inside a closed obstacle mesh in ``solids`` or
+    outside a container mesh in ``containers`` (meshes as ``(vertices, faces)`` pairs),
+    ``BESIDE_WALL`` where it has room but lies closer than a spacing ``h`` to a boundary particle in
+    ``xb``, else ``CLEAR``."""
     closed_meshes = list(solids) + list(containers)
     if len(x) == 0 or (len(xb) == 0 and not closed_meshes):
-        return x
+        return np.full(len(x), CLEAR, dtype=np.int32)
     device = wp.get_device(device)
     xd = wp.array(x.astype(np.float32), dtype=wp.vec3, device=device)
     xbd = wp.array(np.asarray(xb, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
@@ -202,11 +210,19 @@ def clear_fluid(
     ]
     ids = wp.array(np.array([m.id for m in held], dtype=np.uint64), dtype=wp.uint64, device=device)
     solid = wp.array(np.array([1] * len(solids) + [0] * len(containers), dtype=np.int32), dtype=wp.int32, device=device)
-    keep = wp.zeros(len(x), dtype=wp.int32, device=device)
+    room = wp.zeros(len(x), dtype=wp.int32, device=device)
     # Slightly under h: a fluid lattice point exactly one spacing from a wall particle stays.
-    reach = 0.999 * h if clear else 0.0
-    wp.launch(fluid_clearance, dim=len(x), inputs=[xd, grid.id, xbd, reach, ids, solid, keep], device=device)
-    return x[keep.numpy().astype(bool)]
+    wp.launch(fluid_clearance, dim=len(x), inputs=[xd, grid.id, xbd, 0.999 * h, ids, solid, room], device=device)
+    return room.numpy()
+
+
+def clear_fluid(
+    x: np.ndarray, xb: np.ndarray, solids: list, h: float, containers: list = (), device="cpu"
+) -> np.ndarray:
+    """The fluid particles ``x`` that are outside every closed obstacle mesh in ``solids``, inside
+    every container mesh in ``containers`` (meshes as ``(vertices, faces)`` pairs) and at least one
+    spacing ``h`` from every boundary particle in ``xb`` (:func:`fluid_room`'s ``CLEAR``)."""
+    return x[fluid_room(x, xb, solids, h, containers, device) == CLEAR]
 
 
 @wp.func
