@@ -91,6 +91,7 @@ def build_model(scene: Scene, device, until: float | None = None) -> tuple[Model
         raise ValueError(f"max_particles = {scene.max_particles}: below the {n} fluid particles the scene starts with")
     capacity = max(n, int(np.ceil(scene.capacity_estimate(h, n, until))), 1)
     _check_memory(capacity, len(xb) + n_moving, device)
+    containment.reserve(capacity)
     model = Model(
         device=device,
         physics=ph,

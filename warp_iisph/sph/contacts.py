@@ -73,9 +73,11 @@ def partner_pose(solids: Solids, poses: Poses, k: int) -> wp.transform:
 
 
 @wp.kernel
-def sample_gaps(contacts: ContactSet, solids: Solids, poses: Poses, xb: wp.array(dtype=wp.vec3), n_samples: int):
+def sample_gaps(
+    offset: int, contacts: ContactSet, solids: Solids, poses: Poses, xb: wp.array(dtype=wp.vec3), n_samples: int
+):
     """Each sample's gap to and normal from every partner (``NO_GAP`` beyond the reach)."""
-    s = wp.tid()
+    s = offset + wp.tid()
     f = contacts.owner[s]
     x = xb[contacts.sample_first[f] + s - contacts.sample_start[f]]
     depth = contacts.depth[s]

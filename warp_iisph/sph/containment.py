@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..engine.launch import launch_particles
 from .bodies import MovingBodies, Poses
 from .neighbors import NeighborList
 
@@ -106,6 +107,7 @@ def entered(mesh: wp.uint64, a: wp.vec3, e: wp.vec3):
 
 @wp.kernel
 def contain(
+    offset: int,
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     nb: NeighborList,
@@ -114,17 +116,19 @@ def contain(
     dt: wp.array(dtype=wp.float64),
     reach: float,
     clearance: float,
-    corrections: wp.array(dtype=wp.int32),
+    codes: wp.array(dtype=wp.int32),
 ):
-    """corrections[0]: particles put back inside the tank; corrections[1]: out of obstacles and
-    bodies. Atomics: one launch, never split."""
-    i = wp.tid()
+    """Particle i put back within the walls; ``codes[i]``: bit 0 set when put back inside the
+    tank, bit 1 when out of an obstacle or a body (no atomics: the launch is split over CPU
+    threads, :func:`count_codes` counts them)."""
+    i = offset + wp.tid()
     x_i = x[i]
     v_i = v[i]
+    code = int(0)
     if solids.has_box != 0:
         x_i, v_i, moved = clamp_to_box(x_i, v_i, solids.box_lower, solids.box_upper)
         if moved != 0:
-            wp.atomic_add(corrections, 0, 1)
+            code = 1
     if nb.count[i] > 0:
         h = float(dt[0])
         for k in range(solids.count):
@@ -173,9 +177,21 @@ def contain(
                 if vn < 0.0:
                     v_i = v_i - vn * n_world
                 x_i = x_new
-                wp.atomic_add(corrections, 1, 1)
+                code = code | 2
     x[i] = x_i
     v[i] = v_i
+    codes[i] = code
+
+
+@wp.kernel
+def count_codes(codes: wp.array(dtype=wp.int32), corrections: wp.array(dtype=wp.int32)):
+    """corrections[0]: particles :func:`contain` put back inside the tank; corrections[1]: out of
+    obstacles and bodies (an atomic only where a particle was put back: few, on any device)."""
+    c = codes[wp.tid()]
+    if c & 1 != 0:
+        wp.atomic_add(corrections, 0, 1)
+    if c & 2 != 0:
+        wp.atomic_add(corrections, 1, 1)
 
 
 class Containment:
@@ -208,24 +224,18 @@ class Containment:
         self.solids = s
         self.poses = bodies.poses if bodies is not None else MovingBodies([], np.zeros((0, 3)), [], 0, device).poses
         self.corrections = wp.zeros(2, dtype=wp.int32, device=device)
+        self.codes = wp.zeros(0, dtype=wp.int32, device=device)
+
+    def reserve(self, capacity: int) -> None:
+        """Room for ``capacity`` particles' codes (the model's: a graph's step never allocates)."""
+        if self.codes.shape[0] < capacity:
+            self.codes = wp.zeros(capacity, dtype=wp.int32, device=self.device)
 
     def apply(self, x: wp.array, v: wp.array, nb: NeighborList, n: int, dt: wp.array) -> None:
         """Put the ``n`` particles back within the walls, counting into ``corrections`` (zeroed here)."""
         self.corrections.zero_()
         if n:
-            wp.launch(
-                contain,
-                dim=n,
-                device=self.device,
-                inputs=[
-                    x,
-                    v,
-                    nb,
-                    self.solids,
-                    self.poses,
-                    dt,
-                    2.0 * self.spacing,
-                    CLEARANCE * self.spacing,
-                    self.corrections,
-                ],
-            )
+            self.reserve(n)
+            inputs = [x, v, nb, self.solids, self.poses, dt, 2.0 * self.spacing, CLEARANCE * self.spacing, self.codes]
+            launch_particles(contain, n, inputs, self.device)
+            wp.launch(count_codes, dim=n, inputs=[self.codes, self.corrections], device=self.device)

@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..engine.launch import launch_particles
 from ..scene.bodies import quaternion_matrix
 from .bodies import Poses
 from .contacts import FACES, ContactSet, Motion, pool_contacts, resolve, sample_gaps
@@ -292,7 +293,10 @@ class RigidBodies:
         if not self.n:
             return
         cs, dev = self.contacts, self.device
-        wp.launch(sample_gaps, dim=self.n_samples, inputs=[cs, solids, poses, boundary_x, self.n_samples], device=dev)
+        # a sample's queries against every partner are a large piece of work: a thread from 256
+        launch_particles(
+            sample_gaps, self.n_samples, [cs, solids, poses, boundary_x, self.n_samples], dev, min_chunk=256
+        )
         wp.launch(pool_contacts, dim=(self.n, cs.partners), inputs=[cs, boundary_x], device=dev)
         inputs = [self.constants, self.state, loads.totals, loads.wetted, self.motion, cs, solids, poses]
         inputs += [time, dt, self.n]
@@ -302,10 +306,14 @@ class RigidBodies:
         if self.n:
             wp.launch(body_speeds, dim=self.n, inputs=[self.constants, self.state, speed2], device=self.device)
 
+    def values(self) -> dict:
+        """The state on the host: name -> (bodies, components) float64 array."""
+        state = self.state
+        return {name: getattr(state, name).numpy().astype(np.float64).reshape(self.n, -1) for name in self.fields()}
+
     def host(self) -> dict:
-        """The state on the host: name -> (bodies, components) float64 array, and the angular
-        velocity ``spin`` (rad/s)."""
-        out = {name: getattr(self.state, name).numpy().astype(np.float64).reshape(self.n, -1) for name in self.fields()}
+        """:meth:`values` and the angular velocity ``spin`` (rad/s)."""
+        out = self.values()
         inertia = self.constants.inertia.numpy().reshape(-1, 3, 3)
         free = self.constants.angular_free.numpy().reshape(-1, 3)
         spin = []
