@@ -41,6 +41,22 @@ def test_neighbor_lists_identical_to_brute_force():
     assert search.boundary.capacity >= capacity
 
 
+def test_lists_exact_where_cells_wrap_round_the_hash_table_and_alias():
+    """A row of cells is scanned as one run of sorted points where its hashes are consecutive, cell
+    by cell where it wraps round the 128-cell table (negative coordinates, a domain wider than the
+    table, cells of several places sharing a hash): every neighbour once, no other."""
+    rng = np.random.default_rng(5)
+    H = 0.01
+    # 1.7 m along x at 1 cm cells spans the table, from below zero; thin in y and z, so dense enough
+    x = np.column_stack([rng.uniform(-0.4, 1.3, 6000), rng.uniform(-0.02, 0.03, 6000), rng.uniform(0, 0.03, 6000)])
+    search = NeighborSearch(len(x), None, H, "cpu")
+    search.build(wp.array(x.astype(np.float32), dtype=wp.vec3, device="cpu"))
+    sets, count = search.fluid.to_sets(len(x)), search.fluid.lists.count.numpy()[: len(x)]
+    assert sets == _brute(x, x, H, same=True)
+    assert np.array_equal(count, [len(s) for s in sets])  # nobody listed twice
+    assert count.sum() > 5 * len(x)
+
+
 def test_strided_lists_cut_at_the_stride_without_sync_and_say_what_they_needed():
     """Inside a captured graph nothing is read back: a list longer than the stride is cut (no
     write past the storage) and ``needed`` tells the host afterwards."""

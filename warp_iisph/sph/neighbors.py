@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from ..engine.launch import launch_particles
-from .grid import CellGrid, ParticleGrid, cell_first, cell_hash, cell_range
+from .grid import GRID_DIM, CellGrid, ParticleGrid, cell_first, cell_range
 from .kernel import cubic_grad_W, cubic_W
 from .wall_mask import MovingMask, MovingNearMask, NearMask, may_have_moving_neighbors, may_have_neighbors, near_mask
 
@@ -45,6 +45,49 @@ def entry(nbrs: NeighborList, i: int, m: int) -> int:
 
 
 @wp.func
+def wrap_cell(c: int) -> int:
+    """A cell coordinate wrapped (non-negative modulo) into the hash table, as ``cell_hash`` does."""
+    w = c % GRID_DIM
+    if w < 0:
+        w += GRID_DIM
+    return w
+
+
+@wp.func
+def scan_run(
+    g: CellGrid,
+    x_i: wp.vec3,
+    radius: float,
+    s: int,
+    last: int,
+    skip: int,
+    first: int,
+    nbrs: NeighborList,
+    k0: int,
+    step: int,
+    slots: int,
+    write: int,
+    m: int,
+) -> int:
+    """The sorted points from position ``s`` while their cell is at most ``last`` (see
+    :func:`walk_cells`): ``m`` plus how many are within reach."""
+    r2 = radius * radius
+    while s < g.n and g.keys[s] <= last:
+        x_ij = x_i - g.points[s]
+        s += 1
+        if wp.dot(x_ij, x_ij) < r2:
+            j = g.ids[s - 1]
+            if j != skip:
+                if write != 0 and m < slots:
+                    e = k0 + m * step
+                    nbrs.index[e] = first + j
+                    nbrs.grad_W[e] = cubic_grad_W(x_ij, radius)
+                    nbrs.W[e] = cubic_W(wp.length(x_ij), radius)
+                m += 1
+    return m
+
+
+@wp.func
 def walk_cells(
     g: CellGrid,
     x_i: wp.vec3,
@@ -60,31 +103,33 @@ def walk_cells(
     """The points a :class:`CellGrid` holds within ``radius`` of ``x_i`` (but point ``skip``),
     visited cell by cell, x fastest, as ``wp.hash_grid_query`` visits them: how many there are.
     With ``write``, the m-th goes to list entry ``k0 + m step`` while ``m < slots`` (its index
-    ``first`` plus its id, ``grad W`` and ``W``)."""
+    ``first`` plus its id, ``grad W`` and ``W``). A row of cells along x that does not wrap round
+    the table has consecutive hashes, so its points lie in one run of the sorted points: it is
+    scanned as one (the same points in the same order; a cell looked up only until the first
+    occupied one), and each axis is wrapped once, not once a cell."""
     m = int(0)
     if g.n == 0:
         return m
-    r2 = radius * radius
     cx = cell_range(g, x_i, radius, 0)
     cy = cell_range(g, x_i, radius, 1)
     cz = cell_range(g, x_i, radius, 2)
+    x0 = wrap_cell(cx[0])
+    x1 = x0 + cx[1] - cx[0]
     for z in range(cz[0], cz[1] + 1):
+        plane = wrap_cell(z) * (GRID_DIM * GRID_DIM)
         for y in range(cy[0], cy[1] + 1):
-            for x in range(cx[0], cx[1] + 1):
-                c = cell_hash(x, y, z)
-                s = cell_first(g, c)
-                while s < g.n and g.keys[s] == c:
-                    x_ij = x_i - g.points[s]
-                    s += 1
-                    if wp.dot(x_ij, x_ij) < r2:
-                        j = g.ids[s - 1]
-                        if j != skip:
-                            if write != 0 and m < slots:
-                                e = k0 + m * step
-                                nbrs.index[e] = first + j
-                                nbrs.grad_W[e] = cubic_grad_W(x_ij, radius)
-                                nbrs.W[e] = cubic_W(wp.length(x_ij), radius)
-                            m += 1
+            row = plane + wrap_cell(y) * GRID_DIM
+            if x1 < GRID_DIM:
+                s = g.n
+                c = row + x0
+                while c <= row + x1 and s == g.n:
+                    s = cell_first(g, c)
+                    c += 1
+                m = scan_run(g, x_i, radius, s, row + x1, skip, first, nbrs, k0, step, slots, write, m)
+            else:
+                for x in range(cx[0], cx[1] + 1):
+                    c = row + wrap_cell(x)
+                    m = scan_run(g, x_i, radius, cell_first(g, c), c, skip, first, nbrs, k0, step, slots, write, m)
     return m
 
 
