@@ -1,10 +1,12 @@
-"""Neighbour search: ``wp.HashGrid`` queries turned into per-step compact neighbour lists.
+"""Neighbour search: hash-grid queries turned into per-step compact neighbour lists.
 
 The grid is queried once per step; every later loop of the step walks the compact lists, which
 is several times cheaper than querying the grid again. Fluid-fluid lists have a fixed number of
 slots per particle and are filled in a single query pass; fluid-boundary lists, empty for most
 particles, are compact (CSR: count, exclusive scan, fill), and a particle that a static mask of
-cells near the walls clears skips the walls' grid altogether. Each list
+cells near the walls clears skips the walls' grid altogether. Every grid is a :class:`.grid.CellGrid`
+(the walls' still particles' built once), walked by :func:`walk_cells` in ``wp.hash_grid_query``'s
+order. Each list
 entry stores the neighbour index and ``grad W_ij`` (positions do not change until integration).
 Fluid particles are periodically reordered by grid cell so that neighbours are close in memory.
 """
@@ -136,8 +138,7 @@ def walk_cells(
 @wp.kernel
 def count_neighbors(
     offset: int,
-    grid: wp.uint64,
-    points: wp.array(dtype=wp.vec3),
+    still: CellGrid,
     queries: wp.array(dtype=wp.vec3),
     radius: float,
     mask: NearMask,
@@ -146,20 +147,14 @@ def count_neighbors(
     moving_first: int,
     nbrs: NeighborList,
 ):
-    """Neighbours among the still points (their ``wp.HashGrid``, skipped where ``mask`` clears
-    the cell) and the moving ones (``moving``, over the points from ``moving_first``, skipped
-    where ``moving_mask`` clears the cell)."""
+    """Neighbours among the still points (``still``, skipped where ``mask`` clears the cell) and
+    the moving ones (``moving``, over the points from ``moving_first``, skipped where
+    ``moving_mask`` clears the cell)."""
     i = wp.tid() + offset
     x_i = queries[i]
     n = int(0)
     if may_have_neighbors(mask, x_i):
-        r2 = radius * radius
-        j = int(0)
-        query = wp.hash_grid_query(grid, x_i, radius)
-        while wp.hash_grid_query_next(query, j):
-            d = x_i - points[j]
-            if wp.dot(d, d) < r2:
-                n += 1
+        n += walk_cells(still, x_i, radius, -1, 0, nbrs, 0, 1, 0, 0)
     if may_have_moving_neighbors(moving_mask, x_i):
         n += walk_cells(moving, x_i, radius, -1, moving_first, nbrs, 0, 1, 0, 0)
     nbrs.count[i] = n
@@ -168,8 +163,7 @@ def count_neighbors(
 @wp.kernel
 def fill_neighbors(
     offset: int,
-    grid: wp.uint64,
-    points: wp.array(dtype=wp.vec3),
+    still: CellGrid,
     queries: wp.array(dtype=wp.vec3),
     radius: float,
     mask: NearMask,
@@ -185,20 +179,10 @@ def fill_neighbors(
     if nbrs.count[i] == 0:
         return
     x_i = queries[i]
-    r2 = radius * radius
     k = nbrs.start[i]
     capacity = nbrs.index.shape[0]
     if may_have_neighbors(mask, x_i):
-        j = int(0)
-        query = wp.hash_grid_query(grid, x_i, radius)
-        while wp.hash_grid_query_next(query, j):
-            x_ij = x_i - points[j]
-            if wp.dot(x_ij, x_ij) < r2:
-                if k < capacity:
-                    nbrs.index[k] = j
-                    nbrs.grad_W[k] = cubic_grad_W(x_ij, radius)
-                    nbrs.W[k] = cubic_W(wp.length(x_ij), radius)
-                k += 1
+        k += walk_cells(still, x_i, radius, -1, 0, nbrs, k, 1, capacity - k, 1)
     if may_have_moving_neighbors(moving_mask, x_i):
         k += walk_cells(moving, x_i, radius, -1, moving_first, nbrs, k, 1, capacity - k, 1)
     if k > capacity:  # keep every later loop inside the storage
@@ -297,8 +281,7 @@ class NeighborListBuffer:
 
     def build(
         self,
-        grid: wp.HashGrid,
-        points,
+        still: ParticleGrid,
         queries,
         n: int,
         radius: float,
@@ -308,16 +291,16 @@ class NeighborListBuffer:
         moving_first: int,
         sync: bool = True,
     ):
-        """Neighbours among ``points`` (another set: the walls) of each of the ``n`` ``queries``:
-        count, starts, fill. The still points are in ``grid`` (queries in cells that ``mask``, see
-        :func:`near_mask`, clears skip it), the moving ones from ``moving_first`` in ``moving``
-        (skipped where ``moving_mask`` clears the cell).
+        """Neighbours among another set of points (the walls) of each of the ``n`` ``queries``:
+        count, starts, fill. The still points are in ``still`` (queries in cells that ``mask``,
+        see :func:`near_mask`, clears skip it), the moving ones from ``moving_first`` in
+        ``moving`` (skipped where ``moving_mask`` clears the cell).
         With ``sync`` the storage grows first when too small; without it (inside a captured
         graph) nothing is read back and ``needed`` tells afterwards."""
         if n == 0:
             return
         lists = self.lists
-        common = [grid.id, points, queries, radius, mask, moving.grid, moving_mask.mask, moving_first]
+        common = [still.grid, queries, radius, mask, moving.grid, moving_mask.mask, moving_first]
         launch_particles(count_neighbors, n, [*common, lists], self.device)
         self.needed.zero_()
         wp.launch(list_starts, dim=n, inputs=[lists, self.needed], device=self.device)
@@ -412,7 +395,7 @@ class NeighborSearch:
         self.boundary_grid = None
         if n_boundary:
             still = boundary_x[: self.n_still]
-            self.boundary_grid = make_grid(device)
+            self.boundary_grid = ParticleGrid(self.n_still, device)
             self.boundary_grid.build(still, self.radius)
             self.boundary_mask = near_mask(still, self.radius, device)  # most particles are far from walls
         self.moving_grid = ParticleGrid(n_boundary - self.n_still, device)
@@ -445,7 +428,6 @@ class NeighborSearch:
                 self.moving_mask.mark(self.boundary_x[self.n_still :])
             self.boundary.build(
                 self.boundary_grid,
-                self.boundary_x,
                 x,
                 n,
                 self.radius,
