@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 TILE = 256
 
 

@@ -8,6 +8,8 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.func
 def put_number(buf: wp.array(dtype=wp.uint8), start: int, width: int, value: wp.float64, decimals: int):

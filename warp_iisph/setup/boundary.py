@@ -18,6 +18,8 @@ from ..sph.kernel import cubic_W, cubic_W_np
 from ..sph.neighbors import make_grid
 from .sampling import flat_wall_patch
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 def flat_wall_gamma() -> float:
     """Scale ``gamma`` of the boundary weights such that a fluid particle resting one spacing

@@ -14,6 +14,8 @@ from ..sph.bodies import MovingBodies
 from ..sph.containment import Containment
 from ..sph.rigid import RigidBodies
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @dataclass
 class Model:

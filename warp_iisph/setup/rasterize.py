@@ -28,6 +28,8 @@ import warp as wp
 
 from ..sph.neighbors import make_grid
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.func
 def _axis_separates(a: wp.vec3, v0: wp.vec3, v1: wp.vec3, v2: wp.vec3, e: wp.vec3) -> bool:

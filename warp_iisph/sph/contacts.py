@@ -28,6 +28,8 @@ import warp as wp
 from .bodies import Poses, point_velocity
 from .containment import Solids
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 NO_GAP = wp.constant(1.0e30)  # a sample far from a partner
 FACES = 6  # a box tank's partners: its faces, lower x, upper x, lower y, ...
 SWEEPS = 8  # sweeps of sequential impulses over all contacts

@@ -32,6 +32,8 @@ from ..engine.launch import launch_particles
 from .bodies import MovingBodies, Poses
 from .neighbors import NeighborList
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 # A particle put back lands this far (a fraction of the spacing) on the fluid's side of the surface.
 CLEARANCE = 1.0e-3
 

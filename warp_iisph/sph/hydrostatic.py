@@ -33,6 +33,8 @@ import warp as wp
 from ..engine.launch import launch_particles
 from .neighbors import NeighborList, entry
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 RELEASE = wp.constant(0.01)  # advected density deficit (fraction of rho0) at which the start is zero
 
 

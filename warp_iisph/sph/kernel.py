@@ -10,6 +10,8 @@ import math
 import numpy as np
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.func
 def cubic_W(r: float, H: float) -> float:

@@ -21,6 +21,8 @@ from .grid import GRID_DIM, CellGrid, ParticleGrid, cell_first, cell_range
 from .kernel import cubic_grad_W, cubic_W
 from .wall_mask import MovingMask, MovingNearMask, NearMask, may_have_moving_neighbors, may_have_neighbors, near_mask
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.struct
 class NeighborList:

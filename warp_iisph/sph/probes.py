@@ -34,6 +34,8 @@ import warp as wp
 from .grid import CellGrid, cell_first, cell_hash, cell_range
 from .kernel import cubic_W
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.struct
 class Reach:

@@ -35,6 +35,10 @@ from .bodies import Poses
 from .contacts import FACES, ContactSet, Motion, pool_contacts, resolve, sample_gaps
 from .containment import Solids
 
+# never differentiated: no adjoint code; loops not unrolled (one thread a body: the unrolled
+# midpoint and contact loops took NVRTC 12 s to compile, 1.6 s rolled)
+wp.set_module_options({"enable_backward": False, "max_unroll": 1})
+
 # Fixed-point iterations of the turn's midpoint angular velocity: each gains a factor of about
 # h |w| (under 0.1 at any step the CFL rule allows a body turning less than 20 rad/s).
 MIDPOINT_ITERATIONS = 4

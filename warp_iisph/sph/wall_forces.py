@@ -41,6 +41,8 @@ from .neighbors import NeighborList, entry
 from .solvers.forces import ViscousTerms, viscous_pair, viscous_substep_count
 from .wall_pressure import Walls, smoothed_pressure
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 BLOCK = wp.constant(256)  # fluid particles per thread of the first pass
 COMPONENTS = 12  # per group: pressure force, friction force, pressure moment, friction moment (x, y, z each)
 PRESSURE_FORCE, FRICTION_FORCE, PRESSURE_MOMENT, FRICTION_MOMENT = 0, 3, 6, 9

@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 KAPPA = 0.03  # regularisation, in units of rho0 / h (a flat wall's first layer has |G_b| = 0.5 rho0 / h)
 FULL_FROM = wp.constant(0.02)  # density deficit (fraction of rho0) down to which the factor is taken in full
 NONE_FROM = wp.constant(0.05)  # and from which not at all

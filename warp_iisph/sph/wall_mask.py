@@ -9,6 +9,8 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.struct
 class NearMask:

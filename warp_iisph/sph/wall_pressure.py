@@ -36,6 +36,8 @@ from .kernel import cubic_W_np
 from .neighbors import NeighborList, entry
 from .wall_gradient import gradient_factor, regularisation
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.struct
 class Walls:

@@ -25,6 +25,8 @@ import warp as wp
 
 from ..engine.launch import launch_particles
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 # A liquid particle this close to a new one (in spacings) blocks the nozzle: the layer would overlap
 # it and the pressure solve would blow the two apart.
 BLOCKED = 0.75

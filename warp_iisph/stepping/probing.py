@@ -18,6 +18,8 @@ from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_column
 from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
 from ..sph.wall_forces import WallForces
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 # a step ending this close (a fraction of the interval) before a multiple of it reaches it
 SCHEDULE_SLACK = wp.constant(wp.float64(1.0e-9))
 

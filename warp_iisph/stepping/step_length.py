@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 SQRT2 = wp.constant(wp.float64(1.4142135623730951))
 
 

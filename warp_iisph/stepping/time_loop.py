@@ -23,6 +23,8 @@ from ..sph.solvers import STAGES
 from .bodies import BodySteps
 from .step_length import Clock, StepRule, Substeps, choose_dt
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 LOG_FIELDS = (
     "dt",
     "iterations",

@@ -23,6 +23,8 @@ from ..neighbors import NeighborList, NeighborSearch, entry
 from ..wall_pressure import WallPressures, Walls, smoothed_pressure
 from .forces import ViscousSubsteps, predict_velocity
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 STAGES = ("neighbours", "density", "advection", "pressure", "integration")
 
 

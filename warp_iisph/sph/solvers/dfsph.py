@@ -55,6 +55,8 @@ from ..wall_pressure import Walls, walls_of
 from .base import Fluid, SPHSolver
 from .iteration import IterativeSolve
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 # Fewer neighbours (fluid and wall, self excluded) than this, and a particle takes no part in
 # the divergence solve (the paper's particle deficiency rule; a resting particle has 26 fluid
 # neighbours within 2h, and more beside a wall).

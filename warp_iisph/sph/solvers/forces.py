@@ -24,6 +24,8 @@ import warp as wp
 from ...engine.launch import launch_particles
 from ..neighbors import NeighborList, entry
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 # the explicit viscosity's step limit, in h^2 / mu (see viscous_dt_limit)
 VISCOUS_DT_FACTOR = 0.4
 

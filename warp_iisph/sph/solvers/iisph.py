@@ -42,6 +42,8 @@ from .base import Fluid, SPHSolver
 from .forces import ViscousTerms, advected_velocity
 from .iteration import IterativeSolve
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 # The least magnitude of the diagonal a Jacobi step divides by, as a fraction of the diagonal of a
 # particle inside resting liquid: only particles pinned between walls fall below it (jacobi_update).
 DIAGONAL_FLOOR = 0.25

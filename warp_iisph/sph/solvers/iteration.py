@@ -32,6 +32,8 @@ import warp as wp
 
 from ...engine.reduce import sum_into
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 GROWTH = wp.constant(2.0)  # a density solve whose error grows to this many times its least stops (module docstring)
 
 

@@ -16,6 +16,8 @@ from ...engine.launch import launch_particles
 from ..wall_pressure import WallPressures
 from .base import SPHSolver
 
+wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
+
 
 @wp.kernel
 def state_equation(offset: int, rho: wp.array(dtype=float), rho0: float, stiffness: float, p: wp.array(dtype=float)):
