@@ -19,6 +19,8 @@ USERS = [
     "warp_iisph.sph.solvers.wcsph",
     "warp_iisph.sph.solvers.dfsph",
     "warp_iisph.sph.wall_forces",
+    "warp_iisph.sph.containment",
+    "warp_iisph.sph.rigid",
     "warp_iisph.surface.field",
     "warp_iisph.surface.marching",
     "warp_iisph.surface.smoothing",
@@ -86,6 +88,9 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
     df = Simulation(scenes.martin_moyce(spacing=0.04, method="dfsph", viscosity=1e-3), "cpu")
     for _ in range(3):
         df.step()
+    body = Simulation(load_scene("heave", ["spacing=0.04"]), "cpu")  # a free body: its contact gaps
+    for _ in range(3):
+        body.step()
     from warp_iisph.surface import SurfaceReconstructor
 
     SurfaceReconstructor(0.03).reconstruct(sim.positions)
@@ -116,6 +121,8 @@ def test_every_split_kernel_matches_one_launch(split_small, monkeypatch):
         "start_density_solve",
         "density_jacobi",
         "finish_step",
+        "contain",
+        "sample_gaps",
     ):
         assert any(expected in k for k in keys), (expected, keys)
 
