@@ -57,6 +57,56 @@ def test_lists_exact_where_cells_wrap_round_the_hash_table_and_alias():
     assert count.sum() > 5 * len(x)
 
 
+@wp.kernel
+def _hash_grid_order(
+    grid: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    queries: wp.array(dtype=wp.vec3),
+    radius: float,
+    slots: int,
+    out: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    x_i = queries[i]
+    m = int(0)
+    j = int(0)
+    query = wp.hash_grid_query(grid, x_i, radius)
+    while wp.hash_grid_query_next(query, j):
+        d = x_i - points[j]
+        if wp.dot(d, d) < radius * radius:
+            if m < slots:
+                out[i * slots + m] = j
+            m += 1
+    count[i] = m
+
+
+def test_wall_lists_in_the_order_a_warp_hash_grid_visits_them():
+    """The walls' grid is the project's own (sph/grid.py): each list holds the walls' particles in
+    the very order ``wp.hash_grid_query`` gives, so every sum over them adds in the same order as
+    with a ``wp.HashGrid`` (cells that wrap round the table and alias included)."""
+    rng = np.random.default_rng(11)
+    H, slots = 0.02, 64
+    xb = np.column_stack([rng.uniform(-0.5, 2.2, 8000), rng.uniform(-0.03, 0.05, 8000), rng.uniform(0, 0.04, 8000)])
+    x = np.column_stack([rng.uniform(-0.5, 2.2, 3000), rng.uniform(-0.03, 0.05, 3000), rng.uniform(0, 0.04, 3000)])
+    walls = wp.array(xb.astype(np.float32), dtype=wp.vec3, device="cpu")
+    fluid = wp.array(x.astype(np.float32), dtype=wp.vec3, device="cpu")
+    search = NeighborSearch(len(x), walls, H, "cpu")
+    search.build(fluid)
+    grid = wp.HashGrid(128, 128, 128, device="cpu")
+    grid.build(walls, H)
+    out = wp.full(len(x) * slots, -1, dtype=wp.int32, device="cpu")
+    count = wp.zeros(len(x), dtype=wp.int32, device="cpu")
+    wp.launch(_hash_grid_order, dim=len(x), inputs=[grid.id, walls, fluid, H, slots, out, count], device="cpu")
+    expected, count = out.numpy().reshape(len(x), slots), count.numpy()
+    lists = search.boundary.lists
+    start, got, index = lists.start.numpy(), lists.count.numpy(), lists.index.numpy()
+    assert count.max() <= slots and count.sum() > 2 * len(x)
+    assert np.array_equal(got[: len(x)], count)
+    for i in range(len(x)):
+        assert np.array_equal(index[start[i] : start[i] + got[i]], expected[i, : count[i]]), i
+
+
 def test_strided_lists_cut_at_the_stride_without_sync_and_say_what_they_needed():
     """Inside a captured graph nothing is read back: a list longer than the stride is cut (no
     write past the storage) and ``needed`` tells the host afterwards."""

@@ -237,6 +237,8 @@ class Containment:
         """Put the ``n`` particles back within the walls, counting into ``corrections`` (zeroed here)."""
         self.corrections.zero_()
         if n:
+            if self.codes.shape[0] < n and wp.get_device(self.device).is_capturing:
+                raise RuntimeError("Containment: reserve the particles' codes before a graph is captured")
             self.reserve(n)
             inputs = [x, v, nb, self.solids, self.poses, dt, 2.0 * self.spacing, CLEARANCE * self.spacing, self.codes]
             launch_particles(contain, n, inputs, self.device)

@@ -107,7 +107,8 @@ def cell_starts(g: CellGrid, points: wp.array(dtype=wp.vec3)):
 
 
 class ParticleGrid:
-    """The hash grid of up to ``capacity`` moving points, rebuilt every step into the same storage."""
+    """The hash grid of up to ``capacity`` points: the liquid's and the moving bodies', rebuilt
+    every step into the same storage, and the walls' still particles, built once."""
 
     def __init__(self, capacity: int, device):
         self.device = device
