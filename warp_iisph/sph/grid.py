@@ -44,18 +44,18 @@ def cell_coord(v: float) -> int:
 
 
 @wp.func
+def wrap_cell(c: int) -> int:
+    """A cell coordinate wrapped (non-negative modulo) into the table's ``GRID_DIM``."""
+    w = c % GRID_DIM
+    if w < 0:
+        w += GRID_DIM
+    return w
+
+
+@wp.func
 def cell_hash(x: int, y: int, z: int) -> int:
-    """Warp's hash of a cell: coordinates wrapped (non-negative modulo) into the dim^3 table."""
-    cx = x % GRID_DIM
-    cy = y % GRID_DIM
-    cz = z % GRID_DIM
-    if cx < 0:
-        cx += GRID_DIM
-    if cy < 0:
-        cy += GRID_DIM
-    if cz < 0:
-        cz += GRID_DIM
-    return cz * (GRID_DIM * GRID_DIM) + cy * GRID_DIM + cx
+    """Warp's hash of a cell: coordinates wrapped into the dim^3 table."""
+    return wrap_cell(z) * (GRID_DIM * GRID_DIM) + wrap_cell(y) * GRID_DIM + wrap_cell(x)
 
 
 @wp.func

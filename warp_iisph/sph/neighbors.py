@@ -17,7 +17,7 @@ import numpy as np
 import warp as wp
 
 from ..engine.launch import launch_particles
-from .grid import GRID_DIM, CellGrid, ParticleGrid, cell_first, cell_range
+from .grid import GRID_DIM, CellGrid, ParticleGrid, cell_first, cell_range, wrap_cell
 from .kernel import cubic_grad_W, cubic_W
 from .wall_mask import MovingMask, MovingNearMask, NearMask, may_have_moving_neighbors, may_have_neighbors, near_mask
 
@@ -46,15 +46,6 @@ class NeighborList:
 def entry(nbrs: NeighborList, i: int, m: int) -> int:
     """Where particle i's m-th neighbour is stored."""
     return nbrs.start[i] + m * nbrs.step
-
-
-@wp.func
-def wrap_cell(c: int) -> int:
-    """A cell coordinate wrapped (non-negative modulo) into the hash table, as ``cell_hash`` does."""
-    w = c % GRID_DIM
-    if w < 0:
-        w += GRID_DIM
-    return w
 
 
 @wp.func
