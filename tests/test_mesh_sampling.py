@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 
 from warp_iisph import Simulation
 from warp_iisph.scene import Box, MeshShape, Scene
-from warp_iisph.setup.rasterize import clear_fluid, sample_mesh
+from warp_iisph.setup.rasterize import CLEAR, fluid_room, sample_mesh
 
 
 def _points_on_triangle(v, n, rng):
@@ -68,17 +68,17 @@ def test_bad_mesh_arrays_are_refused():
         sample_mesh(np.where(np.arange(9).reshape(3, 3) == 4, np.nan, v), np.array([[0, 1, 2]]), 0.1)
 
 
-def test_clear_fluid_removes_inside_and_near():
+def test_fluid_room_leaves_out_inside_and_near():
     box = trimesh.creation.box(extents=[0.4, 0.4, 0.4])
     h = 0.02
     xb = sample_mesh(box.vertices, box.faces, h)
     g = np.arange(-0.39, 0.4, h)
     x = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    kept = clear_fluid(x, xb, [(box.vertices, box.faces)], h)
+    kept = x[fluid_room(x, xb, [(box.vertices, box.faces)], h) == CLEAR]
     assert np.all(np.max(np.abs(kept), axis=1) > 0.2)  # nothing inside
     assert cKDTree(xb).query(kept)[0].min() >= 0.999 * h
     # as a container, the same box keeps only what is inside
-    kept_in = clear_fluid(x, xb, [], h, containers=[(box.vertices, box.faces)])
+    kept_in = x[fluid_room(x, xb, [], h, containers=[(box.vertices, box.faces)]) == CLEAR]
     assert np.all(np.max(np.abs(kept_in), axis=1) < 0.2) and len(kept_in) > 0
 
 

@@ -17,7 +17,7 @@ the liquid it replaces by 8 % of rho0 at one spacing) and where the cell centres
 ``h/2`` either side of a surface, with how its faces meet the grid) no longer moves where the
 liquid rests.
 
-Fluid particles that would overlap an obstacle are removed by :func:`clear_fluid`: those inside a
+Fluid particles that would overlap an obstacle are told apart by :func:`fluid_room`: those inside a
 closed mesh (winding number) and those closer than one spacing to a boundary particle.
 """
 
@@ -216,15 +216,6 @@ def fluid_room(
     # Slightly under h: a fluid lattice point exactly one spacing from a wall particle stays.
     wp.launch(fluid_clearance, dim=len(x), inputs=[xd, grid.id, xbd, 0.999 * h, ids, solid, room], device=device)
     return room.numpy()
-
-
-def clear_fluid(
-    x: np.ndarray, xb: np.ndarray, solids: list, h: float, containers: list = (), device="cpu"
-) -> np.ndarray:
-    """The fluid particles ``x`` that are outside every closed obstacle mesh in ``solids``, inside
-    every container mesh in ``containers`` (meshes as ``(vertices, faces)`` pairs) and at least one
-    spacing ``h`` from every boundary particle in ``xb`` (:func:`fluid_room`'s ``CLEAR``)."""
-    return x[fluid_room(x, xb, solids, h, containers, device) == CLEAR]
 
 
 @wp.func

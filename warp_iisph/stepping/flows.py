@@ -220,14 +220,15 @@ class Flows:
         self.removed = 0
         self.reach = BLOCKED * h
         self.spacing = h
-        self.extents = [float(np.linalg.norm(p, axis=1).max(initial=0.0)) + self.reach for p in layers]
+        radii = [float(np.linalg.norm(p, axis=1).max(initial=0.0)) for p in layers]  # each layer's reach
+        self.extents = [r + self.reach for r in radii]
         self._blocking = wp.zeros(1, dtype=wp.int32, device=device)
         # per emitter, which of its last RECENT layers due came in (bit 0 the last; those before its
         # start count as come in)
         self.poured_recently = np.full(len(self.emitters), 2**RECENT - 1, dtype=np.int64)
-        self.nozzles = self._nozzles(h, layers) if self.emitters else None
+        self.nozzles = self._nozzles(h, layers, radii) if self.emitters else None
 
-    def _nozzles(self, h: float, layers: list) -> Nozzles:
+    def _nozzles(self, h: float, layers: list, radii: list) -> Nozzles:
         n, dev = Nozzles(), self.device
         es = self.emitters
         axes = [e.axes() for e in es]
@@ -236,9 +237,8 @@ class Flows:
         n.across = wp.array(np.array([u for u, _ in axes], np.float32), dtype=wp.vec3, device=dev)
         n.up = wp.array(np.array([w for _, w in axes], np.float32), dtype=wp.vec3, device=dev)
         half = []
-        for e, layer, (u, w) in zip(es, layers, axes):
+        for e, layer, r, (u, w) in zip(es, layers, radii, axes):
             if e.shape == "disc":
-                r = float(np.linalg.norm(layer, axis=1).max(initial=0.0))
                 half.append((r, r))
             else:
                 half.append((float(np.abs(layer @ u).max()), float(np.abs(layer @ w).max())))
