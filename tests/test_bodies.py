@@ -421,6 +421,7 @@ def test_plain_threads_and_graph_give_the_same_bits(method, monkeypatch):
     plain = Simulation(swept(method, **physics), "cpu")
     plain.advance(duration)
     monkeypatch.setattr(launch, "MIN_CHUNK", 50)
+    monkeypatch.setattr(launch, "SPLIT_WORTH", 0.0)  # split every launch, however light
     launch.set_threads(3)
     try:
         split = Simulation(swept(method, **physics), "cpu")

@@ -164,6 +164,7 @@ def test_a_fixed_step_three_times_the_viscosity_limit_holds():
 
 def test_two_threads_give_the_one_thread_run(monkeypatch):
     monkeypatch.setattr(launch, "MIN_CHUNK", 50)
+    monkeypatch.setattr(launch, "SPLIT_WORTH", 0.0)  # split every launch, however light
     runs = {}
     for threads in (1, 2):
         launch.set_threads(threads)

@@ -189,6 +189,7 @@ def test_probes_are_the_same_bits_on_every_path_and_leave_the_run_unchanged(tmp_
     plain = _run(scene(), threads=1)
     assert np.array_equal(plain.positions, bare.positions) and np.array_equal(plain.pressures, bare.pressures)
     monkeypatch.setattr(launch, "MIN_CHUNK", 50)
+    monkeypatch.setattr(launch, "SPLIT_WORTH", 0.0)  # split every launch, however light
     split = _run(scene(), threads=3)
     graph = _run(scene(), graph=True)
     reference = plain.probes.array()

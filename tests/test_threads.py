@@ -47,6 +47,7 @@ def _bytes(arr):
 def split_small(monkeypatch):
     """Split launches of any size into uneven chunks over 3 threads."""
     monkeypatch.setattr(launch, "MIN_CHUNK", 50)
+    monkeypatch.setattr(launch, "SPLIT_WORTH", 0.0)  # split every launch, however light
     launch.set_threads(3)
     yield
     launch.set_threads(launch.available_cores())
@@ -167,6 +168,7 @@ def test_containment_split_over_threads_puts_back_and_counts_as_one_launch(split
 
 def test_dam_break_with_one_and_two_threads_is_identical(monkeypatch):
     monkeypatch.setattr(launch, "MIN_CHUNK", 50)
+    monkeypatch.setattr(launch, "SPLIT_WORTH", 0.0)  # split every launch, however light
     runs = {}
     for threads in (1, 2):
         launch.set_threads(threads)
@@ -222,6 +224,7 @@ def test_warp_debug_mode_launches_in_one_piece(monkeypatch):
     launched = []
     monkeypatch.setattr(launch, "_submit", lambda parts, jobs: launched.append(parts) or [])
     monkeypatch.setattr(launch, "get_threads", lambda: 4)
+    monkeypatch.setattr(launch, "SPLIT_WORTH", 0.0)
     out = wp.zeros(100_000, dtype=float)
     launch.launch_particles(_fill_index, 100_000, [out], "cpu")  # loads the module: one piece
     launch.launch_particles(_fill_index, 100_000, [out], "cpu")

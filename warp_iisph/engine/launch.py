@@ -6,30 +6,53 @@ cores at once. Every per-particle kernel therefore takes ``offset: int`` first a
 element ``wp.tid() + offset``, writing only that element's outputs (gathers, no atomics), so
 its launch can be cut into contiguous chunks with bitwise-identical results.
 
-Kernels that use atomics, scatters or tiles (cell counts, reductions, ``check_state``) go
-through ``wp.launch`` directly and are never split. On CUDA every launch is a plain
-``wp.launch``.
+Kernels that use atomics, scatters or tiles (cell counts, reductions, ``check_state``) and the
+small ones a step launches (a clock, a body's update) go through :func:`launch`, whole. On CUDA
+every launch is a plain ``wp.launch``.
 
 The thread count defaults to the cores this process may use; :func:`set_threads` (or the CLI's
 ``--threads``, or the ``WARP_IISPH_THREADS`` environment variable) changes it.
+
+On the CPU a launch's arguments are packed once and the packed launch replayed while they stay
+the same (:func:`_packed`): ``wp.launch`` spends 20-70 us of Python packing a launch, more than a
+light kernel's whole run over 16k particles, and a split launch packs each chunk on its own
+thread, which then waits for the GIL. And a kernel is split only where a whole launch of it takes
+longer than :data:`SPLIT_WORTH` (measured on its first launches after loading, per element):
+handing a chunk to another thread and waiting for it costs about 0.1 ms, which a light kernel
+(a blend, a gather) over tens of thousands of particles does not win back. Neither changes a
+result: split or not, packed once or every time, a kernel writes the same bits.
 """
 
 from __future__ import annotations
 
 import os
 import threading
+import time
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import warp as wp
+from warp._src.codegen import StructInstance
+from warp._src.types import scalar_types
 
 # Below this many elements per chunk, a thread hand-off costs more than it saves.
 MIN_CHUNK = 2048
+# A kernel is split only where a whole launch of it would run longer than this (s): a chunk handed
+# to another thread costs about 0.1 ms more than running it here (lab, 2 cores, 2026-12-06: a
+# blend over 16k particles took 0.27 ms split, 0.08 ms whole); 0 splits every launch.
+SPLIT_WORTH = 4.0e-4
+# Whole launches of a kernel timed before it is split or not for good: the fastest counts.
+COST_SAMPLES = 2
+# Packed launches kept per thread (about 60 a step of a scene with bodies, the surface's 20 more).
+PACKED = 512
 
 _threads: int | None = None
 _pool: ThreadPoolExecutor | None = None
 _loaded: set = set()
 _pool_lock = threading.Lock()
+_cost: dict = {}  # kernel -> [seconds per element of a whole launch (the fastest timed), launches timed]
+_local = threading.local()  # each thread's packed launches (the frame writer's thread launches too)
 
 
 def available_cores() -> int:
@@ -110,32 +133,117 @@ def recording():
         _recording -= 1
 
 
+def _signature(value):
+    """What a launch packs of ``value``, as a key: an array's pointer, shape, strides and type (a
+    packed launch holds exactly these), a struct by its storage (a packed launch holds it and
+    reads its current fields when it runs), a vector or matrix by the object it holds and its
+    value, a scalar by value; None where it cannot say (then the launch is packed anew)."""
+    if isinstance(value, wp.array):
+        if value.grad is not None:
+            return None
+        return (value.ptr, value.shape, value.strides, value.dtype)
+    if isinstance(value, StructInstance):
+        return ("struct", id(value.__ctype__()))
+    if isinstance(value, (bool, int, float)):
+        return (type(value), value)
+    if value is None:
+        return ("none",)
+    if type(value) in scalar_types:  # a Warp scalar, packed by value
+        return (type(value), value.value)
+    if hasattr(value, "_length_"):  # a Warp vector or matrix: packed by reference, so the object too
+        return (type(value), id(value), bytes(value))
+    return None
+
+
+def _packed(kernel, dim, inputs: list, device):
+    """``kernel``'s launch over ``dim`` with ``inputs`` packed once, replayed while the inputs
+    pack the same (:func:`_signature`); None where an input cannot be keyed."""
+    key = [kernel, device.alias, dim]
+    for value in inputs:
+        sig = _signature(value)
+        if sig is None:
+            return None
+        key.append(sig)
+    key = tuple(key)
+    cache = getattr(_local, "packed", None)
+    if cache is None:
+        cache = _local.packed = OrderedDict()
+    packed = cache.get(key)
+    if packed is not None:
+        cache.move_to_end(key)
+        return packed
+    packed = wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
+    packed.fwd_args = packed.adj_args = None  # kept for Warp's own capture only: they hold the arrays alive
+    cache[key] = packed
+    while len(cache) > PACKED:
+        cache.popitem(last=False)
+    return packed
+
+
+def launch(kernel, dim, inputs: list, device) -> None:
+    """``wp.launch(kernel, dim=dim, inputs=inputs, device=device)``, packed once and replayed on
+    the CPU (:func:`_packed`): for the small kernels a step launches whole (one thread per body,
+    a count, a clock)."""
+    device = wp.get_device(device)
+    if device.is_cpu and not _recording:
+        packed = _packed(kernel, dim, inputs, device)
+        if packed is not None:
+            packed.launch()
+            return
+    wp.launch(kernel, dim=dim, inputs=inputs, device=device)
+
+
 def _launch_chunk(kernel, start: int, count: int, inputs: list, device) -> None:
     wp.launch(kernel, dim=count, inputs=[start, *inputs], device=device)
 
 
+def _whole(kernel, n: int, inputs: list, device) -> None:
+    launch(kernel, n, [0, *inputs], device)
+
+
 def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None = None) -> None:
     """Launch ``kernel`` over elements ``0 .. n-1`` (``offset`` prepended to ``inputs``), split
-    into one chunk per thread on the CPU. ``min_chunk`` (default ``MIN_CHUNK``) is the fewest
-    elements worth a thread: kernels whose element is a large piece of work (a block of the
-    surface's lattice) pass a smaller one."""
+    into one chunk per thread on the CPU where that pays (:data:`SPLIT_WORTH`). ``min_chunk``
+    (default ``MIN_CHUNK``) is the fewest elements worth a thread: kernels whose element is a
+    large piece of work (a block of the surface's lattice) pass a smaller one."""
     if n <= 0:
         return
     device = wp.get_device(device)
-    least = MIN_CHUNK if min_chunk is None else max(1, min(int(min_chunk), MIN_CHUNK))
-    # Warp's debug build keeps the CPU's tile storage in one process-wide pointer (no TLS in its
-    # JIT): concurrent launches then corrupt each other (a segfault in the reorder's gather)
-    split = device.is_cpu and not _recording and wp.config.mode != "debug"
-    parts = min(get_threads(), n // least) if split else 1
+    if not device.is_cpu:
+        wp.launch(kernel, dim=n, inputs=[0, *inputs], device=device)
+        return
     key = (kernel.key, kernel.module.name, device.alias)
-    if parts <= 1 or key not in _loaded:
+    if key not in _loaded:
         # the first launch loads (and maybe compiles) the module: never from several threads
         wp.launch(kernel, dim=n, inputs=[0, *inputs], device=device)
         _loaded.add(key)
         return
+    least = MIN_CHUNK if min_chunk is None else max(1, min(int(min_chunk), MIN_CHUNK))
+    # Warp's debug build keeps the CPU's tile storage in one process-wide pointer (no TLS in its
+    # JIT): concurrent launches then corrupt each other (a segfault in the reorder's gather)
+    split = not _recording and wp.config.mode != "debug"
+    parts = min(get_threads(), n // least) if split else 1
+    if parts > 1 and SPLIT_WORTH > 0.0:
+        cost = _cost.get(key)
+        if cost is None or cost[1] < COST_SAMPLES:  # time it whole
+            t0 = time.perf_counter()
+            _whole(kernel, n, inputs, device)
+            per = (time.perf_counter() - t0) / n
+            _cost[key] = [per, 1] if cost is None else [min(cost[0], per), cost[1] + 1]
+            return
+        if cost[0] * n < SPLIT_WORTH:
+            parts = 1
+    if parts <= 1:
+        _whole(kernel, n, inputs, device)
+        return
     ranges = chunks(n, parts)
-    futures = _submit(parts, [(_launch_chunk, (kernel, s, c, inputs, device)) for s, c in ranges[1:]])
-    s, c = ranges[0]
-    wp.launch(kernel, dim=c, inputs=[s, *inputs], device=device)
+    packed = [_packed(kernel, c, [s, *inputs], device) for s, c in ranges]
+    if any(p is None for p in packed):
+        futures = _submit(parts, [(_launch_chunk, (kernel, s, c, inputs, device)) for s, c in ranges[1:]])
+        s, c = ranges[0]
+        wp.launch(kernel, dim=c, inputs=[s, *inputs], device=device)
+    else:
+        futures = _submit(parts, [(p.launch, ()) for p in packed[1:]])
+        packed[0].launch()
     for f in futures:
         f.result()

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from .launch import launch
+
 wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
 
 TILE = 256
@@ -52,7 +54,7 @@ def sum_into(values: wp.array, n: int, out: wp.array) -> None:
     if n <= 0:
         return
     if values.device.is_cpu:
-        wp.launch(sum_in_order, dim=n, inputs=[values, out], device=values.device)
+        launch(sum_in_order, dim=n, inputs=[values, out], device=values.device)
     else:
         wp.launch_tiled(
             sum_tiles, dim=[(n + TILE - 1) // TILE], inputs=[values[:n], out], block_dim=TILE, device=values.device

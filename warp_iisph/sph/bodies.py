@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..engine.launch import launch, launch_particles
+
 wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
 
 
@@ -146,6 +148,7 @@ def key_poses(keys: BodyKeys, time: wp.array(dtype=wp.float64), dt: wp.array(dty
 
 @wp.kernel
 def place_bodies(
+    offset: int,
     poses: Poses,
     body: wp.array(dtype=wp.int32),
     rest: wp.array(dtype=wp.vec3),
@@ -159,7 +162,7 @@ def place_bodies(
     velocity and its acceleration (a keyframed body: the displacement to the end pose over the
     step, the central difference of its places a step before, at and after the step's start;
     before the motion's first key, the body stands where that key puts it)."""
-    k = wp.tid()
+    k = wp.tid() + offset
     b = body[k]
     h = dt[0]
     a = wp.transform_point(poses.start[b], rest[k])
@@ -214,13 +217,13 @@ class MovingBodies:
         particles where the start poses have them, with their velocity and acceleration (the free
         bodies' poses are set before, :meth:`.rigid.RigidBodies.begin_step`)."""
         if self.n_keyed:
-            wp.launch(key_poses, dim=self.n_keyed, inputs=[self.keys, time, dt, self.poses], device=self.device)
+            launch(key_poses, dim=self.n_keyed, inputs=[self.keys, time, dt, self.poses], device=self.device)
         if self.n:
-            wp.launch(
+            launch_particles(
                 place_bodies,
-                dim=self.n,
-                inputs=[self.poses, self.body, self.rest, dt, self.first, boundary_x, boundary_v, boundary_a],
-                device=self.device,
+                self.n,
+                [self.poses, self.body, self.rest, dt, self.first, boundary_x, boundary_v, boundary_a],
+                self.device,
             )
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..engine.launch import launch_particles
+from ..engine.launch import launch, launch_particles
 from .bodies import MovingBodies, Poses
 from .neighbors import NeighborList
 
@@ -242,4 +242,4 @@ class Containment:
             self.reserve(n)
             inputs = [x, v, nb, self.solids, self.poses, dt, 2.0 * self.spacing, CLEARANCE * self.spacing, self.codes]
             launch_particles(contain, n, inputs, self.device)
-            wp.launch(count_codes, dim=n, inputs=[self.codes, self.corrections], device=self.device)
+            launch(count_codes, dim=n, inputs=[self.codes, self.corrections], device=self.device)

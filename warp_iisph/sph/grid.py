@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..engine.launch import launch_particles
+
 wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
 
 GRID_DIM = wp.constant(128)  # cells per axis of the hash, as warp_iisph's wp.HashGrids use
@@ -86,18 +88,22 @@ def cell_first(g: CellGrid, c: int) -> int:
 
 @wp.kernel
 def cell_keys(
-    points: wp.array(dtype=wp.vec3), inv_cell: float, keys: wp.array(dtype=wp.int32), ids: wp.array(dtype=wp.int32)
+    offset: int,
+    points: wp.array(dtype=wp.vec3),
+    inv_cell: float,
+    keys: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
 ):
-    i = wp.tid()
+    i = wp.tid() + offset
     p = points[i]
     keys[i] = cell_hash(cell_coord(p[0] * inv_cell), cell_coord(p[1] * inv_cell), cell_coord(p[2] * inv_cell))
     ids[i] = i
 
 
 @wp.kernel
-def cell_starts(g: CellGrid, points: wp.array(dtype=wp.vec3)):
+def cell_starts(offset: int, g: CellGrid, points: wp.array(dtype=wp.vec3)):
     # each occupied cell is written by the one thread at its run's start
-    k = wp.tid()
+    k = wp.tid() + offset
     g.points[k] = points[g.ids[k]]
     c = g.keys[k]
     if k == 0:
@@ -134,6 +140,6 @@ class ParticleGrid:
         g.inv_cell = float(np.float32(1.0) / np.float32(cell))  # in float32, as wp.HashGrid computes it
         if g.n == 0:
             return
-        wp.launch(cell_keys, dim=g.n, inputs=[points, g.inv_cell, g.keys, g.ids], device=self.device)
+        launch_particles(cell_keys, g.n, [points, g.inv_cell, g.keys, g.ids], self.device)
         wp.utils.radix_sort_pairs(g.keys, g.ids, g.n)
-        wp.launch(cell_starts, dim=g.n, inputs=[g, points], device=self.device)
+        launch_particles(cell_starts, g.n, [g, points], self.device)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..engine.launch import launch_particles
+from ..engine.launch import launch, launch_particles
 from .neighbors import NeighborList, entry
 
 wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
@@ -135,7 +135,7 @@ class HydrostaticPressure:
         """The columns' heights from the first ``n`` particles at ``x``."""
         c = self.columns
         c.top.fill_(-1.0e30)
-        wp.launch(column_tops, dim=n, inputs=[x, c], device=self.device)
+        launch(column_tops, dim=n, inputs=[x, c], device=self.device)
 
     def add(self, x: wp.array, n: int, share: float, p: wp.array) -> None:
         """``p += share rho0 |g| d`` for the first ``n`` particles at ``x``."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..engine.launch import launch_particles
+from ..engine.launch import launch, launch_particles
 from .grid import GRID_DIM, CellGrid, ParticleGrid, cell_first, cell_range, wrap_cell
 from .kernel import cubic_grad_W, cubic_W
 from .wall_mask import MovingMask, MovingNearMask, NearMask, may_have_moving_neighbors, may_have_neighbors, near_mask
@@ -296,7 +296,7 @@ class NeighborListBuffer:
         common = [still.grid, queries, radius, mask, moving.grid, moving_mask.mask, moving_first]
         launch_particles(count_neighbors, n, [*common, lists], self.device)
         self.needed.zero_()
-        wp.launch(list_starts, dim=n, inputs=[lists, self.needed], device=self.device)
+        launch(list_starts, dim=n, inputs=[lists, self.needed], device=self.device)
         if sync:
             total = int(self.needed.numpy()[0])
             if total > self.capacity:
@@ -359,7 +359,7 @@ class StridedListBuffer(NeighborListBuffer):
             fill_neighbors_strided, n, [grid.grid, points, radius, self.stride, self.lists, self.wanted], self.device
         )
         # slots for every particle the storage is laid out for (padded to whole blocks)
-        wp.launch(stride_needed, dim=n, inputs=[self.padded, self.wanted, self.needed], device=self.device)
+        launch(stride_needed, dim=n, inputs=[self.padded, self.wanted, self.needed], device=self.device)
         if sync:
             needed = int(self.needed.numpy()[0])
             if needed > self.capacity:
@@ -405,7 +405,7 @@ class NeighborSearch:
         n = self.n if n is None else n
         self.grid.build(x, self.radius, n)
         if n:
-            wp.launch(sorted_order, dim=n, inputs=[self.grid.grid, self._order], device=self.device)
+            launch(sorted_order, dim=n, inputs=[self.grid.grid, self._order], device=self.device)
         return self._order
 
     def build(self, x: wp.array, n: int | None = None, sync: bool = True) -> None:

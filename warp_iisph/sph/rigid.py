@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..engine.launch import launch_particles
+from ..engine.launch import launch, launch_particles
 from ..scene.bodies import quaternion_matrix
 from .bodies import Poses
 from .contacts import FACES, ContactSet, Motion, pool_contacts, resolve, sample_gaps
@@ -288,7 +288,7 @@ class RigidBodies:
 
     def begin_step(self, poses: Poses) -> None:
         if self.n:
-            wp.launch(begin_step, dim=self.n, inputs=[self.constants, self.state, poses], device=self.device)
+            launch(begin_step, dim=self.n, inputs=[self.constants, self.state, poses], device=self.device)
 
     def advance(self, loads, solids: Solids, poses: Poses, boundary_x: wp.array, time: wp.array, dt: wp.array) -> None:
         """The step's contacts, then every body's update (``loads``: the liquid's, per body, a
@@ -301,14 +301,14 @@ class RigidBodies:
         launch_particles(
             sample_gaps, self.n_samples, [cs, solids, poses, boundary_x, self.n_samples], dev, min_chunk=256
         )
-        wp.launch(pool_contacts, dim=(self.n, cs.partners), inputs=[cs, boundary_x], device=dev)
+        launch(pool_contacts, dim=(self.n, cs.partners), inputs=[cs, boundary_x], device=dev)
         inputs = [self.constants, self.state, loads.totals, loads.wetted, self.motion, cs, solids, poses]
         inputs += [time, dt, self.n]
-        wp.launch(advance, dim=1, inputs=inputs, device=dev)
+        launch(advance, dim=1, inputs=inputs, device=dev)
 
     def speeds(self, speed2: wp.array) -> None:
         if self.n:
-            wp.launch(body_speeds, dim=self.n, inputs=[self.constants, self.state, speed2], device=self.device)
+            launch(body_speeds, dim=self.n, inputs=[self.constants, self.state, speed2], device=self.device)
 
     def values(self) -> dict:
         """The state on the host: name -> (bodies, components) float64 array."""

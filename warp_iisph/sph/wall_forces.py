@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..engine.launch import launch_particles
+from ..engine.launch import launch, launch_particles
 from .neighbors import NeighborList, entry
 from .solvers.forces import ViscousTerms, viscous_pair, viscous_substep_count
 from .wall_pressure import Walls, smoothed_pressure
@@ -302,8 +302,8 @@ class WallForces:
         self.wet.zero_()
         launch_particles(pressure_loads, blocks, [*args, self.pressure_part, self.wet], self.device, min_chunk=1)
         if self.count_wetted:
-            wp.launch(count_wet, dim=self.groups.n, inputs=[self.groups, self.wet, self.wetted], device=self.device)
-        wp.launch(
+            launch(count_wet, dim=self.groups.n, inputs=[self.groups, self.wet, self.wetted], device=self.device)
+        launch(
             total_loads,
             dim=(self.groups.n, COMPONENTS),
             inputs=[blocks, self.pressure_part, self.friction_part, self.totals],

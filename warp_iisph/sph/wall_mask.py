@@ -141,10 +141,10 @@ def may_have_moving_neighbors(m: MovingMask, p: wp.vec3) -> bool:
 
 
 @wp.kernel
-def mark_moving(m: MovingMask, points: wp.array(dtype=wp.vec3)):
-    # every writer writes the same value: no atomic needed; a point in the box's border cells or
-    # beyond could have neighbours where the mask has no cell
-    c = mask_cell(m.cells, points[wp.tid()])
+def mark_moving(offset: int, m: MovingMask, points: wp.array(dtype=wp.vec3)):
+    # every writer writes the same value: no atomic needed (from any CPU thread either); a point
+    # in the box's border cells or beyond could have neighbours where the mask has no cell
+    c = mask_cell(m.cells, points[wp.tid() + offset])
     d = m.cells.dims
     if c[0] < 1 or c[1] < 1 or c[2] < 1 or c[0] >= d[0] - 1 or c[1] >= d[1] - 1 or c[2] >= d[2] - 1:
         m.outside[0] = 1
@@ -177,4 +177,4 @@ class MovingNearMask:
         self.mask.cells.near.zero_()
         self.mask.outside.zero_()
         if points.shape[0]:
-            wp.launch(mark_moving, dim=points.shape[0], inputs=[self.mask, points], device=self.device)
+            launch_particles(mark_moving, points.shape[0], [self.mask, points], self.device)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..engine.launch import launch
 from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_columns, sampled_groups, sampled_order
 from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
 from ..sph.wall_forces import WallForces
@@ -138,7 +139,7 @@ class ProbeSampler:
 
     def sample(self, state, solver, time: wp.array, dt: wp.array, max_speed2: wp.array, slot: wp.array) -> None:
         """At a step's end, before the clock moves: the row ``slot`` of the log."""
-        wp.launch(
+        launch(
             sample_due,
             dim=1,
             inputs=[time, dt, wp.float64(self.interval), slot, self.due, self.log],
@@ -163,7 +164,7 @@ class ProbeSampler:
         around = self._reach(dt, max_speed2)
         column = 1
         if self.pressure:
-            wp.launch(
+            launch(
                 pressure_probes,
                 dim=len(self.pressure),
                 inputs=[
@@ -183,7 +184,7 @@ class ProbeSampler:
             )
             column += len(self.pressure)
         if self.levels:
-            wp.launch(
+            launch(
                 occupancy,
                 dim=(len(self.levels), self.samples),
                 inputs=[
@@ -198,7 +199,7 @@ class ProbeSampler:
                 ],
                 device=dev,
             )
-            wp.launch(
+            launch(
                 gauge_levels,
                 dim=len(self.levels),
                 inputs=[self.phi, self.samples, self.dy, self.H, slot, column, self.log],
@@ -207,7 +208,7 @@ class ProbeSampler:
             column += len(self.levels)
         if self.forces:
             self.loads.compute(state)
-            wp.launch(
+            launch(
                 force_columns,
                 dim=len(self.forces),
                 inputs=[self.loads.totals, self.slot_of_probe, self.shift, slot, column, self.log],
@@ -215,7 +216,7 @@ class ProbeSampler:
             )
             column += 12 * len(self.forces)
         if self.body_forces:  # the loads the bodies' update summed this step, about their centres of mass
-            wp.launch(
+            launch(
                 force_columns,
                 dim=len(self.body_forces),
                 inputs=[self.body_loads.totals, self.body_of_probe, self.no_shift, slot, column, self.log],

@@ -17,6 +17,7 @@ from contextlib import nullcontext
 
 import warp as wp
 
+from ..engine.launch import launch
 from ..engine.reduce import max_into
 from ..engine.timing import StageTimes
 from ..sph.solvers import STAGES
@@ -236,12 +237,10 @@ class TimeLoop:
         ``needed`` and the caller redoes the step."""
         model, state, solver = self.model, self.state, self.solver
         dev = model.device
-        wp.launch(
-            choose_dt, dim=1, device=dev, inputs=[self.rule, self.clock, self.substeps, self.max_speed2, solver.dt]
-        )
+        launch(choose_dt, dim=1, device=dev, inputs=[self.rule, self.clock, self.substeps, self.max_speed2, solver.dt])
         if self.bodies is not None:  # moving bodies where they are at the step's start
             self.bodies.place(self.time, self.dt64)
-        wp.launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
+        launch(reorder_due, dim=1, inputs=[self.steps, REORDER_INTERVAL, self.due], device=dev)
         with timer("neighbours") if timer else nullcontext():
             wp.capture_if(self.due, lambda: state.reorder(solver.search.cell_order(state.x, state.n)))
         solver.launch_step(model, state, timer, sync=sync)
@@ -255,17 +254,17 @@ class TimeLoop:
             # the last line: nothing beyond a wall, every correction counted; then the checks
             model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.dt64)
             self.counts.zero_()
-            lo, hi = wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper)
-            wp.launch(check_state, dim=state.n, device=dev, inputs=[state.x, state.v, lo, hi, self.speed2, self.counts])
+            lo, hi = self._domain()
+            launch(check_state, dim=state.n, device=dev, inputs=[state.x, state.v, lo, hi, self.speed2, self.counts])
             max_into(self.speed2, state.n, self.max_speed2)
         if self.probes:
             self.probes.sample(state, solver, self.time, self.dt64, self.max_speed2, self.slot)
         for column, value in enumerate(self.extra.values(), len(LOG_FIELDS)):  # before record_step moves the slot on
             if value.dtype == wp.float64:
-                wp.launch(record_mean, dim=1, device=dev, inputs=[self.slot, max(state.n, 1), value, column, self.log])
+                launch(record_mean, dim=1, device=dev, inputs=[self.slot, max(state.n, 1), value, column, self.log])
             else:
-                wp.launch(record_count, dim=1, device=dev, inputs=[self.slot, value, column, self.log])
-        wp.launch(
+                launch(record_count, dim=1, device=dev, inputs=[self.slot, value, column, self.log])
+        launch(
             record_step,
             dim=1,
             device=dev,
@@ -278,6 +277,15 @@ class TimeLoop:
                 self.log,
             ],
         )
+
+    def _domain(self) -> tuple:
+        """The domain's corners as the state check takes them, made again only when they change
+        (a launch packed once holds the vectors it was given)."""
+        corners = (tuple(self.model.domain_lower), tuple(self.model.domain_upper))
+        if getattr(self, "_corners", None) != corners:
+            self._corners = corners
+            self._domain_vectors = (wp.vec3(*corners[0]), wp.vec3(*corners[1]))
+        return self._domain_vectors
 
     def loop_body(self) -> None:
         """Steps until the end time, the step limit or a divergence: what a graph records."""

@@ -30,6 +30,7 @@ from collections.abc import Callable
 
 import warp as wp
 
+from ...engine.launch import launch
 from ...engine.reduce import sum_into
 
 wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
@@ -123,7 +124,7 @@ class IterativeSolve:
         def body():
             iterate()
             sum_into(self.error, n, self.error_sum)
-            wp.launch(convergence_test, dim=1, inputs=test + state, device=self.error.device)
+            launch(convergence_test, dim=1, inputs=test + state, device=self.error.device)
             advance(self.blend)
 
         wp.capture_while(self.keep_going, body)
