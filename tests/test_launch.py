@@ -52,6 +52,7 @@ def test_a_packed_launch_follows_what_it_is_given():
     assert np.array_equal(_run(h, 0.5, shift, other), np.full(n, 7.5))  # another output array
     assert np.array_equal(_run(h, 0.5, shift, out, n=4)[:4], np.full(4, 7.5))  # another size
     assert np.array_equal(_run(h, np.float32(2.0), shift, out), np.full(n, 25.5))  # not keyed: packed anew
+    launch.launch(_scaled, 0, [0, h, 1.0, shift, out], "cpu")  # an empty launch: nothing to pack or run
 
 
 def test_packed_launches_are_bounded(monkeypatch):

@@ -173,6 +173,8 @@ def _packed(kernel, dim, inputs: list, device):
         cache.move_to_end(key)
         return packed
     packed = wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
+    if packed is None:  # an empty launch: Warp records nothing
+        return None
     packed.fwd_args = packed.adj_args = None  # kept for Warp's own capture only: they hold the arrays alive
     cache[key] = packed
     while len(cache) > PACKED:
