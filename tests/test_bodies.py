@@ -911,3 +911,35 @@ def test_a_body_spinning_freely_keeps_its_angular_momentum_and_its_energy():
     b = Simulation(held, "cpu").bodies
     assert b["velocity"][0][0] == 0.0 and np.allclose(b["spin"][0], (0.0, 2.0, 0.0))
     assert b["momentum"][0][0] == 0.0 and b["momentum"][0][2] == 0.0
+
+
+def test_contacts_query_only_the_solids_a_body_can_reach():
+    """A body's samples query a solid only where the spheres holding them and the solid lie within
+    a sample's reach (sph.contacts.near_partners): the gaps and normals are bitwise those of
+    querying every solid, with the far ones (the post, the crates downstream) ruled out."""
+    import warp as wp
+
+    from warp_iisph.sph.contacts import near_partners, sample_gaps
+
+    sim = Simulation(load_scene("flood", ["spacing=0.03"]), "cpu")
+    sim.advance(0.3)
+    model = sim.model
+    rigid, solids, poses = model.rigid, model.containment.solids, model.bodies.poses
+    cs, n = rigid.contacts, rigid.n_samples
+
+    def gaps():
+        cs.gap.zero_()
+        cs.normal.zero_()
+        wp.launch(sample_gaps, dim=n, inputs=[0, cs, solids, poses, model.boundary_x, n], device="cpu")
+        return cs.gap.numpy().copy(), cs.normal.numpy().copy()
+
+    wp.launch(near_partners, dim=(rigid.n, solids.count), inputs=[cs, solids, poses], device="cpu")
+    near = cs.near.numpy()[: rigid.n * solids.count].reshape(rigid.n, solids.count).copy()
+    culled = gaps()
+    cs.near.fill_(1)
+    every = gaps()
+    assert np.array_equal(culled[0], every[0]) and np.array_equal(culled[1], every[1])
+    assert (culled[0] < 1.0e29).sum() > 0  # some samples touch something
+    assert near.sum() < near.size and near.sum() > 0
+    post = 0  # the scene's own obstacle comes first among the solids
+    assert near[:, post].sum() == 0  # no crate near the post at 0.3 s

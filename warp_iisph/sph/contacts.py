@@ -53,6 +53,9 @@ class ContactSet:
     box_lower: wp.vec3
     box_upper: wp.vec3
     reach: float  # samples closer than this (m) take part: one spacing
+    deepest: float  # the deepest sample's depth (m)
+    radius: wp.array(dtype=float)  # each body's samples lie within this of its centre of mass (m)
+    near: wp.array(dtype=wp.int32)  # body f, solid k at f * solids.count + k: 1 where a sample may touch it
     bounce_speed: wp.float64  # impacts slower than this (m/s) do not bounce: sqrt(|g| h)
     keyed: int  # the free bodies' poses follow the keyframed ones'
     # per body and partner (f * partners + j)
@@ -72,6 +75,20 @@ def partner_pose(solids: Solids, poses: Poses, k: int) -> wp.transform:
     if b >= 0:
         frame = poses.start[b]
     return frame
+
+
+@wp.kernel
+def near_partners(contacts: ContactSet, solids: Solids, poses: Poses):
+    """Whether free body f may have a sample within reach of solid k's surface: not where the
+    spheres holding the body's samples and the solid lie further apart than a sample's reach
+    (one spacing past its depth; a hundredth of a spacing more against rounding). A container's
+    sphere holds the bodies inside it: never ruled out."""
+    f, k = wp.tid()
+    centre = wp.transform_get_translation(poses.start[contacts.keyed + f])
+    other = wp.transform_point(partner_pose(solids, poses, k), solids.center[k])
+    apart = wp.length(centre - other) - contacts.radius[f] - solids.radius[k]
+    reach = 1.01 * contacts.reach + contacts.deepest
+    contacts.near[f * solids.count + k] = wp.where(apart < reach, 1, 0)
 
 
 @wp.kernel
@@ -103,6 +120,8 @@ def sample_gaps(
         contacts.normal[base + j] = wp.vec3(0.0)
         if solids.body[k] == contacts.keyed + f:
             continue  # its own surface
+        if contacts.near[f * solids.count + k] == 0:
+            continue  # too far for any of its samples
         frame = partner_pose(solids, poses, k)
         p = wp.transform_point(wp.transform_inverse(frame), x)
         q = wp.mesh_query_point_sign_normal(solids.meshes[k], p, reach + depth)

@@ -49,6 +49,8 @@ class Solids:
     body: wp.array(dtype=wp.int32)
     container: wp.array(dtype=wp.int32)
     depth: wp.array(dtype=float)  # how far past the surface its wall (inner boundary layer) lies
+    center: wp.array(dtype=wp.vec3)  # a sphere holding each surface, in its own frame (contacts cull by it)
+    radius: wp.array(dtype=float)
     count: int
     box_lower: wp.vec3
     box_upper: wp.vec3
@@ -196,6 +198,21 @@ def count_codes(codes: wp.array(dtype=wp.int32), corrections: wp.array(dtype=wp.
         wp.atomic_add(corrections, 1, 1)
 
 
+def _bounding_spheres(vertices: list, device) -> tuple:
+    """Each surface's bounding sphere: the centre of its vertices' box and the farthest vertex
+    from it (a triangle lies within the sphere of its corners), grown by a millionth of its size
+    and of its distance from the origin against float32's rounding."""
+    centers, radii = [], []
+    for v in vertices:
+        v = np.asarray(v, np.float64).reshape(-1, 3)
+        c = 0.5 * (v.min(axis=0) + v.max(axis=0)) if len(v) else np.zeros(3)
+        r = float(np.linalg.norm(v - c, axis=1).max()) if len(v) else 0.0
+        centers.append(c)
+        radii.append(r * (1.0 + 1.0e-6) + 1.0e-6 * (1.0 + float(np.abs(c).max())))
+    center = wp.array(np.asarray(centers, np.float32).reshape(-1, 3), dtype=wp.vec3, device=device)
+    return center, wp.array(np.asarray(radii, np.float32), dtype=float, device=device)
+
+
 class Containment:
     """The walls a step's particles are held within: a box tank's faces and the closed meshes
     (obstacles, a mesh container). Built once per model."""
@@ -219,6 +236,7 @@ class Containment:
         s.container = wp.array(np.array([int(m[3]) for m in meshes], dtype=np.int32), dtype=wp.int32, device=device)
         depth = [float(m[4]) if len(m) > 4 else 0.0 for m in meshes]
         s.depth = wp.array(np.array(depth, dtype=np.float32), dtype=float, device=device)
+        s.center, s.radius = _bounding_spheres([m[0] for m in meshes], device)
         s.count = len(self._meshes)
         s.has_box = int(box is not None)
         lo, hi = box if box is not None else (np.zeros(3), np.zeros(3))
