@@ -126,7 +126,7 @@ def conditional_body_allocations(monkeypatch) -> list:
 
     def forbidden(name, real):
         def wrapped(*args, **kwargs):
-            if launch._recording and depth[0]:
+            if launch.is_recording() and depth[0]:
                 calls.append(name)
                 raise RuntimeError(f"{name} inside a conditional graph body: it allocates on CUDA")
             return real(*args, **kwargs)

@@ -90,3 +90,54 @@ def test_a_kernel_is_split_only_where_a_whole_launch_takes_long(monkeypatch, wor
         assert launched == ([2] if split and k == 1 + launch.COST_SAMPLES else [])
         launched.clear()
     assert np.array_equal(out.numpy(), expected)
+
+
+@wp.kernel
+def _inverse(x: float, out: wp.array(dtype=float)):
+    out[wp.tid()] = 1.0 / x
+
+
+def test_floats_are_keyed_by_their_bits():
+    """-0.0 == 0.0 in Python, but 1 / -0.0 is -inf: a launch packed for one is not the other's."""
+    out = wp.zeros(2, dtype=float)
+    launch.launch(_inverse, 2, [0.0, out], "cpu")
+    assert np.all(np.isposinf(out.numpy()))
+    launch.launch(_inverse, [2], [-0.0, out], "cpu")  # and a dim given as a list, as wp.launch takes
+    assert np.all(np.isneginf(out.numpy()))
+
+
+def test_another_threads_launches_run_while_this_one_records_a_graph():
+    """Warp's capture of a CPU graph is process-wide: the frame writer's thread, launching while
+    the main thread records, runs its launches at once (packed or not) and records nothing."""
+    import threading
+
+    n = 8
+    h, shift = _holder(np.arange(n), 1.0), wp.vec3(0.0)
+    out, other = wp.zeros(n, dtype=float), wp.zeros(n, dtype=float)
+    _run(h, 1.0, shift, out)  # packed before
+    errors = []
+
+    def writer():
+        try:
+            launch.launch(_scaled, n, [0, h, 1.0, shift, out], "cpu")  # replayed
+            launch.launch(_scaled, n, [0, h, np.float32(2.0), shift, other], "cpu")  # not keyed
+        except Exception as e:  # noqa: BLE001 - the test reports it
+            errors.append(e)
+
+    out.zero_()
+    with launch.recording(), wp.ScopedCapture(device="cpu", force_module_load=False):
+        t = threading.Thread(target=writer)
+        t.start()
+        t.join()
+    assert not errors, errors
+    assert np.array_equal(out.numpy(), np.arange(n)) and np.array_equal(other.numpy(), 2.0 * np.arange(n))
+
+
+def test_a_launch_packed_in_one_build_is_not_replayed_in_another(monkeypatch):
+    """The key holds Warp's mode: a launch packed for the release build is packed anew in debug."""
+    h, shift, out = _holder(np.ones(8), 1.0), wp.vec3(0.0), wp.zeros(8, dtype=float)
+    dev = wp.get_device("cpu")
+    release = launch._packed(_scaled, 8, [0, h, 1.0, shift, out], dev)
+    monkeypatch.setattr(wp.config, "mode", "debug")
+    debug = launch._packed(_scaled, 8, [0, h, 1.0, shift, out], dev)
+    assert debug is not release  # packed anew, as wp.launch would load the module anew

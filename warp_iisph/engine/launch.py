@@ -26,6 +26,7 @@ result: split or not, packed once or every time, a kernel writes the same bits.
 from __future__ import annotations
 
 import os
+import struct
 import threading
 import time
 from collections import OrderedDict
@@ -34,6 +35,7 @@ from contextlib import contextmanager
 
 import warp as wp
 from warp._src.codegen import StructInstance
+from warp._src.context import invoke, invoke_cpu_blocks
 from warp._src.types import scalar_types
 
 # Below this many elements per chunk, a thread hand-off costs more than it saves.
@@ -118,19 +120,31 @@ def chunks(n: int, parts: int) -> list[tuple[int, int]]:
     return out
 
 
-_recording = 0
-
-
 @contextmanager
 def recording():
-    """While a graph is being captured, launches are recorded, not run: never split them
-    (several threads would record into one capture at once)."""
-    global _recording
-    _recording += 1
+    """While this thread captures a graph, its launches are recorded, not run: never split them
+    (several threads would record into one capture at once) nor replayed packed (Warp records
+    only what ``wp.launch`` launches). Other threads (the frame writer's) go on launching."""
+    _local.recording = getattr(_local, "recording", 0) + 1
     try:
         yield
     finally:
-        _recording -= 1
+        _local.recording -= 1
+
+
+def is_recording() -> bool:
+    """Whether this thread is capturing a graph."""
+    return getattr(_local, "recording", 0) > 0
+
+
+def _run(packed) -> None:
+    """Run a packed CPU launch as ``Launch.launch`` does with no capture going on: Warp's capture
+    of a CPU graph is process-wide, and a packed launch refuses to run while any thread records
+    one, where this thread's launch is no part of it."""
+    if packed.block_dim > 1:
+        invoke_cpu_blocks(packed.kernel, packed.hooks, packed.params, False)
+    else:
+        invoke(packed.kernel, packed.hooks, packed.params, False)
 
 
 def _signature(value):
@@ -144,21 +158,31 @@ def _signature(value):
         return (value.ptr, value.shape, value.strides, value.dtype)
     if isinstance(value, StructInstance):
         return ("struct", id(value.__ctype__()))
-    if isinstance(value, (bool, int, float)):
+    if isinstance(value, float):  # by its bits: -0.0 == 0.0, and a NaN equals nothing
+        return (type(value), _bits(value))
+    if isinstance(value, (bool, int)):
         return (type(value), value)
     if value is None:
         return ("none",)
     if type(value) in scalar_types:  # a Warp scalar, packed by value
-        return (type(value), value.value)
+        v = value.value
+        return (type(value), _bits(v) if isinstance(v, float) else v)
     if hasattr(value, "_length_"):  # a Warp vector or matrix: packed by reference, so the object too
         return (type(value), id(value), bytes(value))
     return None
 
 
+def _bits(x: float) -> bytes:
+    return struct.pack("<d", x)
+
+
 def _packed(kernel, dim, inputs: list, device):
     """``kernel``'s launch over ``dim`` with ``inputs`` packed once, replayed while the inputs
-    pack the same (:func:`_signature`); None where an input cannot be keyed."""
-    key = [kernel, device.alias, dim]
+    pack the same (:func:`_signature`) and Warp builds the same way (its mode, its float checks);
+    None where an input cannot be keyed."""
+    if isinstance(dim, list):
+        dim = tuple(dim)
+    key = [kernel, device.alias, dim, wp.config.mode, wp.config.verify_fp]
     for value in inputs:
         sig = _signature(value)
         if sig is None:
@@ -187,16 +211,14 @@ def launch(kernel, dim, inputs: list, device) -> None:
     the CPU (:func:`_packed`): for the small kernels a step launches whole (one thread per body,
     a count, a clock)."""
     device = wp.get_device(device)
-    if device.is_cpu and not _recording:
+    if device.is_cpu and not is_recording():
         packed = _packed(kernel, dim, inputs, device)
+        if packed is None:  # not keyed: packed for this launch only (an empty launch packs nothing)
+            packed = wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
         if packed is not None:
-            packed.launch()
-            return
+            _run(packed)
+        return
     wp.launch(kernel, dim=dim, inputs=inputs, device=device)
-
-
-def _launch_chunk(kernel, start: int, count: int, inputs: list, device) -> None:
-    wp.launch(kernel, dim=count, inputs=[start, *inputs], device=device)
 
 
 def _whole(kernel, n: int, inputs: list, device) -> None:
@@ -217,13 +239,13 @@ def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None
     key = (kernel.key, kernel.module.name, device.alias)
     if key not in _loaded:
         # the first launch loads (and maybe compiles) the module: never from several threads
-        wp.launch(kernel, dim=n, inputs=[0, *inputs], device=device)
+        launch(kernel, n, [0, *inputs], device)
         _loaded.add(key)
         return
     least = MIN_CHUNK if min_chunk is None else max(1, min(int(min_chunk), MIN_CHUNK))
     # Warp's debug build keeps the CPU's tile storage in one process-wide pointer (no TLS in its
     # JIT): concurrent launches then corrupt each other (a segfault in the reorder's gather)
-    split = not _recording and wp.config.mode != "debug"
+    split = not is_recording() and wp.config.mode != "debug"
     parts = min(get_threads(), n // least) if split else 1
     if parts > 1 and SPLIT_WORTH > 0.0:
         cost = _cost.get(key)
@@ -240,12 +262,9 @@ def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None
         return
     ranges = chunks(n, parts)
     packed = [_packed(kernel, c, [s, *inputs], device) for s, c in ranges]
-    if any(p is None for p in packed):
-        futures = _submit(parts, [(_launch_chunk, (kernel, s, c, inputs, device)) for s, c in ranges[1:]])
-        s, c = ranges[0]
-        wp.launch(kernel, dim=c, inputs=[s, *inputs], device=device)
-    else:
-        futures = _submit(parts, [(p.launch, ()) for p in packed[1:]])
-        packed[0].launch()
+    if any(p is None for p in packed):  # not keyed: packed for this launch only
+        packed = [wp.launch(kernel, dim=c, inputs=[s, *inputs], device=device, record_cmd=True) for s, c in ranges]
+    futures = _submit(parts, [(_run, (p,)) for p in packed[1:]])
+    _run(packed[0])
     for f in futures:
         f.result()
