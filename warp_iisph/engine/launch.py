@@ -206,15 +206,22 @@ def _packed(kernel, dim, inputs: list, device):
     return packed
 
 
+def _launchable(kernel, dim, inputs: list, device):
+    """A CPU launch to :func:`_run`: the packed one (:func:`_packed`), or where the inputs cannot
+    be keyed one packed for this launch only; None for an empty launch."""
+    packed = _packed(kernel, dim, inputs, device)
+    if packed is None:
+        packed = wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
+    return packed
+
+
 def launch(kernel, dim, inputs: list, device) -> None:
     """``wp.launch(kernel, dim=dim, inputs=inputs, device=device)``, packed once and replayed on
     the CPU (:func:`_packed`): for the small kernels a step launches whole (one thread per body,
     a count, a clock)."""
     device = wp.get_device(device)
     if device.is_cpu and not is_recording():
-        packed = _packed(kernel, dim, inputs, device)
-        if packed is None:  # not keyed: packed for this launch only (an empty launch packs nothing)
-            packed = wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
+        packed = _launchable(kernel, dim, inputs, device)
         if packed is not None:
             _run(packed)
         return
@@ -261,9 +268,7 @@ def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None
         _whole(kernel, n, inputs, device)
         return
     ranges = chunks(n, parts)
-    packed = [_packed(kernel, c, [s, *inputs], device) for s, c in ranges]
-    if any(p is None for p in packed):  # not keyed: packed for this launch only
-        packed = [wp.launch(kernel, dim=c, inputs=[s, *inputs], device=device, record_cmd=True) for s, c in ranges]
+    packed = [_launchable(kernel, c, [s, *inputs], device) for s, c in ranges]
     futures = _submit(parts, [(_run, (p,)) for p in packed[1:]])
     _run(packed[0])
     for f in futures:
