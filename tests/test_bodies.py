@@ -933,7 +933,9 @@ def test_contacts_query_only_the_solids_a_body_can_reach():
         wp.launch(sample_gaps, dim=n, inputs=[0, cs, solids, poses, model.boundary_x, n], device="cpu")
         return cs.gap.numpy().copy(), cs.normal.numpy().copy()
 
-    wp.launch(near_partners, dim=(rigid.n, solids.count), inputs=[cs, solids, poses], device="cpu")
+    wp.launch(
+        near_partners, dim=(rigid.n, solids.count), inputs=[cs, solids, poses, rigid.constants.radius], device="cpu"
+    )
     near = cs.near.numpy()[: rigid.n * solids.count].reshape(rigid.n, solids.count).copy()
     culled = gaps()
     cs.near.fill_(1)

@@ -54,7 +54,6 @@ class ContactSet:
     box_upper: wp.vec3
     reach: float  # samples closer than this (m) take part: one spacing
     deepest: float  # the deepest sample's depth (m)
-    radius: wp.array(dtype=float)  # each body's samples lie within this of its centre of mass (m)
     near: wp.array(dtype=wp.int32)  # body f, solid k at f * solids.count + k: 1 where a sample may touch it
     bounce_speed: wp.float64  # impacts slower than this (m/s) do not bounce: sqrt(|g| h)
     keyed: int  # the free bodies' poses follow the keyframed ones'
@@ -78,15 +77,17 @@ def partner_pose(solids: Solids, poses: Poses, k: int) -> wp.transform:
 
 
 @wp.kernel
-def near_partners(contacts: ContactSet, solids: Solids, poses: Poses):
+def near_partners(contacts: ContactSet, solids: Solids, poses: Poses, radius: wp.array(dtype=wp.float64)):
     """Whether free body f may have a sample within reach of solid k's surface: not where the
-    spheres holding the body's samples and the solid lie further apart than a sample's reach
-    (one spacing past its depth; a hundredth of a spacing more against rounding). A container's
-    sphere holds the bodies inside it: never ruled out."""
+    spheres holding the body's samples (``radius[f]`` about its centre of mass, grown by a
+    millionth and a micrometre) and the solid lie further apart than a sample's reach (one spacing
+    past its depth; a hundredth of a spacing more against rounding). A container's sphere holds
+    the bodies inside it: never ruled out."""
     f, k = wp.tid()
     centre = wp.transform_get_translation(poses.start[contacts.keyed + f])
     other = wp.transform_point(partner_pose(solids, poses, k), solids.center[k])
-    apart = wp.length(centre - other) - contacts.radius[f] - solids.radius[k]
+    held = float(radius[f] * wp.float64(1.000001) + wp.float64(1.0e-6))
+    apart = wp.length(centre - other) - held - solids.radius[k]
     reach = 1.01 * contacts.reach + contacts.deepest
     contacts.near[f * solids.count + k] = wp.where(apart < reach, 1, 0)
 

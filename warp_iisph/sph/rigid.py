@@ -299,7 +299,7 @@ class RigidBodies:
         cs, dev = self.contacts, self.device
         # a sample's queries against every partner are a large piece of work: a thread from 256
         if solids.count:
-            launch(near_partners, (self.n, solids.count), [cs, solids, poses], dev)
+            launch(near_partners, (self.n, solids.count), [cs, solids, poses, self.constants.radius], dev)
         launch_particles(
             sample_gaps, self.n_samples, [cs, solids, poses, boundary_x, self.n_samples], dev, min_chunk=256
         )
@@ -358,8 +358,6 @@ def _contact_set(bodies, first, keyed, spacing, gravity, box, partners, device) 
     cs.box_lower, cs.box_upper = wp.vec3(*np.asarray(lo, float)), wp.vec3(*np.asarray(hi, float))
     cs.reach = float(spacing)
     cs.deepest = float(np.max(depth)) if len(depth) else 0.0
-    radius = [float(np.max(np.linalg.norm(np.asarray(b["rest"], np.float64), axis=1))) for b in bodies]
-    cs.radius = wp.array(np.asarray(radius or [0.0], np.float32) * (1.0 + 1.0e-6) + 1.0e-6, dtype=float, device=device)
     cs.near = wp.zeros(max(len(bodies) * max(int(partners), 1), 1), dtype=wp.int32, device=device)
     cs.bounce_speed = wp.float64(np.sqrt(float(np.linalg.norm(gravity)) * spacing))
     cs.keyed = int(keyed)
