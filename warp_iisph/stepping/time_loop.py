@@ -184,6 +184,9 @@ class TimeLoop:
         self.max_speed2 = wp.zeros(1, dtype=float, device=dev)  # the last step's top speed, squared: the CFL rule's
         self.counts = wp.zeros(2, dtype=wp.int32, device=dev)  # particles out of the domain, non-finite
         self.speed2 = wp.zeros(max(state.capacity, 1), dtype=float, device=dev)
+        # the domain's corners as the state check takes them, made once (fixed when the model is
+        # built; a packed launch holds the vectors it was given)
+        self.domain = (wp.vec3(*model.domain_lower), wp.vec3(*model.domain_upper))
         # a fixed dt cut into substeps: what is left of the one being cut, substeps taken of it, and
         # how many it is cut into (logged)
         self.sub_left = wp.zeros(1, dtype=f64, device=dev)
@@ -254,7 +257,7 @@ class TimeLoop:
             # the last line: nothing beyond a wall, every correction counted; then the checks
             model.containment.apply(state.x, state.v, search.boundary.lists, state.n, self.dt64)
             self.counts.zero_()
-            lo, hi = self._domain()
+            lo, hi = self.domain
             launch(check_state, dim=state.n, device=dev, inputs=[state.x, state.v, lo, hi, self.speed2, self.counts])
             max_into(self.speed2, state.n, self.max_speed2)
         if self.probes:
@@ -277,15 +280,6 @@ class TimeLoop:
                 self.log,
             ],
         )
-
-    def _domain(self) -> tuple:
-        """The domain's corners as the state check takes them, made again only when they change
-        (a launch packed once holds the vectors it was given)."""
-        corners = (tuple(self.model.domain_lower), tuple(self.model.domain_upper))
-        if getattr(self, "_corners", None) != corners:
-            self._corners = corners
-            self._domain_vectors = (wp.vec3(*corners[0]), wp.vec3(*corners[1]))
-        return self._domain_vectors
 
     def loop_body(self) -> None:
         """Steps until the end time, the step limit or a divergence: what a graph records."""
