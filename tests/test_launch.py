@@ -74,8 +74,8 @@ def test_a_kernel_is_split_only_where_a_whole_launch_takes_long(monkeypatch, wor
     """Its first launch loads it, the next COST_SAMPLES are timed whole; then it is split where
     the fastest of them, per element, times its size exceeds SPLIT_WORTH."""
     launched = []
-    real = launch._submit
-    monkeypatch.setattr(launch, "_submit", lambda parts, jobs: launched.append(parts) or real(parts, jobs))
+    real = launch._run_split
+    monkeypatch.setattr(launch, "_run_split", lambda packed: launched.append(len(packed)) or real(packed))
     monkeypatch.setattr(launch, "get_threads", lambda: 2)
     monkeypatch.setattr(launch, "SPLIT_WORTH", worth)
     monkeypatch.setattr(launch, "_cost", {})
@@ -141,3 +141,78 @@ def test_a_launch_packed_in_one_build_is_not_replayed_in_another(monkeypatch):
     monkeypatch.setattr(wp.config, "mode", "debug")
     debug = launch._packed(_scaled, 8, [0, h, 1.0, shift, out], dev)
     assert debug is not release  # packed anew, as wp.launch would load the module anew
+
+
+def _split_blend(n: int, parts: int):
+    """Packed launches of ``_blend`` over ``parts`` disjoint ranges, and its arrays (kept by the
+    caller: a packed launch holds their pointers only)."""
+    a = wp.array(np.arange(n, dtype=np.float32), dtype=float)
+    out = wp.zeros(n, dtype=float)
+    launch.launch(_blend, n, [0, a, out], "cpu")  # loaded
+    out.zero_()
+    cpu = wp.get_device("cpu")
+    return [launch._launchable(_blend, c, [s, a, out], cpu) for s, c in launch.chunks(n, parts)], a, out
+
+
+def test_a_split_launch_hands_its_chunks_to_helper_threads_and_waits_for_them():
+    """Every chunk runs once, the same bits as one launch; an error on a helper thread reaches the
+    caller once every helper is done, and the helpers run the next split launch as before."""
+    n = 40_000
+    packed, _a, out = _split_blend(n, 4)
+    launch._run_split(packed)
+    assert np.array_equal(out.numpy(), np.float32(0.5) * np.arange(n, dtype=np.float32))
+    real, ran = launch._run, []
+
+    def failing(p):
+        ran.append(p)
+        if p is packed[2]:
+            raise RuntimeError("chunk 2")
+        real(p)
+
+    try:
+        launch._run = failing
+        with pytest.raises(RuntimeError, match="chunk 2"):
+            launch._run_split(packed)
+    finally:
+        launch._run = real
+    assert len(ran) == 4 and not launch._busy.locked()
+    out.zero_()
+    launch._run_split(packed)
+    assert np.array_equal(out.numpy(), np.float32(0.5) * np.arange(n, dtype=np.float32))
+
+
+def test_a_split_launch_while_another_thread_holds_the_helpers_runs_here():
+    """The frame writer's thread may split a launch while the step's does: the second runs its
+    chunks itself, one after another, with the same result."""
+    import threading
+
+    n = 40_000
+    packed, _a, out = _split_blend(n, 2)
+    where = []
+    real = launch._run
+    try:
+        launch._run = lambda p: where.append(threading.current_thread().name) or real(p)
+        with launch._busy:  # as if another thread's split launch were running
+            launch._run_split(packed)
+    finally:
+        launch._run = real
+    assert where == [threading.current_thread().name] * 2
+    assert np.array_equal(out.numpy(), np.float32(0.5) * np.arange(n, dtype=np.float32))
+
+
+def test_a_forked_process_makes_its_own_helpers(monkeypatch):
+    """A process forked from one with helper threads has none of them: it starts its own, and a
+    changed thread count lets the old ones end."""
+    launch._workers_for(1)
+    parent = list(launch._workers)
+    monkeypatch.setattr(launch.os, "getpid", lambda: -1)
+    child = launch._workers_for(1)
+    assert child and not any(w is p for w in child for p in parent)
+    monkeypatch.undo()
+    kept = launch.get_threads()
+    launch.set_threads(kept + 1)
+    assert launch._workers == []
+    launch.set_threads(kept)
+    packed, _a, out = _split_blend(20_000, 2)
+    launch._run_split(packed)
+    assert np.array_equal(out.numpy(), np.float32(0.5) * np.arange(20_000, dtype=np.float32))

@@ -228,7 +228,7 @@ def test_warp_debug_mode_launches_in_one_piece(monkeypatch):
     crashed there (a segfault in the reorder's gather with 2 threads): in debug mode every launch
     is one piece."""
     launched = []
-    monkeypatch.setattr(launch, "_submit", lambda parts, jobs: launched.append(parts) or [])
+    monkeypatch.setattr(launch, "_run_split", lambda packed: launched.append(len(packed)))
     monkeypatch.setattr(launch, "get_threads", lambda: 4)
     monkeypatch.setattr(launch, "SPLIT_WORTH", 0.0)
     out = wp.zeros(100_000, dtype=float)

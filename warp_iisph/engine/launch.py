@@ -18,7 +18,7 @@ the same (:func:`_packed`): ``wp.launch`` spends 20-70 us of Python packing a la
 light kernel's whole run over 16k particles, and a split launch packs each chunk on its own
 thread, which then waits for the GIL. And a kernel is split only where a whole launch of it takes
 longer than :data:`SPLIT_WORTH` (measured on its first launches after loading, per element):
-handing a chunk to another thread and waiting for it costs about 0.1 ms, which a light kernel
+handing a chunk to another thread and waiting for it costs about 50 us, which a light kernel
 (a blend, a gather) over tens of thousands of particles does not win back. Neither changes a
 result: split or not, packed once or every time, a kernel writes the same bits.
 """
@@ -30,7 +30,6 @@ import struct
 import threading
 import time
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import warp as wp
@@ -41,8 +40,9 @@ from warp._src.types import scalar_types
 # Below this many elements per chunk, a thread hand-off costs more than it saves.
 MIN_CHUNK = 2048
 # A kernel is split only where a whole launch of it would run longer than this (s): a chunk handed
-# to another thread costs about 0.1 ms more than running it here (lab, 2 cores, 2026-12-06: a
-# blend over 16k particles took 0.27 ms split, 0.08 ms whole); 0 splits every launch.
+# to a helper costs about 0.05 ms (lab, 2 cores, 2026-12-07: a blend over 32k particles took
+# 0.125 ms split in two, 0.139 ms whole; over 65k 0.21 and 0.25 ms), and a chunk's work is seldom
+# half the whole's (0.25 ms moved the flood's step less than the machine's drift); 0 splits all.
 SPLIT_WORTH = 4.0e-4
 # Whole launches of a kernel timed before it is split or not for good: the fastest counts.
 COST_SAMPLES = 2
@@ -50,7 +50,9 @@ COST_SAMPLES = 2
 PACKED = 512
 
 _threads: int | None = None
-_pool: ThreadPoolExecutor | None = None
+_workers: list = []  # the helper threads (_Worker), made for this process (_workers_pid)
+_workers_pid: int | None = None
+_busy = threading.Lock()  # held by the thread whose split launch the workers run
 _loaded: set = set()
 _pool_lock = threading.Lock()
 _cost: dict = {}  # kernel -> [seconds per element of a whole launch (the fastest timed), launches timed]
@@ -86,26 +88,100 @@ def _parse_threads(value, name: str) -> int:
 def set_threads(n: int, name: str = "threads") -> None:
     """Use ``n`` threads for CPU launches (1 = single launches, as Warp does by itself); ``name``
     is what an error calls the value (``--threads``)."""
-    global _threads, _pool
+    global _threads
     n = _parse_threads(n, name)
-    with _pool_lock:
-        if n != _threads and _pool is not None:
-            _pool.shutdown(wait=True)
-            _pool = None
+    with _busy, _pool_lock:  # the order _run_split takes them in
+        if n != _threads:
+            _stop_workers()
         _threads = n
 
 
-def _submit(n: int, calls: list) -> list:
-    """Submit ``calls`` (function, args) to a pool of at least ``n - 1`` workers. The frame
-    writer's thread launches kernels too (OBJ text), so the pool is replaced and used under one
-    lock: never shut down between a thread's look-up and its submits."""
-    global _pool
+class _Worker:
+    """A thread that runs one job at a time, started and waited for through two locks: a
+    ``ThreadPoolExecutor``'s futures and queue cost 35-90 us more a split launch (lab, 2 cores,
+    2026-12-07: a blend over 16k particles 120 against 85 us, over 131k 451 against 365 us, whole
+    67 and 519 us)."""
+
+    def __init__(self):
+        self._go, self._done = threading.Lock(), threading.Lock()
+        self._go.acquire()
+        self._done.acquire()
+        self._job, self._error = None, None
+        threading.Thread(target=self._loop, daemon=True, name="warp_iisph").start()
+
+    def _loop(self) -> None:
+        while True:
+            self._go.acquire()
+            if self._job is None:  # stopped
+                return
+            try:
+                _run(self._job)
+            except BaseException as e:  # handed to the thread that waits for it
+                self._error = e
+            self._done.release()
+
+    def start(self, packed) -> None:
+        self._job = packed
+        self._go.release()
+
+    def wait(self) -> None:
+        self._done.acquire()
+        error, self._error, self._job = self._error, None, None
+        if error is not None:
+            raise error
+
+    def stop(self) -> None:
+        self._job = None
+        self._go.release()
+
+
+def _stop_workers() -> None:
+    """Let the helper threads end (under ``_busy``, which a split launch holds until its helpers
+    are done, so none is running a job)."""
+    global _workers
+    if _workers_pid == os.getpid():
+        for w in _workers:
+            w.stop()
+    _workers = []
+
+
+def _workers_for(n: int) -> list:
+    """At least ``n`` helper threads of this process (a forked child has none of its parent's)."""
+    global _workers, _workers_pid
     with _pool_lock:
-        if _pool is None or _pool._max_workers < n - 1:
-            if _pool is not None:
-                _pool.shutdown(wait=True)
-            _pool = ThreadPoolExecutor(max_workers=max(1, n - 1), thread_name_prefix="warp_iisph")
-        return [_pool.submit(fn, *args) for fn, args in calls]
+        if _workers_pid != os.getpid():
+            _workers, _workers_pid = [], os.getpid()
+        while len(_workers) < n:
+            _workers.append(_Worker())
+        return _workers[:n]
+
+
+def _run_split(packed: list) -> None:
+    """Run packed launches over disjoint ranges at once: the first here, each other on a helper
+    thread. Where another thread's split launch holds the helpers (the frame writer's), all run
+    here, one after another: the same bits either way."""
+    if not _busy.acquire(blocking=False):
+        for p in packed:
+            _run(p)
+        return
+    try:
+        started = []
+        try:
+            for w, p in zip(_workers_for(len(packed) - 1), packed[1:]):
+                w.start(p)
+                started.append(w)
+            _run(packed[0])
+        finally:  # never return while a helper still writes the arrays
+            errors = []
+            for w in started:
+                try:
+                    w.wait()
+                except BaseException as e:
+                    errors.append(e)
+        if errors:
+            raise errors[0]
+    finally:
+        _busy.release()
 
 
 def chunks(n: int, parts: int) -> list[tuple[int, int]]:
@@ -269,7 +345,4 @@ def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None
         return
     ranges = chunks(n, parts)
     packed = [_launchable(kernel, c, [s, *inputs], device) for s, c in ranges]
-    futures = _submit(parts, [(_run, (p,)) for p in packed[1:]])
-    _run(packed[0])
-    for f in futures:
-        f.result()
+    _run_split(packed)
