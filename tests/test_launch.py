@@ -216,3 +216,43 @@ def test_a_forked_process_makes_its_own_helpers(monkeypatch):
     packed, _a, out = _split_blend(20_000, 2)
     launch._run_split(packed)
     assert np.array_equal(out.numpy(), np.float32(0.5) * np.arange(20_000, dtype=np.float32))
+
+
+def test_a_kernel_kept_whole_is_split_once_its_launches_run_long(monkeypatch):
+    """A kernel whose first launches found little to do (the viscosity's sub-steps before a step
+    needs them) is kept whole, timed still, and split once the median of its RECENT latest whole
+    launches ran longer than SPLIT_WORTH (launches alternating between none and much work, as a
+    sub-step needed every other step, are split); one long launch among short ones (the machine
+    busy) is not enough."""
+    launched, clock = [], {"t": 0.0, "step": 1.0e-6}
+    real = launch._run_split
+    monkeypatch.setattr(launch, "_run_split", lambda packed: launched.append(len(packed)) or real(packed))
+    monkeypatch.setattr(launch, "get_threads", lambda: 2)
+    monkeypatch.setattr(launch, "SPLIT_WORTH", 1.0e-3)
+    monkeypatch.setattr(launch, "_cost", {})
+    monkeypatch.setattr(launch, "_loaded", set())
+
+    def perf_counter():  # each reading a launch's length after the last
+        clock["t"] += clock["step"]
+        return clock["t"]
+
+    monkeypatch.setattr(launch.time, "perf_counter", perf_counter)
+    n = 10_000
+    a, out = wp.array(np.ones(n, np.float32), dtype=float), wp.zeros(n, dtype=float)
+
+    def run(times: int, seconds: float):
+        clock["step"] = seconds / 2.0  # a launch is read between two readings
+        for _ in range(times):
+            launch.launch_particles(_blend, n, [a, out], "cpu")
+
+    run(1 + launch.COST_SAMPLES, 1.0e-5)  # loaded, then timed: light
+    for _ in range(3):
+        run(3, 1.0e-5)
+        run(1, 5.0e-3)
+    assert launched == []  # one long launch in every RECENT: kept whole
+    run(1, 1.0e-5)  # now every other launch is long
+    run(1, 5.0e-3)
+    assert launched == []  # those ran whole, timed: the latest RECENT hold two long ones
+    run(1, 1.0e-5)
+    run(1, 5.0e-3)
+    assert launched == [2, 2]

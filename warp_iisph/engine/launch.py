@@ -17,7 +17,10 @@ On the CPU a launch's arguments are packed once and the packed launch replayed w
 the same (:func:`_packed`): ``wp.launch`` spends 20-70 us of Python packing a launch, more than a
 light kernel's whole run over 16k particles, and a split launch packs each chunk on its own
 thread, which then waits for the GIL. And a kernel is split only where a whole launch of it takes
-longer than :data:`SPLIT_WORTH` (measured on its first launches after loading, per element):
+longer than :data:`SPLIT_WORTH` (measured on its first launches after loading, per element, and
+on every launch it is kept whole: a kernel whose first launches found little to do, as the
+viscosity's sub-steps before the step grew long enough to need them, is split once the median of
+its recent launches runs long):
 handing a chunk to another thread and waiting for it costs about 50 us, which a light kernel
 (a blend, a gather) over tens of thousands of particles does not win back. Neither changes a
 result: split or not, packed once or every time, a kernel writes the same bits.
@@ -29,7 +32,7 @@ import os
 import struct
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from contextlib import contextmanager
 
 import warp as wp
@@ -46,6 +49,10 @@ MIN_CHUNK = 2048
 SPLIT_WORTH = 4.0e-4
 # Whole launches of a kernel timed before it is split or not for good: the fastest counts.
 COST_SAMPLES = 2
+# Whole launches of a kernel kept whole whose median decides whether it is split after all: a
+# kernel's work may grow (one of the viscosity's sub-steps has work only in long steps, so its
+# launches can alternate between none and much), where one long launch may be the machine's.
+RECENT = 4
 # Packed launches kept per thread (about 60 a step of a scene with bodies, the surface's 20 more).
 PACKED = 512
 
@@ -55,7 +62,9 @@ _workers_pid: int | None = None
 _busy = threading.Lock()  # held by the thread whose split launch the workers run
 _loaded: set = set()
 _pool_lock = threading.Lock()
-_cost: dict = {}  # kernel -> [seconds per element of a whole launch (the fastest timed), launches timed]
+# kernel -> [seconds per element of a whole launch (the fastest of the first timed), launches timed,
+# the RECENT latest of the later whole launches]
+_cost: dict = {}
 _local = threading.local()  # each thread's packed launches (the frame writer's thread launches too)
 
 
@@ -331,15 +340,22 @@ def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None
     split = not is_recording() and wp.config.mode != "debug"
     parts = min(get_threads(), n // least) if split else 1
     if parts > 1 and SPLIT_WORTH > 0.0:
-        cost = _cost.get(key)
-        if cost is None or cost[1] < COST_SAMPLES:  # time it whole
+        cost = _cost.setdefault(key, [float("inf"), 0, deque(maxlen=RECENT)])
+        if cost[1] < COST_SAMPLES or cost[0] * n < SPLIT_WORTH:  # whole, and timed
             t0 = time.perf_counter()
             _whole(kernel, n, inputs, device)
             per = (time.perf_counter() - t0) / n
-            _cost[key] = [per, 1] if cost is None else [min(cost[0], per), cost[1] + 1]
+            cost[1] += 1
+            if cost[1] <= COST_SAMPLES:
+                cost[0] = min(cost[0], per)
+            else:  # kept whole: split once its recent launches run long (its work grew)
+                recent = cost[2]
+                recent.append(per)
+                if len(recent) == RECENT:
+                    middle = sorted(recent)[(RECENT - 1) // 2 : RECENT // 2 + 1]
+                    if sum(middle) / len(middle) * n > SPLIT_WORTH:
+                        cost[0] = max(recent)
             return
-        if cost[0] * n < SPLIT_WORTH:
-            parts = 1
     if parts <= 1:
         _whole(kernel, n, inputs, device)
         return

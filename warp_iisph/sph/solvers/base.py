@@ -128,6 +128,15 @@ class SPHSolver:
         self.viscous = ViscousSubsteps(model, n)  # the viscosity's sub-steps where a step exceeds its limit
 
     @property
+    def gravity(self) -> wp.vec3:
+        """``physics.gravity`` as the one vector a step's launches pass, remade only when it changes (a
+        new vector each step would make each launch of it be packed anew: engine/launch.py)."""
+        g = tuple(float(c) for c in self.physics.gravity)
+        if getattr(self, "_gravity", (None,))[0] != g:
+            self._gravity = (g, wp.vec3(*g))
+        return self._gravity[1]
+
+    @property
     def signal_speed(self) -> float:
         """Speed of information the time step must resolve besides the flow (m/s)."""
         return 0.0
@@ -171,12 +180,11 @@ class SPHSolver:
         """``v_adv = v + dt (gravity + viscosity)``, the viscosity in sub-steps where the step
         exceeds its limit: the advection of the methods with no per-particle terms of their own
         to add (WCSPH, DFSPH; IISPH computes d_ii in the same pass)."""
-        ph = self.physics
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         launch_particles(
             predict_velocity,
             state.n,
-            [state.x, state.v, state.rho, nf, nb, self.viscous.terms, wp.vec3(*ph.gravity), self.dt, self.v_adv],
+            [state.x, state.v, state.rho, nf, nb, self.viscous.terms, self.gravity, self.dt, self.v_adv],
             model.device,
         )
         self.viscous.run(model, state, nf, nb, self.dt, self.v_adv)

@@ -430,7 +430,7 @@ class IISPHSolver(SPHSolver):
         (``"half"``) or that plus half the hydrostatic pressure (``"half_hydrostatic"``)."""
         nf, nb = self.search.fluid.lists, self.search.boundary.lists
         n, dev, walls = state.n, model.device, self.walls.walls
-        g = wp.vec3(*self.physics.gravity)
+        g = self.gravity
         launch_particles(
             predict_advection_velocity,
             n,
