@@ -256,3 +256,21 @@ def test_a_kernel_kept_whole_is_split_once_its_launches_run_long(monkeypatch):
     run(1, 1.0e-5)
     run(1, 5.0e-3)
     assert launched == [2, 2]
+
+
+def test_a_steady_step_packs_no_launch_anew(monkeypatch):
+    """Once a run's launches are packed, its steps replay them: an argument made anew each step
+    (a vector of the gravity, once) would pack its launch every step, 20-70 us of Python each."""
+    from warp_iisph import Box, Scene, Simulation
+
+    scene = Scene(spacing=0.05, tank=Box((0.0, 0.0, 0.0), (1.0, 0.6, 0.4)), name="steady")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (0.4, 0.4, 0.4))
+    scene.physics.viscosity = 0.05
+    sim = Simulation(scene, "cpu", history=1)
+    for _ in range(12):  # every launch packed, the grid's reorder included
+        sim.step()
+    packed, real = [], wp.launch
+    monkeypatch.setattr(wp, "launch", lambda kernel, *a, **k: packed.append(kernel.key) or real(kernel, *a, **k))
+    for _ in range(5):
+        sim.step()
+    assert packed == []
