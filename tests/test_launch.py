@@ -258,14 +258,17 @@ def test_a_kernel_kept_whole_is_split_once_its_launches_run_long(monkeypatch):
     assert launched == [2, 2]
 
 
-def test_a_steady_step_packs_no_launch_anew(monkeypatch):
-    """Once a run's launches are packed, its steps replay them: an argument made anew each step
-    (a vector of the gravity, once) would pack its launch every step, 20-70 us of Python each."""
+@pytest.mark.parametrize("method", ["iisph", "dfsph", "wcsph"])
+def test_a_steady_step_packs_no_launch_anew(monkeypatch, method):
+    """Once a run's launches are packed, each method's steps replay them, a free body's too: an
+    argument made anew each step (a vector of the gravity, once) would pack its launch every step,
+    20-70 us of Python each."""
     from warp_iisph import Box, Scene, Simulation
 
     scene = Scene(spacing=0.05, tank=Box((0.0, 0.0, 0.0), (1.0, 0.6, 0.4)), name="steady")
     scene.add_fluid_box((0.0, 0.0, 0.0), (0.4, 0.4, 0.4))
-    scene.physics.viscosity = 0.05
+    scene.physics.viscosity, scene.physics.method = 0.05, method
+    scene.add_body(Box((0.6, 0.0, 0.1), (0.75, 0.15, 0.25), name="crate"), density=500.0)
     sim = Simulation(scene, "cpu", history=1)
     for _ in range(12):  # every launch packed, the grid's reorder included
         sim.step()
