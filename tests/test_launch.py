@@ -200,15 +200,19 @@ def test_a_split_launch_while_another_thread_holds_the_helpers_runs_here():
     assert np.array_equal(out.numpy(), np.float32(0.5) * np.arange(n, dtype=np.float32))
 
 
-def test_a_forked_process_makes_its_own_helpers(monkeypatch):
-    """A process forked from one with helper threads has none of them: it starts its own, and a
-    changed thread count lets the old ones end."""
+def test_a_forked_process_makes_its_own_helpers():
+    """A process forked from one with helper threads has none of them, and its locks may have been
+    held by one of its parent's threads: it starts afresh. A changed thread count lets the old
+    helpers end."""
     launch._workers_for(1)
-    parent = list(launch._workers)
-    monkeypatch.setattr(launch.os, "getpid", lambda: -1)
-    child = launch._workers_for(1)
-    assert child and not any(w is p for w in child for p in parent)
-    monkeypatch.undo()
+    parent, busy = list(launch._workers), launch._busy
+    busy.acquire()  # as if the frame writer's split launch were running at the fork
+    try:
+        launch._after_fork_in_child()
+        child = launch._workers_for(1)
+        assert child and not any(w is p for w in child for p in parent) and not launch._busy.locked()
+    finally:
+        busy.release()
     kept = launch.get_threads()
     launch.set_threads(kept + 1)
     assert launch._workers == []
@@ -216,6 +220,51 @@ def test_a_forked_process_makes_its_own_helpers(monkeypatch):
     packed, _a, out = _split_blend(20_000, 2)
     launch._run_split(packed)
     assert np.array_equal(out.numpy(), np.float32(0.5) * np.arange(20_000, dtype=np.float32))
+
+
+def test_an_interrupted_wait_waits_for_its_helper_before_raising(monkeypatch):
+    """Ctrl-C while the caller waits for a helper: the interrupt is raised once the helper's chunk
+    is written, and the next split launch waits for its own chunk (a wait cut short would leave
+    the helper's next one returning early)."""
+    import threading
+    import time
+
+    n = 40_000
+    packed, _a, out = _split_blend(n, 2)
+    real, gate = launch._run, threading.Event()
+
+    def slow_helper(p):
+        if threading.current_thread() is not threading.main_thread():
+            gate.wait(5.0)
+        real(p)
+
+    class Done:  # the helper's done lock, interrupted once as Ctrl-C interrupts acquire()
+        def __init__(self, lock):
+            self.lock, self.interrupted = lock, False
+
+        def acquire(self):
+            if not self.interrupted:
+                self.interrupted = True
+                threading.Timer(0.05, gate.set).start()
+                raise KeyboardInterrupt
+            return self.lock.acquire()
+
+        def release(self):
+            self.lock.release()
+
+    (worker,) = launch._workers_for(1)
+    monkeypatch.setattr(worker, "_done", Done(worker._done))
+    monkeypatch.setattr(launch, "_run", slow_helper)
+    t0 = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        launch._run_split(packed)
+    assert time.perf_counter() - t0 >= 0.04  # it waited for the helper
+    half = np.float32(0.5) * np.arange(n, dtype=np.float32)
+    assert np.array_equal(out.numpy(), half)  # both chunks written
+    monkeypatch.undo()
+    out.zero_()
+    launch._run_split(packed)
+    assert np.array_equal(out.numpy(), half) and not launch._busy.locked()
 
 
 def test_a_kernel_kept_whole_is_split_once_its_launches_run_long(monkeypatch):

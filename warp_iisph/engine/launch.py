@@ -51,14 +51,14 @@ SPLIT_WORTH = 4.0e-4
 COST_SAMPLES = 2
 # Whole launches of a kernel kept whole whose median decides whether it is split after all: a
 # kernel's work may grow (one of the viscosity's sub-steps has work only in long steps, so its
-# launches can alternate between none and much), where one long launch may be the machine's.
+# launches can alternate between none and much), where one long launch may be the machine's (or
+# a wait for the GIL another thread holds). A kernel heavy in one launch of four or fewer stays whole.
 RECENT = 4
 # Packed launches kept per thread (about 60 a step of a scene with bodies, the surface's 20 more).
 PACKED = 512
 
 _threads: int | None = None
-_workers: list = []  # the helper threads (_Worker), made for this process (_workers_pid)
-_workers_pid: int | None = None
+_workers: list = []  # the helper threads (_Worker)
 _busy = threading.Lock()  # held by the thread whose split launch the workers run
 _loaded: set = set()
 _pool_lock = threading.Lock()
@@ -134,51 +134,74 @@ class _Worker:
         self._go.release()
 
     def wait(self) -> None:
-        self._done.acquire()
+        """Until the job is done, through an interrupt too (raised after it: the helper may still be
+        writing the caller's arrays, and a wait cut short would leave its next one returning early)."""
+        interrupted = None
+        while True:
+            try:
+                self._done.acquire()
+                break
+            except BaseException as e:  # Ctrl-C, or a Dask task stopped (run/cluster.py)
+                interrupted = e
         error, self._error, self._job = self._error, None, None
+        if interrupted is not None:
+            raise interrupted
         if error is not None:
             raise error
 
     def stop(self) -> None:
+        """End the thread once it is idle: a job it is running is finished first, one handed to it
+        and not yet begun is dropped (its caller was stopped while handing out chunks)."""
         self._job = None
-        self._go.release()
+        try:
+            self._go.release()
+        except RuntimeError:  # already released by start(): the thread takes it and finds no job
+            pass
 
 
 def _stop_workers() -> None:
-    """Let the helper threads end (under ``_busy``, which a split launch holds until its helpers
-    are done, so none is running a job)."""
+    """Let the helper threads end and make new ones when next needed (under ``_busy``)."""
     global _workers
-    if _workers_pid == os.getpid():
-        for w in _workers:
-            w.stop()
+    for w in _workers:
+        w.stop()
     _workers = []
 
 
 def _workers_for(n: int) -> list:
-    """At least ``n`` helper threads of this process (a forked child has none of its parent's)."""
-    global _workers, _workers_pid
+    """At least ``n`` helper threads."""
     with _pool_lock:
-        if _workers_pid != os.getpid():
-            _workers, _workers_pid = [], os.getpid()
         while len(_workers) < n:
             _workers.append(_Worker())
         return _workers[:n]
+
+
+def _after_fork_in_child() -> None:
+    """A forked child has none of its parent's threads, and its locks may have been held by one
+    of them (the frame writer's split launch): it starts afresh."""
+    global _workers, _busy, _pool_lock
+    _workers, _busy, _pool_lock = [], threading.Lock(), threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def _run_split(packed: list) -> None:
     """Run packed launches over disjoint ranges at once: the first here, each other on a helper
     thread. Where another thread's split launch holds the helpers (the frame writer's), all run
     here, one after another: the same bits either way."""
-    if not _busy.acquire(blocking=False):
+    busy = _busy
+    if not busy.acquire(blocking=False):
         for p in packed:
             _run(p)
         return
+    started, handed = [], False
     try:
-        started = []
         try:
             for w, p in zip(_workers_for(len(packed) - 1), packed[1:]):
                 w.start(p)
                 started.append(w)
+            handed = True
             _run(packed[0])
         finally:  # never return while a helper still writes the arrays
             errors = []
@@ -190,7 +213,9 @@ def _run_split(packed: list) -> None:
         if errors:
             raise errors[0]
     finally:
-        _busy.release()
+        if not handed:  # stopped while handing out chunks: a helper may hold one nobody waits for
+            _stop_workers()
+        busy.release()
 
 
 def chunks(n: int, parts: int) -> list[tuple[int, int]]:
