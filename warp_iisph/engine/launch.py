@@ -375,7 +375,9 @@ def launch_particles(kernel, n: int, inputs: list, device, min_chunk: int | None
     split = not is_recording() and wp.config.mode != "debug"
     parts = min(get_threads(), n // least) if split else 1
     if parts > 1 and SPLIT_WORTH > 0.0:
-        cost = _cost.setdefault(key, [float("inf"), 0, deque(maxlen=RECENT)])
+        cost = _cost.get(key)
+        if cost is None:
+            cost = _cost[key] = [float("inf"), 0, deque(maxlen=RECENT)]
         if cost[1] < COST_SAMPLES or cost[0] * n < SPLIT_WORTH:  # whole, and timed
             t0 = time.perf_counter()
             _whole(kernel, n, inputs, device)
