@@ -61,7 +61,7 @@ _threads: int | None = None
 _workers: list = []  # the helper threads (_Worker)
 _busy = threading.Lock()  # held by the thread whose split launch the workers run
 _loaded: set = set()
-_pool_lock = threading.Lock()
+_workers_lock = threading.Lock()  # guards the helper list (taken after _busy where both are)
 # kernel -> [seconds per element of a whole launch (the fastest of the first timed), launches timed,
 # the RECENT latest of the later whole launches]
 _cost: dict = {}
@@ -111,7 +111,7 @@ def set_threads(n: int, name: str = "threads") -> None:
     is what an error calls the value (``--threads``)."""
     global _threads
     n = _parse_threads(n, name)
-    with _busy, _pool_lock:  # the order _run_split takes them in
+    with _busy, _workers_lock:  # the order _run_split takes them in
         if n != _threads:
             _stop_workers()
         _threads = n
@@ -181,7 +181,7 @@ def _stop_workers() -> None:
 
 def _workers_for(n: int) -> list:
     """At least ``n`` helper threads."""
-    with _pool_lock:
+    with _workers_lock:
         while len(_workers) < n:
             _workers.append(_Worker())
         return _workers[:n]
@@ -190,8 +190,8 @@ def _workers_for(n: int) -> list:
 def _after_fork_in_child() -> None:
     """A forked child has none of its parent's threads, and its locks may have been held by one
     of them (the frame writer's split launch): it starts afresh."""
-    global _workers, _busy, _pool_lock
-    _workers, _busy, _pool_lock = [], threading.Lock(), threading.Lock()
+    global _workers, _busy, _workers_lock
+    _workers, _busy, _workers_lock = [], threading.Lock(), threading.Lock()
 
 
 if hasattr(os, "register_at_fork"):
@@ -202,8 +202,7 @@ def _run_split(packed: list) -> None:
     """Run packed launches over disjoint ranges at once: the first here, each other on a helper
     thread. Where another thread's split launch holds the helpers (the frame writer's), all run
     here, one after another: the same bits either way."""
-    busy = _busy
-    if not busy.acquire(blocking=False):
+    if not _busy.acquire(blocking=False):
         for p in packed:
             _run(p)
         return
@@ -227,7 +226,7 @@ def _run_split(packed: list) -> None:
     finally:
         if not handed:  # stopped while handing out chunks: a helper may hold one nobody waits for
             _stop_workers()
-        busy.release()
+        _busy.release()
 
 
 def chunks(n: int, parts: int) -> list[tuple[int, int]]:

@@ -126,15 +126,9 @@ class SPHSolver:
         self.fluid = Fluid()
         self.fluid.mass, self.fluid.rho0, self.fluid.dt = model.mass, self.physics.rho0, self.dt
         self.viscous = ViscousSubsteps(model, n)  # the viscosity's sub-steps where a step exceeds its limit
-
-    @property
-    def gravity(self) -> wp.vec3:
-        """``physics.gravity`` as the one vector a step's launches pass, remade only when it changes (a
-        new vector each step would make each launch of it be packed anew: engine/launch.py)."""
-        g = tuple(float(c) for c in self.physics.gravity)
-        if getattr(self, "_gravity", (None,))[0] != g:
-            self._gravity = (g, wp.vec3(*g))
-        return self._gravity[1]
+        # made once, as the walls' and the probes' are: a vector made each step would have its launch
+        # packed anew every step (engine/launch.py)
+        self.gravity = wp.vec3(*self.physics.gravity)
 
     @property
     def signal_speed(self) -> float:
