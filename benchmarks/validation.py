@@ -87,10 +87,13 @@ SPEED_WINDOW = (1.4, 3.0)  # where the front's speed dZ/dT is compared (T)
 PARTS = ("martin_moyce", "rest", "release", "loads", "spheric")
 
 
-def martin_moyce(nx: int, a: float = 0.3, t_max: float = 3.0) -> dict:
-    """The front curve at nx particles across the column, errors against both series."""
+def martin_moyce(nx: int, a: float = 0.3, t_max: float = 3.0, viscosity: float | None = None) -> dict:
+    """The front curve at nx particles across the column, errors against both series (at the
+    default viscosity, or at ``viscosity``)."""
     h = a / nx
     scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (6 * a, 3 * a, 0.5 * a)), name="martin_moyce")
+    if viscosity is not None:
+        scene.physics.viscosity = viscosity
     scene.add_fluid_box((0.0, 0.0, 0.0), (a, 2 * a, 0.5 * a))
     sim = Simulation(scene, "cpu", history=4096)
     ref = load_martin_moyce()
@@ -393,9 +396,10 @@ def _thinned(t: np.ndarray, step: float) -> np.ndarray:
     return np.asarray(keep, dtype=int)
 
 
-def spheric(spacing: float, duration: float = 2.0) -> dict:
-    """SPHERIC Test 2 at ``spacing``: every sensor and gauge scored, the series every 2 ms."""
-    scene = load_scene("spheric_test2", [f"spacing={spacing!r}"])
+def spheric(spacing: float, duration: float = 2.0, overrides: tuple = ()) -> dict:
+    """SPHERIC Test 2 at ``spacing``: every sensor and gauge scored, the series every 2 ms
+    (``overrides``: scene settings as on the command line, ``physics.viscosity=0``)."""
+    scene = load_scene("spheric_test2", [f"spacing={spacing!r}", *overrides])
     sim = Simulation(scene, "cpu", history=16)
     t0, diverged = time.perf_counter(), None
     try:

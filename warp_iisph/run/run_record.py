@@ -195,9 +195,10 @@ class StepTotals:
 
 # physics.viscosity is the coefficient of the report's form; the kinematic viscosity it gives
 KINEMATIC = 0.2
-# below this sqrt(g H) H / nu the liquid's own fall is slower than the viscosity spreads it
-# (Martin & Moyce's 11.4 cm column, validated at the default: 12; a 4 cm one: 2.5, honey-like)
-VISCOUS_REYNOLDS = 5.0
+# below this sqrt(g H) H / nu a dam break's front runs a quarter or more slower than without viscosity
+# (benchmarks/viscosity_scale.py: Martin & Moyce's front speed 37 points slower at 12, its own 11.4 cm
+# column; 17 at 37, 9 at 79, 6 at 146; a 4 cm column, 2.5, flows like honey)
+VISCOUS_REYNOLDS = 20.0
 
 
 def liquid_reynolds(scene: dict) -> float | None:
@@ -264,10 +265,11 @@ def run_warnings(record: dict) -> list[str]:
     reynolds = liquid_reynolds(record["scene"])
     if reynolds is not None and reynolds < VISCOUS_REYNOLDS:
         warnings.append(
-            f"the viscosity dominates a liquid this small: physics.viscosity = {ph['viscosity']:g} (a kinematic "
+            f"the viscosity slows a liquid this small: physics.viscosity = {ph['viscosity']:g} (a kinematic "
             f"{KINEMATIC * ph['viscosity']:g} m^2/s) against its height gives sqrt(g H) H / nu = {reynolds:.1f}, "
-            "so it flows like honey; the default suits tanks of 0.1-1 m: lower physics.viscosity for a "
-            "smaller one (docs/scenes.md)"
+            f"below {VISCOUS_REYNOLDS:g}, where a dam break's front runs a quarter or more slower than without "
+            "viscosity (below 5 it flows like honey): lower physics.viscosity for a liquid this small "
+            "(docs/physics.md 6.6)"
         )
     sensors = sum(1 for pr in record["scene"].get("probes") or () if pr.get("kind") == "pressure")
     akinci = ph["method"] == "dfsph" or (ph["method"] == "iisph" and ph.get("wall_pressure") == "fluid")
