@@ -195,7 +195,8 @@ def chart(record: dict, path) -> None:
             ax.plot(
                 [r["viscosity"] for r in rows],
                 [1e3 * (r["arrival_error"][p] or np.nan) for r in rows],
-                "o-",
+                ("*" if spacing < 0.015 else "o") + "-",
+                ms=10 if spacing < 0.015 else 6,
                 color=f"C{k}",
                 alpha=0.4 + 0.6 * (spacing < 0.02),
                 label=f"{p}, {spacing:.3g} m",
