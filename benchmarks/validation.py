@@ -584,14 +584,14 @@ def describe(kind: str, key, r: dict, t_max: float) -> str:
     cells = [
         f"{n} arrival {_num(sc[n].get('arrival_error'), 1e3, '+.0f', ' ms')}, "
         f"plateau {_num(sc[n].get('plateau_error'), 100, '+.0f', ' %')}"
-        for n in ("P1", "P2", "P3", "P4")
+        for n in marin.FACE
         if n in sc
     ]
     cells += [f"{n} RMS {_num(sc[n]['rms'], 100, '.1f', ' %')}" for n in marin.GAUGES if n in sc]
     cells += [f"front at {n} {_num(sc[n].get('front_error'), 1e3, '+.0f', ' ms')}" for n in marin.DOWNSTREAM if n in sc]
     cells += [
         f"{n} from the front at {marin.DOWNSTREAM[0]} {_num(sc[n].get('transit_error'), 1e3, '+.0f', ' ms')}"
-        for n in ("P1", "P2", "P3", "P4")
+        for n in marin.FACE
         if n in sc
     ]
     for n, reading, verb in [(n, "front_depths", "rises above") for n in marin.DOWNSTREAM] + [
@@ -736,7 +736,7 @@ def spheric_chart(ours: list, peers: list, path) -> None:
     """P1-P4 and the four gauges over 0-2 s: the experiment, ours at every spacing, the peer."""
     plt = pyplot()
     ref = marin.load_marin()
-    names = ["P1", "P2", "P3", "P4", *marin.GAUGES]
+    names = [*marin.FACE, *marin.GAUGES]
     fig, axes = plt.subplots(4, 2, figsize=(13, 12), sharex=True)
     for ax, name in zip(axes.T.ravel(), names):
         window = ref["t"] <= 2.0

@@ -38,16 +38,16 @@ from pathlib import Path
 import numpy as np
 import validation
 import warp as wp
-from common import RESULTS, header, pyplot, save, saved
+from common import RESULTS, header, keep_parts, pyplot, save, saved
 
-from warp_iisph import Simulation
+from warp_iisph import Physics, Simulation
 from warp_iisph.analysis import spheric as marin
 from warp_iisph.analysis.dam_break import load_martin_moyce
 from warp_iisph.scene import load_scene
 
 PARTS = ("martin_moyce", "layer", "spheric")
 EXPERIMENT_A = 0.05715  # Martin & Moyce's larger column, 2.25 in
-DEFAULT_MU = 0.05
+DEFAULT_MU = Physics().viscosity
 
 
 def martin_moyce(nx: int, a: float, mu: float) -> dict:
@@ -112,18 +112,18 @@ def spheric(spacing: float, mu: float, duration: float) -> dict:
         "steps": r["steps"],
         "wall_seconds": r["wall_seconds"],
         "diverged": r["diverged"],
-        "arrival_error": {p: sc[p].get("arrival_error") for p in ("P1", "P2", "P3", "P4")},
-        "transit_error": {p: sc[p].get("transit_error") for p in ("P1", "P2", "P3", "P4")},
+        "arrival_error": {p: sc[p].get("arrival_error") for p in marin.FACE},
+        "transit_error": {p: sc[p].get("transit_error") for p in marin.FACE},
         "front_depths": {g: sc[g].get("front_depths") for g in marin.DOWNSTREAM},
         "column_drops": sc[marin.COLUMN].get("drops"),
     }
     if duration >= marin.PLATEAU[1]:
-        row["plateau_error"] = {p: sc[p].get("plateau_error") for p in ("P1", "P2", "P3", "P4")}
+        row["plateau_error"] = {p: sc[p].get("plateau_error") for p in marin.FACE}
     if duration >= marin.GAUGE_WINDOW[1]:
         row["gauge_rms"] = {g: sc[g].get("rms") for g in marin.GAUGES}
     keep = validation._thinned(np.asarray(r["t"]), 0.005)
     row["t"] = [r["t"][k] for k in keep]
-    row["series"] = {n: [r["series"][n][k] for k in keep] for n in ("P1", "P2", "P3", "P4", *marin.GAUGES)}
+    row["series"] = {n: [r["series"][n][k] for k in keep] for n in (*marin.FACE, *marin.GAUGES)}
     return row
 
 
@@ -138,13 +138,13 @@ def pct(x):
 def describe_spheric(r: dict) -> str:
     line = (
         f"SPHERIC {r['spacing']:.4g} m, viscosity {r['viscosity']:g}, {r['duration']:g} s: arrivals P1-P4 "
-        + " / ".join(ms(r["arrival_error"][p]) for p in ("P1", "P2", "P3", "P4"))
+        + " / ".join(ms(r["arrival_error"][p]) for p in marin.FACE)
         + " ms; front at x = 1.488 (1 / 3 / 5 cm) "
         + " / ".join(ms(r["front_depths"]["H_x1.488"][k].get("error")) for k in ("1", "3", "5"))
         + " ms"
     )
     if "plateau_error" in r:
-        line += "; plateaus " + " / ".join(pct(r["plateau_error"][p]) for p in ("P1", "P2", "P3", "P4")) + " %"
+        line += "; plateaus " + " / ".join(pct(r["plateau_error"][p]) for p in marin.FACE) + " %"
     if "gauge_rms" in r:
         line += "; gauges " + " / ".join(f"{100 * r['gauge_rms'][g]:.1f}" for g in marin.GAUGES) + " %"
     return line + f" ({r['particles']:,} particles, {r['wall_seconds']:.0f} s)"
@@ -184,14 +184,15 @@ def chart(record: dict, path) -> None:
         )
     if record.get("layer"):
         t = np.asarray(record["layer"][0]["t"])
-        ax.plot(t, 2.0 * np.sqrt(9.81 * 0.1) * t, "k:", label="Ritter (ideal), 1.98 m/s")
+        lead = record["layer"][0]["ritter_lead"]
+        ax.plot(t, lead * t, "k:", label=f"Ritter (ideal), {lead:.2f} m/s")
     ax.set(xlabel="t (s)", ylabel="front ahead of the layer's motion (m)", title="A 0.1 m layer sliding at 2 m/s, 1 cm")
     ax.legend(fontsize=8)
     ax = axes[2]
     runs = [r for key in record if key.startswith("spheric") for r in record[key]]
     for spacing in sorted({r["spacing"] for r in runs}, reverse=True):
         rows = sorted((r for r in runs if r["spacing"] == spacing), key=lambda r: r["viscosity"])
-        for k, p in enumerate(("P1", "P2", "P3", "P4")):
+        for k, p in enumerate(marin.FACE):
             ax.plot(
                 [r["viscosity"] for r in rows],
                 [1e3 * (r["arrival_error"][p] or np.nan) for r in rows],
@@ -212,7 +213,7 @@ def chart(record: dict, path) -> None:
         )
         mu = [r["viscosity"] for r in rows]
         alpha = 0.4 + 0.6 * (spacing < 0.02)
-        for k, p in enumerate(("P1", "P2", "P3", "P4")):
+        for k, p in enumerate(marin.FACE):
             ax.plot(
                 mu,
                 [100 * r["plateau_error"][p] for r in rows],
@@ -295,16 +296,11 @@ def main():
                 r = spheric(spacing, mu, args.duration)
                 record[args.tag].append(r)
                 print(describe_spheric(r), flush=True)
-    # the parts and SPHERIC tags not run this time, each with the day it was measured
+    # the parts and SPHERIC tags not run this time kept, each with the day it was measured
     path = Path(args.out) / "viscosity_scale.json"
-    old = json.loads(path.read_text()) if path.is_file() else {}
-    record["part_dates"] = dict(old.get("part_dates", {}))
-    for key in record:
-        if key in PARTS or key.startswith("spheric"):
-            record["part_dates"][key] = record["date"]
-    for key, value in old.items():
-        if key not in record and (key in PARTS or key.startswith("spheric")):
-            record[key] = value
+    tags = {k for k in json.loads(path.read_text()) if k.startswith("spheric")} if path.is_file() else set()
+    kept = {k: (k,) for k in ("martin_moyce", "layer", *sorted(tags | {args.tag}))}
+    keep_parts(record, args.out, "viscosity_scale", kept, {k for k in kept if k in record}, False)
     chart(record, save(record, args.out, "viscosity_scale", False))
 
 

@@ -52,6 +52,7 @@ COLUMN_WIDTH, COLUMN_GAUGE_FROM_BACK = 3.22 - 1.992, 3.22 - 2.638
 LEAD_WINDOW = (0.02, 0.1)  # the column gauge's fall fitted for a clock's lead (s): 1-15 mm, a linear response
 DOWNSTREAM = ("H_x1.488", "H_x0.992", "H_x0.496")  # the gauges the front reaches, nearest the column first
 PRESSURES = tuple(f"P{k}" for k in range(1, 9))
+FACE = PRESSURES[:4]  # P1-P4, on the box's face towards the water: the ones the targets score
 GAUGES = ("H_x0.496", "H_x0.992", "H_x1.488", "H_x2.638")
 # the targets of issue 29 at the finest resolution: arrival within 0.02 s, plateau within 15 %, the
 # gauges' RMS within 5 % of the depth upstream of the box and 10 % behind it (x = 0.496)
@@ -140,7 +141,7 @@ def score(series: dict[str, tuple[np.ndarray, np.ndarray]], reference: dict | No
         if got["arrival"] is not None and front_sim is not None:
             row["transit"] = {"sim": got["arrival"] - front_sim, "experiment": exp["arrival"] - front_exp}
             row["transit_error"] = row["transit"]["sim"] - row["transit"]["experiment"]
-        if name in ("P1", "P2", "P3", "P4"):
+        if name in FACE:
             row["arrival_ok"] = row.get("arrival_error") is not None and abs(row["arrival_error"]) <= ARRIVAL_TOLERANCE
             row["plateau_ok"] = row.get("plateau_error") is not None and abs(row["plateau_error"]) <= PLATEAU_TOLERANCE
         out[name] = row
