@@ -3,6 +3,8 @@
 where the answer is known: water at rest, a box's buoyancy, the column on a box, the pressure
 of a column at the instant of release."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -510,3 +512,78 @@ def test_probes_outside_a_mesh_tank_are_refused(tmp_path):
         scene_from_dict({**base, "probes": [corner]}, tmp_path)
     with pytest.raises(ValueError, match=r"probes\[0\]\.position = \[0\.01, 0\.01\]: the column at \[x, z\] misses"):
         scene_from_dict({**base, "probes": [{"name": "g", "kind": "level", "position": [0.01, 0.01]}]}, tmp_path)
+
+
+def test_a_level_gauge_reads_the_level_at_a_wall_in_a_corner_and_over_a_still_obstacle():
+    """Still water 0.1 m deep (2 cm): a gauge on a side wall, a quarter and half a spacing from
+    it, in a corner, standing on a block and over a bar held above the floor reads the level the
+    gauge in the open water reads, within 2 % (without the walls' share of the kernel's support
+    the one on the wall read 0, a quarter spacing from it 7 % low, the one on the block 0 and the
+    one over the bar the water under it); the NumPy twin reads the same."""
+    from warp_iisph.analysis.sensors import level_readings
+
+    h = 0.02
+    scene = Scene(spacing=h, tank=Box((0.0, 0.0, 0.0), (0.5, 0.3, 0.1)), name="walls")
+    scene.add_fluid_box((0.0, 0.0, 0.0), (0.5, 0.12, 0.1))
+    scene.add_obstacle(Box((0.14, 0.0, 0.0), (0.22, 0.06, 0.1), name="block"))
+    scene.add_obstacle(Box((0.28, 0.04, -0.1), (0.34, 0.08, 0.2), name="bar"))
+    gauges = {
+        "open": (0.42, 0.05),
+        "wall": (0.0, 0.05),
+        "quarter": (0.005, 0.05),
+        "half": (0.01, 0.05),
+        "corner": (0.5, 0.1),
+        "block": (0.18, 0.05),
+        "bar": (0.31, 0.05),
+    }
+    for name, at in gauges.items():
+        scene.add_probe(Probe(name, "level", position=at))
+    sim = Simulation(scene, "cpu")
+    sim.advance(0.4)
+    late = sim.probes.time > 0.2
+    level = {n: float(sim.probes[n][late].mean()) for n in gauges}
+    assert 0.105 < level["open"] < 0.125
+    for name in gauges:
+        assert level[name] == pytest.approx(level["open"], rel=0.02), name
+    x = sim.positions.astype(np.float64)
+    twin = level_readings(x, list(gauges.values()), 0.0, 0.3 + h, h, tank=scene.tank, obstacles=scene.obstacles)
+    assert np.allclose([sim.probes[n][-1] for n in gauges], twin, atol=1e-5)
+
+
+def test_plot_draws_a_probe_by_its_unit_not_its_name_and_refuses_columns_of_no_probe(tmp_path, capsys, monkeypatch):
+    """A pressure sensor may be named like a force probe's viscous column (``air.Fv_x``, dry, all
+    zeros; ``wet.Mv_1``): it is drawn, solid, in the pressure panel (it was left off or dashed); a
+    probes.csv with no column in a probe's unit is refused in one line naming it (matplotlib's own
+    message came out), a missing one as missing (not as a scene without probes). A force probe's obstacle given as a NumPy integer is stored as the file's
+    integer (run.json could not be written)."""
+    import matplotlib.axes
+
+    extra = (
+        '[[probes]]\nname = "air.Fv_x"\nkind = "pressure"\nposition = [0.0, 0.45, 0.1]\nnormal = [1.0, 0.0, 0.0]\n'
+        '[[probes]]\nname = "wet.Mv_1"\nkind = "pressure"\nposition = [0.0, 0.02, 0.1]\nnormal = [1.0, 0.0, 0.0]\n'
+    )
+    out = tmp_path / "run"
+    assert main(["run", str(scene_file(tmp_path, probes=extra)), "--out", str(out), "--duration", "0.05"]) == 0
+    drawn = {}
+    plot = matplotlib.axes.Axes.plot
+
+    def record(self, *args, **kwargs):
+        drawn[kwargs.get("label")] = (self.get_ylabel(), args[2] if len(args) > 2 else None)
+        return plot(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", record)
+    assert main(["plot", str(out)]) == 0
+    assert drawn["air.Fv_x"][1] == "-" and drawn["wet.Mv_1"][1] == "-"
+    assert drawn["load.Fp_x"][1] == "-" and "load.Fv_x" not in drawn  # free-slip walls: no viscous load
+    capsys.readouterr()
+    (out / "probes.csv").write_text("t [s],x [furlong]\n0.1,1\n0.2,2\n")
+    assert main(["plot", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "probes.csv: no column in a probe's unit" in err[0]
+    (out / "probes.csv").unlink()
+    assert main(["plot", str(out)]) == 2
+    assert "probes.csv: missing (or not a file), though the run's scene has probes" in capsys.readouterr().err
+    scene = load_scene(scene_file(tmp_path))
+    scene.add_probe(Probe("by_index", "force", obstacle=np.int64(0)))
+    scene.validate()
+    assert type(scene.probes[-1].obstacle) is int and json.dumps(scene_to_dict(scene))

@@ -9,6 +9,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..sph.kernel import cubic_W_np
+from ..sph.probes import SOLID_SHARE, gauge_support
 
 
 def pressure_readings(
@@ -40,11 +41,20 @@ def pressure_readings(
 
 
 def level_readings(
-    x: np.ndarray, gauges: np.ndarray, bottom: float, top: float, spacing: float, tree: cKDTree | None = None
+    x: np.ndarray,
+    gauges: np.ndarray,
+    bottom: float,
+    top: float,
+    spacing: float,
+    tree: cKDTree | None = None,
+    tank=None,
+    obstacles=(),
 ) -> np.ndarray:
     """Each gauge's level above ``bottom`` (m) at its ``[x, z]``: where the occupancy
-    ``sum_j h^3 W`` falls through 1/2 at the top of the liquid standing on the bottom (gaps
-    shorter than 2h bridged)."""
+    ``sum_j h^3 W`` over the support's share on the liquid's side of the walls (with ``tank`` and
+    ``obstacles``, the scene's shapes: :func:`warp_iisph.sph.probes.gauge_support`; without, 1)
+    falls through 1/2 at the top of the liquid standing on the bottom (gaps shorter than 2h
+    bridged, solid points stepped over)."""
     H, dy = 2.0 * spacing, 0.5 * spacing
     tree = tree if tree is not None else cKDTree(x)
     samples = max(1, int(np.ceil((top - bottom) / dy)))
@@ -52,23 +62,25 @@ def level_readings(
     out = np.zeros(len(gauges))
     for g, (gx, gz) in enumerate(np.asarray(gauges, dtype=np.float64)):
         q = np.stack([np.full(samples, gx), y, np.full(samples, gz)], axis=1)
+        share = gauge_support(tank, obstacles, q, H) if tank is not None else np.ones(samples)
         phi = np.array(
             [
                 spacing**3 * cubic_W_np(np.linalg.norm(x[n] - qk, axis=1), H).sum() if n else 0.0
                 for qk, n in zip(q, tree.query_ball_point(q, H))
             ]
         )
+        phi = np.where(share < SOLID_SHARE, -1.0, phi / np.maximum(share, SOLID_SHARE))
         top_wet, dry = -1, 0.0
         for k in range(samples):
             if phi[k] >= 0.5:
                 top_wet, dry = k, 0.0
-            else:
+            elif phi[k] >= 0.0:  # a solid point (-1) is neither
                 dry += dy
                 if dry > H:
                     break
         if top_wet >= 0:
             level = (top_wet + 0.5) * dy
-            if top_wet + 1 < samples:
+            if top_wet + 1 < samples and phi[top_wet + 1] >= 0.0:
                 a, b = phi[top_wet], phi[top_wet + 1]
                 level += dy * (a - 0.5) / (a - b)
             out[g] = level

@@ -108,8 +108,12 @@ class Probe(Record):
             if self.point is not None:
                 raise ValueError(f"{where}.point: a body's moment is about its centre of mass, which moves with it")
             body_index(self.body, bodies, f"{where}.body")
+            if not isinstance(self.body, str):  # a NumPy integer from the API, stored as the file's
+                self.body = int(self.body)
         else:
             k = obstacle_index(self.obstacle, obstacles, f"{where}.obstacle")
+            if not isinstance(self.obstacle, str):
+                self.obstacle = int(self.obstacle)
             if self.point is None:
                 o_lo, o_hi = obstacles[k].bounds
                 self.point = floats(0.5 * (o_lo + o_hi))

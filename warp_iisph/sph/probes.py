@@ -25,14 +25,32 @@ level is the height where ``phi`` falls through 1/2 at the top of the liquid sta
 bottom: walking up from the bottom, gaps where ``phi < 1/2`` shorter than ``H`` (an air pocket,
 a film torn for an instant) are bridged, a longer one ends the column, so spray above it does
 not count; a column whose lowest ``H`` is dry reads 0.
+
+Beside a wall the kernel's support around a point of the column is cut: in still water against a
+side wall ``phi`` is 1/2 at the wall's face and its surface reads low (7 % a quarter spacing from
+it, 0 on the face). So ``phi`` is divided by the share of the support on the liquid's side of the
+still walls (:func:`gauge_support`, from the scene's shapes: exact beside a plane, approximate
+at a corner), and a point where that share is under a quarter, inside an
+obstacle or a wall, is solid: the walk steps over it, neither wet nor dry, so a gauge over a
+still obstacle reads the water standing on the obstacle. The tank's floor is left out: it cuts
+only the column's lowest ``H``, where the walk already reads a film one spacing thick at 0.96 of
+it.
 """
 
 from __future__ import annotations
 
+import functools
+import math
+
+import numpy as np
 import warp as wp
 
+from ..scene.shapes import Box, Sphere, contains
 from .grid import CellGrid, cell_first, cell_hash, cell_range
-from .kernel import cubic_W
+from .kernel import cubic_W, cubic_W_np
+
+# Below this share of the kernel's support on the liquid's side a gauge's point is in a wall.
+SOLID_SHARE = wp.constant(0.25)
 
 wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
 
@@ -107,10 +125,12 @@ def occupancy(
     dy: float,
     volume: float,
     around: Reach,
+    support: wp.array(dtype=wp.float64),
     phi: wp.array(dtype=wp.float64),
 ):
     """``phi`` at point k of gauge g (``(x, bottom, z)`` in ``gauges``), ``(k + 1/2) dy`` above
-    its bottom."""
+    its bottom, over the support's share on the liquid's side (``support``); -1 where that share
+    is under :data:`SOLID_SHARE` (a solid point)."""
     g, k = wp.tid()
     base = gauges[g]
     q = wp.vec3(base[0], base[1] + (float(k) + 0.5) * dy, base[2])
@@ -131,7 +151,11 @@ def occupancy(
                     dist = wp.length(q - x[j])
                     if dist < H:
                         acc += wp.float64(volume * cubic_W(dist, H))
-    phi[g * samples + k] = acc
+    share = support[g * samples + k]
+    if share < wp.float64(SOLID_SHARE):
+        phi[g * samples + k] = wp.float64(-1.0)
+    else:
+        phi[g * samples + k] = acc / share
 
 
 @wp.kernel
@@ -150,10 +174,11 @@ def gauge_levels(
     top = int(-1)  # the last wet point of the column standing on the bottom
     dry = float(0.0)  # how long the column has been dry since
     for k in range(samples):
-        if phi[g * samples + k] >= half:
+        value = phi[g * samples + k]
+        if value >= half:
             top = k
             dry = 0.0
-        else:
+        elif value >= wp.float64(0.0):  # a solid point (-1) is neither
             dry += dy
             if dry > H:
                 break
@@ -163,5 +188,67 @@ def gauge_levels(
         if top + 1 < samples:
             a = phi[g * samples + top]
             b = phi[g * samples + top + 1]
-            level += wp.float64(dy) * (a - half) / (a - b)
+            if b >= wp.float64(0.0):  # the surface between two points of liquid and air
+                level += wp.float64(dy) * (a - half) / (a - b)
     log[slot[0], column + g] = level
+
+
+@functools.lru_cache(maxsize=1)
+def _plane_share_table(n: int = 4001) -> tuple[np.ndarray, np.ndarray]:
+    """The share of the cubic kernel's support (H = 1) on the near side of a plane a signed
+    distance ``d`` from its centre (``d > 0``: the centre on that side), on ``d`` in [-1, 1]: one
+    minus the integral of the kernel's one-dimensional marginal ``m(x) = 2 pi int_|x|^1 W(r) r dr``
+    beyond ``d``."""
+    r = np.linspace(0.0, 1.0, 20 * n + 1)
+    f = cubic_W_np(r, 1.0) * r
+    inner = np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(r))])  # int_0^r
+    m = 2.0 * math.pi * (inner[-1] - inner)  # the marginal at x = r
+    beyond = np.concatenate([[0.0], np.cumsum(0.5 * (m[1:] + m[:-1]) * np.diff(r))])
+    beyond = beyond[-1] - beyond  # int_x^1 m
+    half = beyond[0]  # int_0^1 m = 1/2
+    d = np.linspace(-1.0, 1.0, n)
+    share = np.where(d >= 0.0, 1.0 - np.interp(d, r, beyond) / (2 * half), np.interp(-d, r, beyond) / (2 * half))
+    return d, share
+
+
+def plane_share(d, H: float) -> np.ndarray:
+    """The share of the kernel's support ``H`` around a point on the liquid's side of a plane wall
+    ``d`` away (negative: the point inside the wall)."""
+    table_d, table_share = _plane_share_table()
+    return np.interp(np.asarray(d, dtype=np.float64) / H, table_d, table_share)
+
+
+def gauge_support(tank, obstacles, points, H: float) -> np.ndarray:
+    """For level gauges' points ((P, 3)): the share of the kernel's support ``H`` on the liquid's
+    side of the still walls near them, the floor and the top left out (see the module): a box
+    tank's sides (a mesh tank's are not measured), each pair of opposite sides exactly (their
+    losses add), the two pairs and the nearest still obstacle multiplied (at a corner the
+    kernel is not a product of its directions: approximate there); the nearest obstacle by its
+    distance for boxes and spheres, a mesh obstacle as solid inside it. 1 where no wall is
+    within ``H``."""
+    q = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    share = np.ones(len(q))
+    if isinstance(tank, Box):  # two parallel walls cut apart slabs: their shares' losses add
+        lo, hi = tank.bounds
+        for a in (0, 2):
+            share *= np.clip(plane_share(q[:, a] - lo[a], H) + plane_share(hi[a] - q[:, a], H) - 1.0, 0.0, 1.0)
+    clearance = np.full(len(q), np.inf)
+    buried = np.zeros(len(q), dtype=bool)
+    for o in obstacles:
+        if o.motion is not None:  # where it is changes: not measured
+            continue
+        if isinstance(o, Box):
+            lo, hi = o.bounds
+            depth = np.minimum(q - lo, hi - q).min(axis=1)  # how deep inside the box (negative: outside)
+            outside = np.linalg.norm(np.maximum(np.maximum(lo - q, q - hi), 0.0), axis=1)
+            clearance = np.minimum(clearance, np.where(depth > 0.0, -depth, outside))
+        elif isinstance(o, Sphere):
+            clearance = np.minimum(clearance, np.linalg.norm(q - np.asarray(o.center), axis=1) - o.radius)
+        else:
+            lo, hi = o.bounds
+            near = np.all((q > lo - H) & (q < hi + H), axis=1)
+            if near.any():
+                buried[np.flatnonzero(near)[contains(o, q[near])]] = True
+    share *= np.where(clearance >= H, 1.0, plane_share(np.minimum(clearance, H), H))
+    share[buried] = 0.0
+    return share

@@ -16,7 +16,7 @@ import warp as wp
 
 from ..engine.launch import launch
 from ..scene.probes import FORCE_PARTS, body_index, obstacle_index, probe_columns, sampled_groups, sampled_order
-from ..sph.probes import Reach, gauge_levels, occupancy, pressure_probes
+from ..sph.probes import Reach, gauge_levels, gauge_support, occupancy, pressure_probes
 from ..sph.wall_forces import WallForces
 
 wp.set_module_options({"enable_backward": False})  # never differentiated: no adjoint code to compile
@@ -101,6 +101,16 @@ class ProbeSampler:
             device=dev,
         )
         self.phi = wp.zeros(max(1, len(self.levels) * self.samples), dtype=wp.float64, device=dev)
+        # each gauge point's share of the kernel's support on the liquid's side of the walls
+        heights = (np.arange(self.samples) + 0.5) * self.dy
+        columns = [
+            np.column_stack(
+                [np.full(self.samples, g.position[0]), g.bottom + heights, np.full(self.samples, g.position[1])]
+            )
+            for g in self.levels
+        ]
+        share = gauge_support(scene.tank, scene.obstacles, np.concatenate(columns) if columns else np.zeros((0, 3)), H)
+        self.support = wp.array(np.concatenate([share, [1.0]])[: max(1, len(share))], dtype=wp.float64, device=dev)
         index = {p.name: obstacle_index(p.obstacle, scene.obstacles, p.name) for p in self.forces}
         obstacles = list(dict.fromkeys(index.values()))  # each measured obstacle once
         refs = {}  # an obstacle's moments are summed about its first probe's point
@@ -195,6 +205,7 @@ class ProbeSampler:
                     self.dy,
                     model.mass / model.physics.rho0,
                     around,
+                    self.support,
                     self.phi,
                 ],
                 device=dev,

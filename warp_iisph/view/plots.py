@@ -26,6 +26,9 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
             raise RunError(
                 f"{run.path}: not a run folder (it holds no {run.record_path.name}); give the folder a run wrote"
             )
+        scene = run.record().get("scene", {})
+        if isinstance(scene, dict) and scene.get("probes"):  # the run had probes: their file is gone
+            raise RunError(f"{run.probes}: missing (or not a file), though the run's scene has probes")
         raise RunError(f"{run.probes}: no probe samples (the scene has no [[probes]], or no step was taken)")
     names, units, rows = read_probes(run.probes)
     if len(rows) == 0:
@@ -36,6 +39,8 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
     import matplotlib.pyplot as plt
 
     panels = [u for u in PANELS if u in units]
+    if not panels:
+        raise RunError(f"{run.probes}: no column in a probe's unit ({', '.join(PANELS)}); not a probes.csv a run wrote")
     fig, axes = plt.subplots(len(panels), 1, figsize=(9, 2.8 * len(panels)), sharex=True, squeeze=False)
     t = rows[:, 0]
     for ax, unit in zip(axes[:, 0], panels):
@@ -43,13 +48,15 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
             if u != unit:
                 continue
             y = rows[:, 1 + k] / (1e3 if unit == "Pa" else 1.0)
-            viscous = ".Fv_" in name or ".Mv_" in name
+            # a force probe's viscous parts (a pressure sensor or gauge may carry any name)
+            viscous = unit in ("N", "N m") and (".Fv_" in name or ".Mv_" in name)
             if viscous and not y.any():
                 continue  # free-slip walls: no viscous load to draw
             ax.plot(t, y, "--" if viscous else "-", lw=0.9, label=name)
         ax.set_ylabel(PANELS[unit])
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, ncol=4, loc="upper right")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1, 0].set_xlabel("t (s)")
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else 0.0
     axes[0, 0].set_title(f"{run.path.name}: {len(t)} samples, {rate:.0f} per second")
