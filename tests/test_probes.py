@@ -292,6 +292,8 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
         assert "in use by" in capsys.readouterr().err and (whole / "probes.png").read_bytes() == chart
         assert main(["plot", str(whole), "--out", str(tmp_path / "new" / "elsewhere.png")]) == 0  # reads it as it is
     assert (tmp_path / "new" / "elsewhere.png").stat().st_size > 10_000
+    assert main(["plot", str(whole), "--out", str(cut / "probes.png")]) == 2  # not over another run's own chart
+    assert f"--out {cut / 'probes.png'}: where the run in {cut} keeps its own chart" in capsys.readouterr().err
     with FolderLock(cut):  # into another run's folder while its writer holds it: refused the same way
         assert main(["plot", str(whole), "--out", str(cut / "charts" / "whole.png")]) == 2
         assert "in use by" in capsys.readouterr().err and not (cut / "charts").exists()
@@ -554,8 +556,9 @@ def test_plot_draws_a_probe_by_its_unit_not_its_name_and_refuses_columns_of_no_p
     """A pressure sensor may be named like a force probe's viscous column (``air.Fv_x``, dry, all
     zeros; ``wet.Mv_1``): it is drawn, solid, in the pressure panel (it was left off or dashed); a
     probes.csv with no column in a probe's unit is refused in one line naming it (matplotlib's own
-    message came out), a missing one as missing (not as a scene without probes). A force probe's obstacle given as a NumPy integer is stored as the file's
-    integer (run.json could not be written)."""
+    message came out), a missing one as missing (not as a scene without probes). A force probe's
+    obstacle given as a NumPy integer is stored as the file's integer (run.json could not be
+    written)."""
     import matplotlib.axes
 
     extra = (
