@@ -413,8 +413,8 @@ def resumed_scene(run_dir, overrides=()) -> Scene:
         key = assignment.partition("=")[0].strip()
         if key.split(".")[0] not in ("physics", "output", "surface", "camera"):
             raise ValueError(
-                f"--set {key}: a resumed run keeps its particles; "
-                f"only physics, output, surface and camera keys may change"
+                f"--set {key}: a resumed run keeps its particles, bodies and probes (probes.csv goes on as "
+                f"it was written); only physics, output, surface and camera keys may change"
             )
         try:
             apply_override(data, assignment)
