@@ -293,7 +293,11 @@ def test_probes_csv_is_written_kept_across_a_resume_and_charted(tmp_path, capsys
         assert main(["plot", str(whole), "--out", str(tmp_path / "new" / "elsewhere.png")]) == 0  # reads it as it is
     assert (tmp_path / "new" / "elsewhere.png").stat().st_size > 10_000
     assert main(["plot", str(whole), "--out", str(cut / "probes.png")]) == 2  # not over another run's own chart
-    assert f"--out {cut / 'probes.png'}: where the run in {cut} keeps its own chart" in capsys.readouterr().err
+    assert f"--out {cut / 'probes.png'}: one of the run in {cut}'s own files or views" in capsys.readouterr().err
+    for other in ("particles/x.png", "frames/f.png", "stats.jsonl.png"):
+        code = main(["plot", str(whole), "--out", str(cut / other)])
+        assert code == (0 if other == "stats.jsonl.png" else 2), other  # a name of no run's file is free
+    (cut / "stats.jsonl.png").unlink()
     with FolderLock(cut):  # into another run's folder while its writer holds it: refused the same way
         assert main(["plot", str(whole), "--out", str(cut / "charts" / "whole.png")]) == 2
         assert "in use by" in capsys.readouterr().err and not (cut / "charts").exists()
@@ -590,3 +594,48 @@ def test_plot_draws_a_probe_by_its_unit_not_its_name_and_refuses_columns_of_no_p
     scene.add_probe(Probe("by_index", "force", obstacle=np.int64(0)))
     scene.validate()
     assert type(scene.probes[-1].obstacle) is int and json.dumps(scene_to_dict(scene))
+
+
+def test_a_level_gauge_steps_over_any_solid_and_reads_in_a_mesh_tank(tmp_path):
+    """The NumPy twin on lattice water 0.16 m deep (2 cm): a gauge on the face two boxes share, on
+    a tank wall over a block flush with it, over three stacked boxes and in a corner over a block
+    reads the level (each read 0 when only a box's inside was solid, not its faces); in a bowl (a
+    mesh tank) a gauge whose column enters the bowl 0.13 m up reads the water standing in it (it
+    read 0), its column's crossings found once (a winding number a point took seconds on a fine
+    mesh) and agreeing with the winding number."""
+    from warp_iisph.analysis.sensors import level_readings
+    from warp_iisph.scene.shapes import MeshShape, contains
+    from warp_iisph.sph.probes import gauge_support
+
+    h, level = 0.02, 0.16
+
+    def box(lo, hi):
+        b = Box(lo, hi)
+        b.validate("b")
+        return b
+
+    tank = box((0.0, 0.0, 0.0), (0.5, 0.3, 0.2))
+    cases = [
+        ([box((0.1, 0, 0.05), (0.2, 0.08, 0.15)), box((0.2, 0, 0.05), (0.3, 0.08, 0.15))], (0.2, 0.1)),
+        ([box((0.0, 0, 0.05), (0.1, 0.08, 0.15))], (0.0, 0.1)),
+        ([box((0.1, y0, 0.05), (0.3, y1, 0.15)) for y0, y1 in ((0, 0.04), (0.04, 0.08), (0.08, 0.1))], (0.2, 0.1)),
+        ([box((0.4, 0, 0.1), (0.5, 0.08, 0.2))], (0.5, 0.2)),
+    ]
+    g = [np.arange(h / 2, top, h) for top in (0.5, level, 0.2)]
+    water = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
+    for obstacles, at in cases:
+        x = water[~np.any([np.all((water > o.bounds[0]) & (water < o.bounds[1]), axis=1) for o in obstacles], axis=0)]
+        reads = level_readings(x, [(0.42, 0.1), at], 0.0, 0.3 + h, h, tank=tank, obstacles=obstacles)
+        assert reads == pytest.approx(level, abs=0.002), at
+    import trimesh
+
+    trimesh.creation.icosphere(subdivisions=3, radius=0.3).export(str(tmp_path / "ball.obj"))
+    bowl = MeshShape(path=str(tmp_path / "ball.obj"), translate=(0.3, 0.3, 0.3))
+    bowl.validate("tank")
+    g = np.arange(0.02, 0.6, h)  # the top layer at 0.24: its face at 0.25
+    x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    x = x[(np.linalg.norm(x - 0.3, axis=1) < 0.29) & (x[:, 1] < 0.25)]
+    assert level_readings(x, [(0.3, 0.3), (0.55, 0.3)], 0.0, 0.64, h, tank=bowl) == pytest.approx(0.25, abs=0.004)
+    ys = (np.arange(64) + 0.5) * 0.01
+    column = np.column_stack([np.full(64, 0.55), ys, np.full(64, 0.3)])
+    assert np.array_equal(gauge_support(bowl, [], 0.55, 0.3, ys, 2 * h) == 0.0, ~contains(bowl, column))

@@ -51,8 +51,8 @@ def level_readings(
     obstacles=(),
 ) -> np.ndarray:
     """Each gauge's level above ``bottom`` (m) at its ``[x, z]``: where the occupancy
-    ``sum_j h^3 W`` over the support's share on the liquid's side of the walls (with ``tank`` and
-    ``obstacles``, the scene's shapes: :func:`warp_iisph.sph.probes.gauge_support`; without, 1)
+    ``sum_j h^3 W`` over the support's share on the liquid's side of the walls of the scene's
+    ``tank`` and ``obstacles`` (:func:`warp_iisph.sph.probes.gauge_support`; with none given, 1)
     falls through 1/2 at the top of the liquid standing on the bottom (gaps shorter than 2h
     bridged, solid points stepped over)."""
     H, dy = 2.0 * spacing, 0.5 * spacing
@@ -62,14 +62,14 @@ def level_readings(
     out = np.zeros(len(gauges))
     for g, (gx, gz) in enumerate(np.asarray(gauges, dtype=np.float64)):
         q = np.stack([np.full(samples, gx), y, np.full(samples, gz)], axis=1)
-        share = gauge_support(tank, obstacles, q, H) if tank is not None else np.ones(samples)
+        share = gauge_support(tank, obstacles, gx, gz, y, H)
         phi = np.array(
             [
                 spacing**3 * cubic_W_np(np.linalg.norm(x[n] - qk, axis=1), H).sum() if n else 0.0
                 for qk, n in zip(q, tree.query_ball_point(q, H))
             ]
         )
-        phi = np.where(share < SOLID_SHARE, -1.0, phi / np.maximum(share, SOLID_SHARE))
+        phi = np.where(share < SOLID_SHARE, -1.0, phi / np.maximum(share, SOLID_SHARE))  # as the device
         top_wet, dry = -1, 0.0
         for k in range(samples):
             if phi[k] >= 0.5:

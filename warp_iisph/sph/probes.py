@@ -30,11 +30,10 @@ Beside a wall the kernel's support around a point of the column is cut: in still
 side wall ``phi`` is 1/2 at the wall's face and its surface reads low (7 % a quarter spacing from
 it, 0 on the face). So ``phi`` is divided by the share of the support on the liquid's side of the
 still walls (:func:`gauge_support`, from the scene's shapes: exact beside a plane, approximate
-at a corner), and a point where that share is under a quarter, inside an
-obstacle or a wall, is solid: the walk steps over it, neither wet nor dry, so a gauge over a
-still obstacle reads the water standing on the obstacle. The tank's floor is left out: it cuts
-only the column's lowest ``H``, where the walk already reads a film one spacing thick at 0.96 of
-it.
+at a corner or an edge), and a point inside a still obstacle or outside a mesh tank is solid:
+the walk steps over it, neither wet nor dry, so a gauge over a still obstacle reads the water
+standing on the obstacle. The tank's floor is left out: it cuts only the column's lowest ``H``,
+where the walk already reads a film one spacing thick at 0.96 of it.
 """
 
 from __future__ import annotations
@@ -45,7 +44,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ..scene.shapes import Box, Sphere, contains
+from ..scene.shapes import Box, MeshShape, Sphere, enclosed
 from .grid import CellGrid, cell_first, cell_hash, cell_range
 from .kernel import cubic_W, cubic_W_np
 
@@ -218,22 +217,43 @@ def plane_share(d, H: float) -> np.ndarray:
     return np.interp(np.asarray(d, dtype=np.float64) / H, table_d, table_share)
 
 
-def gauge_support(tank, obstacles, points, H: float) -> np.ndarray:
-    """For level gauges' points ((P, 3)): the share of the kernel's support ``H`` on the liquid's
-    side of the still walls near them, the floor and the top left out (see the module): a box
-    tank's sides (a mesh tank's are not measured), each pair of opposite sides exactly (their
-    losses add), the two pairs and the nearest still obstacle multiplied (at a corner the
-    kernel is not a product of its directions: approximate there); the nearest obstacle by its
-    distance for boxes and spheres, a mesh obstacle as solid inside it. 1 where no wall is
-    within ``H``."""
-    q = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+def column_inside(shape, x: float, z: float, ys) -> np.ndarray:
+    """Which heights ``ys`` of the vertical line at ``(x, z)`` lie inside a closed mesh ``shape``:
+    the parity of its triangles' crossings below each (one pass over the triangles a column, where
+    a winding number per point costs the triangles once per point)."""
+    tri = np.asarray(shape.load().triangles, dtype=np.float64)
+    px, pz = x + 1.2345e-9, z + 2.3456e-9  # off the lattice a mesh's vertices sit on
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+
+    def side(u, v):  # twice the signed area of (u, v, p) in the xz plane
+        return (v[:, 0] - u[:, 0]) * (pz - u[:, 2]) - (v[:, 2] - u[:, 2]) * (px - u[:, 0])
+
+    s_ab, s_bc, s_ca = side(a, b), side(b, c), side(c, a)
+    hit = ((s_ab > 0) & (s_bc > 0) & (s_ca > 0)) | ((s_ab < 0) & (s_bc < 0) & (s_ca < 0))
+    total = (s_ab + s_bc + s_ca)[hit]
+    heights = np.sort((s_bc[hit] * a[hit, 1] + s_ca[hit] * b[hit, 1] + s_ab[hit] * c[hit, 1]) / total)
+    return np.searchsorted(heights, np.asarray(ys, dtype=np.float64)) % 2 == 1
+
+
+def gauge_support(tank, obstacles, x: float, z: float, ys, H: float) -> np.ndarray:
+    """For the points of a level gauge's column at ``(x, z)``, heights ``ys``: 0 where the point is
+    solid (inside a still obstacle, or outside a mesh tank), else the share of the kernel's support
+    ``H`` on the liquid's side of the still walls near it, at least :data:`SOLID_SHARE`, the floor
+    and the top left out (see the module): a box tank's sides (a mesh tank's are not measured),
+    each pair of opposite sides exactly (their losses add), the two pairs and the nearest still
+    box or sphere obstacle, by its distance, multiplied (the kernel is not a product of its
+    directions: approximate at a corner or a box's edge). 1 where no wall is within ``H``."""
+    ys = np.asarray(ys, dtype=np.float64)
+    q = np.column_stack([np.full(len(ys), x), ys, np.full(len(ys), z)])
     share = np.ones(len(q))
+    solid = np.zeros(len(q), dtype=bool)
     if isinstance(tank, Box):  # two parallel walls cut apart slabs: their shares' losses add
         lo, hi = tank.bounds
         for a in (0, 2):
             share *= np.clip(plane_share(q[:, a] - lo[a], H) + plane_share(hi[a] - q[:, a], H) - 1.0, 0.0, 1.0)
+    elif isinstance(tank, MeshShape):
+        solid |= ~column_inside(enclosed(tank), x, z, ys)
     clearance = np.full(len(q), np.inf)
-    buried = np.zeros(len(q), dtype=bool)
     for o in obstacles:
         if o.motion is not None:  # where it is changes: not measured
             continue
@@ -241,14 +261,15 @@ def gauge_support(tank, obstacles, points, H: float) -> np.ndarray:
             lo, hi = o.bounds
             depth = np.minimum(q - lo, hi - q).min(axis=1)  # how deep inside the box (negative: outside)
             outside = np.linalg.norm(np.maximum(np.maximum(lo - q, q - hi), 0.0), axis=1)
-            clearance = np.minimum(clearance, np.where(depth > 0.0, -depth, outside))
+            solid |= depth >= 0.0  # its faces too: boxes that touch make one solid
+            clearance = np.minimum(clearance, outside)
         elif isinstance(o, Sphere):
-            clearance = np.minimum(clearance, np.linalg.norm(q - np.asarray(o.center), axis=1) - o.radius)
+            distance = np.linalg.norm(q - np.asarray(o.center), axis=1) - o.radius
+            solid |= distance <= 0.0
+            clearance = np.minimum(clearance, np.maximum(distance, 0.0))
         else:
             lo, hi = o.bounds
-            near = np.all((q > lo - H) & (q < hi + H), axis=1)
-            if near.any():
-                buried[np.flatnonzero(near)[contains(o, q[near])]] = True
+            if lo[0] - H < x < hi[0] + H and lo[2] - H < z < hi[2] + H:
+                solid |= column_inside(o, x, z, ys)
     share *= np.where(clearance >= H, 1.0, plane_share(np.minimum(clearance, H), H))
-    share[buried] = 0.0
-    return share
+    return np.where(solid, 0.0, np.maximum(share, SOLID_SHARE))

@@ -101,16 +101,10 @@ class ProbeSampler:
             device=dev,
         )
         self.phi = wp.zeros(max(1, len(self.levels) * self.samples), dtype=wp.float64, device=dev)
-        # each gauge point's share of the kernel's support on the liquid's side of the walls
+        # each gauge point's share of the kernel's support on the liquid's side of the walls (0: solid)
         heights = (np.arange(self.samples) + 0.5) * self.dy
-        columns = [
-            np.column_stack(
-                [np.full(self.samples, g.position[0]), g.bottom + heights, np.full(self.samples, g.position[1])]
-            )
-            for g in self.levels
-        ]
-        share = gauge_support(scene.tank, scene.obstacles, np.concatenate(columns) if columns else np.zeros((0, 3)), H)
-        self.support = wp.array(np.concatenate([share, [1.0]])[: max(1, len(share))], dtype=wp.float64, device=dev)
+        share = [gauge_support(scene.tank, scene.obstacles, *g.position, g.bottom + heights, H) for g in self.levels]
+        self.support = wp.array(np.concatenate(share) if share else np.ones(1), dtype=wp.float64, device=dev)
         index = {p.name: obstacle_index(p.obstacle, scene.obstacles, p.name) for p in self.forces}
         obstacles = list(dict.fromkeys(index.values()))  # each measured obstacle once
         refs = {}  # an obstacle's moments are summed about its first probe's point

@@ -8,15 +8,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..run.folder import RECORD, RunError, RunFolder
+from ..run.folder import RECORD, VIEW_FILES, RunError, RunFolder
 
 
 def view_file(run: RunFolder, out, default: str, suffixes: tuple[str, ...], what: str, note: str = "") -> Path:
     """Where a view of ``run`` writes: ``out`` as given (``--out``; ``None``: ``RUN_DIR/default``).
     ``RunError`` naming ``--out`` when it is empty, a folder, not ending in one of ``suffixes``
     (in any case; ``note`` says more of them), one of the run's own files or in a folder of its
-    frames (``what``: the view, as the refusal names it), another run folder's own view of that
-    name (``default`` in it), under a file instead of a folder, or in
+    frames (``what``: the view, as the refusal names it), another run folder's own files, views
+    (:data:`~warp_iisph.run.folder.VIEW_FILES`) or frame folders, under a file instead of a folder, or in
     a folder this process may not write to. Nothing is written."""
     allowed = ", ".join(suffixes) + (f" ({note})" if note else "")
     if out is not None and not str(out):
@@ -28,8 +28,13 @@ def view_file(run: RunFolder, out, default: str, suffixes: tuple[str, ...], what
         raise RunError(f"--out {path}: must end in {allowed}")
     if run.holds_as_its_own(path):
         raise RunError(f"--out {path}: one of the run's own files or in its frame folders; put the {what} elsewhere")
-    if path.name == default and (path.parent / RECORD).is_file() and path.parent.resolve() != run.path.resolve():
-        raise RunError(f"--out {path}: where the run in {path.parent} keeps its own {what}; put this run's elsewhere")
+    other = next((f for f in (path.parent, *path.parent.parents) if (f / RECORD).is_file()), None)
+    if other is not None and other.resolve() != run.path.resolve():  # into another run's folder
+        if RunFolder(other).holds_as_its_own(path) or (path.parent == other and path.name in VIEW_FILES):
+            raise RunError(
+                f"--out {path}: one of the run in {other}'s own files or views, or in its frame folders; "
+                f"put this run's {what} elsewhere"
+            )
     parent = path.parent
     while not parent.exists() and parent != parent.parent:  # the folders the writer would make
         parent = parent.parent
