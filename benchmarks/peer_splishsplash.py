@@ -138,9 +138,10 @@ def pressures(sim, method: str, rho: np.ndarray, dt: float) -> np.ndarray:
     return k * rho**2 / rho0
 
 
-def sensor_readings(sim, sensors, h, method: str = "iisph", dt: float = 0.0) -> list:
+def sensor_readings(sim, sensors, h, method: str = "iisph", dt: float = 0.0, scene=None) -> list:
     """Our pressure sensors' and level gauges' readings from the peer's particles now (its
-    pressures, in pascals: :func:`pressures`), in the scene's order."""
+    pressures, in pascals: :func:`pressures`), in the scene's order; the gauges beside ``scene``'s
+    walls as ours (their share of the kernel's support)."""
     from scipy.spatial import cKDTree
 
     from warp_iisph.analysis.sensors import level_readings, pressure_readings
@@ -157,7 +158,8 @@ def sensor_readings(sim, sensors, h, method: str = "iisph", dt: float = 0.0) -> 
         x, p, rho, [s.position for s in pressure], [s.normal for s in pressure], h, fm.getDensity0(), (0, -G, 0), tree
     )
     top = max(x[:, 1].max(), 0.0) + 2 * h
-    heights = level_readings(x, [s.position for s in levels], levels[0].bottom, top, h, tree) if levels else []
+    walls = {"tank": scene.tank, "obstacles": scene.obstacles} if scene is not None else {}
+    heights = level_readings(x, [s.position for s in levels], levels[0].bottom, top, h, tree, **walls) if levels else []
     return [float(v) for v in out] + [float(v) for v in heights]
 
 
@@ -171,7 +173,7 @@ def main():
     args = ap.parse_args()
     import pysplishsplash as sph
 
-    block_lo, obstacles, sensors = np.zeros(3), [], None
+    block_lo, obstacles, sensors, ours = np.zeros(3), [], None, None
     if args.scene == "martin_moyce":
         a = MM_WIDTH
         h = a / args.nx
@@ -253,7 +255,7 @@ def main():
         if sensors is not None and t_now >= state["next_probe"] - 1e-9:  # every 5 ms, as ours are charted
             state["next_probe"] += PROBE_INTERVAL
             dt = sph.TimeManager.getCurrent().getTimeStepSize()  # the step's (set before its solve)
-            state["probes"].append([t_now, *sensor_readings(sim, sensors, h, args.method, dt)])
+            state["probes"].append([t_now, *sensor_readings(sim, sensors, h, args.method, dt, ours)])
         if state["steps"] % 20 == 0:
             fm = sim.getFluidModel(0)
             n = fm.numActiveParticles()
