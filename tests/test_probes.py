@@ -558,7 +558,8 @@ def test_a_level_gauge_reads_the_level_at_a_wall_in_a_corner_and_over_a_still_ob
 
 def test_plot_draws_a_probe_by_its_unit_not_its_name_and_refuses_columns_of_no_probe(tmp_path, capsys, monkeypatch):
     """A pressure sensor may be named like a force probe's viscous column (``air.Fv_x``, dry, all
-    zeros; ``wet.Mv_1``): it is drawn, solid, in the pressure panel (it was left off or dashed); a
+    zeros; ``wet.Mv_1``): it is drawn, solid, in the pressure panel (it was left off or dashed), as
+    is a force probe's pressure part when the probe is named so (``f.Fv_q.Fp_x``); a
     probes.csv with no column in a probe's unit is refused in one line naming it (matplotlib's own
     message came out), a missing one as missing (not as a scene without probes). A force probe's
     obstacle given as a NumPy integer is stored as the file's integer (run.json could not be
@@ -568,6 +569,7 @@ def test_plot_draws_a_probe_by_its_unit_not_its_name_and_refuses_columns_of_no_p
     extra = (
         '[[probes]]\nname = "air.Fv_x"\nkind = "pressure"\nposition = [0.0, 0.45, 0.1]\nnormal = [1.0, 0.0, 0.0]\n'
         '[[probes]]\nname = "wet.Mv_1"\nkind = "pressure"\nposition = [0.0, 0.02, 0.1]\nnormal = [1.0, 0.0, 0.0]\n'
+        '[[probes]]\nname = "f.Fv_q"\nkind = "force"\nobstacle = "block"\n'
     )
     out = tmp_path / "run"
     assert main(["run", str(scene_file(tmp_path, probes=extra)), "--out", str(out), "--duration", "0.05"]) == 0
@@ -582,6 +584,7 @@ def test_plot_draws_a_probe_by_its_unit_not_its_name_and_refuses_columns_of_no_p
     assert main(["plot", str(out)]) == 0
     assert drawn["air.Fv_x"][1] == "-" and drawn["wet.Mv_1"][1] == "-"
     assert drawn["load.Fp_x"][1] == "-" and "load.Fv_x" not in drawn  # free-slip walls: no viscous load
+    assert drawn["f.Fv_q.Fp_x"][1] == "-" and "f.Fv_q.Fv_x" not in drawn  # a force probe named like a part
     capsys.readouterr()
     (out / "probes.csv").write_text("t [s],x [furlong]\n0.1,1\n0.2,2\n")
     assert main(["plot", str(out)]) == 2

@@ -48,8 +48,9 @@ def plot_probes(run_dir, out=None, dpi: int = 110) -> Path:
             if u != unit:
                 continue
             y = rows[:, 1 + k] / (1e3 if unit == "Pa" else 1.0)
-            # a force probe's viscous parts (a pressure sensor or gauge may carry any name)
-            viscous = unit in ("N", "N m") and (".Fv_" in name or ".Mv_" in name)
+            # a force probe's viscous parts, by the column's unit and its last part (NAME.Fv_x): a
+            # probe's own name may hold anything
+            viscous = unit in ("N", "N m") and name.rpartition(".")[2][:3] in ("Fv_", "Mv_")
             if viscous and not y.any():
                 continue  # free-slip walls: no viscous load to draw
             ax.plot(t, y, "--" if viscous else "-", lw=0.9, label=name)
